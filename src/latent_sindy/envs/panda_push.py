@@ -1,0 +1,145 @@
+"""`PandaPushEnv`: the planar pushing task as a gymnasium environment.
+
+One `step` is one whole push u = [p, phi, ell] (DESIGN §2); the observation is the 32x32
+overhead camera image, uint8, channels first. `info` carries the block's true pose and the
+errors to the goal.
+
+    import gymnasium as gym, latent_sindy
+    env = gym.make("latent_sindy/PandaPush-v0")
+    obs, info = env.reset(seed=0, options={"task": "paper"})
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+from latent_sindy.envs.config import PAPER_GOAL, PAPER_START, PushEnvConfig
+from latent_sindy.envs.world import PushWorld, wrap_angle
+
+ACTION_LOW = np.array([-1.0, -math.pi / 2, 0.0], dtype=np.float32)
+ACTION_HIGH = np.array([1.0, math.pi / 2, 1.0], dtype=np.float32)
+_ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
+
+
+class PandaPushEnv(gym.Env):
+    """A Franka Panda pushes a block on a table towards a goal pose, seen from above.
+
+    Reward is the negative distance (m) from block to goal, for RL users; this project's
+    controllers do not use it. `terminated` is true when the block leaves the workspace
+    (grown by `bounds_margin`); success is reported in `info` and does not end the episode.
+    """
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(self, config: PushEnvConfig | None = None, render_mode: str | None = None,
+                 **overrides: Any) -> None:
+        cfg = config or PushEnvConfig()
+        if overrides:
+            cfg = PushEnvConfig.from_dict({**cfg.to_dict(), **overrides})
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
+        self.config = cfg
+        self.render_mode = render_mode
+        s = cfg.image_size
+        self.observation_space = gym.spaces.Box(0, 255, (cfg.channels, s, s), np.uint8)
+        self.action_space = gym.spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        self._world = PushWorld(cfg)
+        self._low = np.array(cfg.workspace_low)
+        self._high = np.array(cfg.workspace_high)
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode.
+
+        options: {"task": "paper"} for the paper's start and goal; {"start": (x, y, theta),
+        "goal": (x, y, theta)} for explicit poses (either may be left out and is then
+        sampled); nothing: both sampled uniformly in the workspace from the seed.
+        """
+        super().reset(seed=seed)
+        options = dict(options or {})
+        task = options.pop("task", None)
+        if task == "paper":
+            options.setdefault("start", PAPER_START)
+            options.setdefault("goal", PAPER_GOAL)
+        elif task not in (None, "random"):
+            raise ValueError(f"task={task!r}: use 'paper' or 'random'")
+        unknown = set(options) - {"start", "goal"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}: use task, start, goal")
+        start = self._pose(options.get("start"), "start")
+        goal = self._pose(options.get("goal"), "goal")
+        self._world.reset(start, goal)
+        return self._world.observe(), self._info()
+
+    def step(self, action):
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action {action!r} must be 3 finite numbers [p, phi, ell]")
+        if np.any(a < ACTION_LOW - _ACTION_SLACK) or np.any(a > ACTION_HIGH + _ACTION_SLACK):
+            raise ValueError(
+                f"action {a.tolist()} is outside the action box "
+                f"[{ACTION_LOW.tolist()}, {ACTION_HIGH.tolist()}]; clip it first")
+        a = np.clip(a, ACTION_LOW, ACTION_HIGH)
+        self._world.push(*a)
+        info = self._info()
+        terminated = not info["in_bounds"]
+        return self._world.observe(), -info["distance"], terminated, False, info
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self._world.render_rgb()
+        return None
+
+    def close(self) -> None:
+        self._world.close()
+
+    # ------------------------------------------------------------------ extras
+    def goal_observation(self) -> np.ndarray:
+        """The image the camera would see with the block resting at the goal pose."""
+        return self._world.observe(self._world.goal_pose)
+
+    def observe(self, pose=None) -> np.ndarray:
+        """The camera image with the block at `pose` (default: its current pose)."""
+        return self._world.observe(pose)
+
+    @property
+    def world(self) -> PushWorld:
+        return self._world
+
+    def sample_pose(self) -> np.ndarray:
+        """A pose uniform in the workspace, from the environment's seeded generator."""
+        return self.np_random.uniform(self._low, self._high)
+
+    def _pose(self, pose, what: str) -> np.ndarray:
+        if pose is None:
+            return self.sample_pose()
+        p = np.asarray(pose, dtype=float).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"{what} pose {pose!r} must be 3 finite numbers (x, y, theta)")
+        return p
+
+    def _info(self) -> dict:
+        cfg = self.config
+        pose = self._world.block_pose()
+        goal = self._world.goal_pose
+        dist = float(np.hypot(*(pose[:2] - goal[:2])))
+        dth = wrap_angle(float(pose[2] - goal[2]))
+        angle_ok = cfg.success_angle_deg is None or abs(math.degrees(dth)) < cfg.success_angle_deg
+        margin = cfg.bounds_margin
+        in_bounds = bool(np.all(pose[:2] >= self._low[:2] - margin)
+                         and np.all(pose[:2] <= self._high[:2] + margin))
+        return {
+            "pose": pose,
+            "goal": goal.copy(),
+            "distance": dist,
+            "angle_error": dth,
+            "is_success": bool(dist < cfg.success_distance and angle_ok),
+            "is_success_strict": bool(dist < cfg.strict_distance
+                                      and abs(math.degrees(dth)) < cfg.strict_angle_deg),
+            "in_bounds": in_bounds,
+        }

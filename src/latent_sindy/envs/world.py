@@ -1,0 +1,293 @@
+"""The PyBullet scene behind :class:`~latent_sindy.envs.panda_push.PandaPushEnv`.
+
+Two physics clients, both headless (DIRECT):
+
+* the *simulation*: Panda arm (``pybullet_data``), table, block and goal marker; every push is
+  simulated here;
+* the *camera world*: table and block only. Observations are rendered here with the block
+  copied to its simulated pose. The arm has retreated out of view before every observation,
+  so the picture is the same (a test checks it pixel for pixel) while TinyRenderer no longer
+  rasterises the arm's meshes, which cost about 80x the rest of the frame.
+
+Free-space arm moves (to the start of a push, and home out of the camera's view afterwards)
+are kinematic resets: they never touch the block, so simulating them would only spend time.
+Everything from just before contact until the pusher has backed off the block is simulated
+at PyBullet's 240 Hz with IK and joint position control, and the block is then left to come
+to rest.
+
+    python -c "from latent_sindy.envs.world import PushWorld; w = PushWorld(); \
+w.reset((0.5, 0, 0), (0.7, 0, 0)); w.push(0, 0, 1); print(w.block_pose())"
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pybullet as pb
+import pybullet_data
+from pybullet_utils.bullet_client import BulletClient
+
+from latent_sindy.envs.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
+
+EE_LINK = 11  # panda_grasptarget: between the fingertips
+ARM_JOINTS = list(range(7))
+FINGER_JOINTS = [9, 10]
+HOME = [0.0, -1.3, 0.0, -2.8, 0.0, 1.6, 0.785]  # folded above the base, out of the camera's view
+JOINT_FORCE = [87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0]  # Panda torque limits (N m)
+
+PUSH_HEIGHT = 0.025  # pusher height above the table: the block's mid-height
+PUSHER_RADIUS = 0.014  # closed fingertips' half-thickness along the push (m)
+APPROACH_GAP = 0.005  # free space left between pusher and block when the push starts (m)
+PUSH_SPEED = 0.25  # m/s cruise speed along the push line
+PUSH_ACCEL = 2.0  # m/s^2 speeding up
+PUSH_DECEL = 0.5  # m/s^2 slowing down: below the block's friction deceleration (0.1 g), so
+#                   the block stops with the pusher instead of sliding on
+IK_EVERY = 4  # simulation steps between IK solutions (joint targets interpolated between)
+RETREAT = (0.02, 0.06)  # back off (m along -push) and lift (m) before leaving
+SETTLE_STEPS = 240  # at most one simulated second for the block to come to rest
+DT = 1.0 / 240.0
+
+TABLE_HALF = (0.6, 0.6, 0.02)
+TABLE_CENTRE = (0.55, 0.0, -0.02)
+TABLE_RGBA = (0.82, 0.80, 0.74, 1.0)
+BLOCK_RGBA = (0.30, 0.45, 0.85, 1.0)
+GOAL_RGBA = (0.10, 0.90, 0.10, 0.4)
+PARKED = (0.0, 0.0, -5.0)  # far below the table: out of every view
+
+
+def wrap_angle(a: float) -> float:
+    """Map an angle to (-pi, pi]."""
+    return -((-a + math.pi) % (2 * math.pi) - math.pi)
+
+
+def _profile(travel: float, speed: float = PUSH_SPEED, accel: float = PUSH_ACCEL,
+             decel: float | None = PUSH_DECEL) -> np.ndarray:
+    """Distance along a path at each simulation step: trapezoidal speed, ends at `travel`.
+
+    `decel=None` stops as hard as it starts (used where no block rides along).
+    """
+    decel = decel or accel
+    v = speed
+    # lower the cruise speed if the path is too short to reach it
+    v = min(v, math.sqrt(2 * travel / (1 / accel + 1 / decel)))
+    t_up, t_down = v / accel, v / decel
+    t_cruise = max(0.0, (travel - v * v / (2 * accel) - v * v / (2 * decel)) / v) if v > 0 else 0
+    total = t_up + t_cruise + t_down
+    t = np.arange(1, max(1, math.ceil(total / DT)) + 1) * DT
+    t = np.minimum(t, total)
+    s = np.where(
+        t < t_up, 0.5 * accel * t**2,
+        np.where(t < t_up + t_cruise, v * t_up / 2 + v * (t - t_up),
+                 travel - 0.5 * decel * np.maximum(total - t, 0.0) ** 2))
+    return np.minimum(s, travel)
+
+
+def _quat(theta: float) -> list[float]:
+    return [0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2)]
+
+
+def _add_table_and_block(c: BulletClient, cfg: PushEnvConfig) -> int:
+    """Table (top at z = 0) and block; returns the block's body id."""
+    c.createMultiBody(
+        0,
+        c.createCollisionShape(pb.GEOM_BOX, halfExtents=TABLE_HALF),
+        c.createVisualShape(pb.GEOM_BOX, halfExtents=TABLE_HALF, rgbaColor=TABLE_RGBA),
+        basePosition=TABLE_CENTRE,
+    )
+    half = [s / 2 for s in BLOCK_SIZE]
+    block = c.createMultiBody(
+        cfg.block_mass,
+        c.createCollisionShape(pb.GEOM_BOX, halfExtents=half),
+        c.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=BLOCK_RGBA),
+        basePosition=[0.5, 0.0, half[2]],
+    )
+    c.changeDynamics(block, -1, lateralFriction=cfg.block_friction)
+    return block
+
+
+class PushWorld:
+    """Panda, table, block and goal marker, simulated and rendered headless."""
+
+    def __init__(self, cfg: PushEnvConfig | None = None) -> None:
+        self.cfg = cfg or PushEnvConfig()
+        self.sim = BulletClient(connection_mode=pb.DIRECT)
+        self.cam = BulletClient(connection_mode=pb.DIRECT)
+        self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
+        self.cam_block = _add_table_and_block(self.cam, self.cfg)
+        self._build()
+        c = self.cfg.camera
+        self._view = self.sim.computeViewMatrixFromYawPitchRoll(
+            c.target, c.distance, c.yaw, c.pitch, 0.0, 2)
+        self._proj = self.sim.computeProjectionMatrixFOV(c.fov, 1.0, c.near, c.far)
+        self.goal_pose = np.array([0.0, 0.0, 0.0])
+        self.sim_steps = 0  # simulated steps since construction, for benchmarks
+
+    def _build(self) -> None:
+        """(Re)create the simulated scene from nothing.
+
+        PyBullet's saveState/restoreState leave the joint motors' warm-start impulses behind,
+        so a restored world does not repeat itself; a rebuilt one does (about 80 ms, mostly
+        loading the Panda).
+        """
+        c = self.sim
+        c.resetSimulation()
+        c.setGravity(0, 0, -9.81)
+        c.setTimeStep(DT)
+        self.block = _add_table_and_block(c, self.cfg)
+        half = [s / 2 for s in BLOCK_SIZE]
+        self.goal = c.createMultiBody(
+            0, -1, c.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=GOAL_RGBA),
+            basePosition=PARKED,
+        )
+        self.arm = c.loadURDF("franka_panda/panda.urdf", useFixedBase=True)
+        info = [c.getJointInfo(self.arm, j) for j in ARM_JOINTS]
+        self._lower = [i[8] for i in info]
+        self._upper = [i[9] for i in info]
+        self._ranges = [u - lo for lo, u in zip(self._lower, self._upper, strict=True)]
+        for j, q in zip(ARM_JOINTS, HOME, strict=True):
+            c.resetJointState(self.arm, j, q)
+        for j in FINGER_JOINTS:
+            c.resetJointState(self.arm, j, 0.0)
+            c.setJointMotorControl2(self.arm, j, pb.POSITION_CONTROL, 0.0, force=40.0)
+        self._hold(HOME)
+
+    # ------------------------------------------------------------------ state
+    def reset(self, start: tuple[float, float, float], goal: tuple[float, float, float]) -> None:
+        """Rebuild the world with the block resting at `start` and the goal marker at `goal`."""
+        self._build()
+        self._set_pose(self.sim, self.block, start)
+        self.goal_pose = np.asarray(goal, dtype=float)
+        self._set_pose(self.sim, self.goal, goal)
+
+    def block_pose(self) -> np.ndarray:
+        """The block's planar pose (x, y, theta), theta in (-pi, pi]."""
+        pos, orn = self.sim.getBasePositionAndOrientation(self.block)
+        return np.array([pos[0], pos[1], self.sim.getEulerFromQuaternion(orn)[2]])
+
+    def close(self) -> None:
+        for c in (self.sim, self.cam):
+            try:
+                c.disconnect()
+            except pb.error:
+                pass
+
+    @staticmethod
+    def _set_pose(c: BulletClient, body: int, pose) -> None:
+        x, y, th = (float(v) for v in pose)
+        c.resetBasePositionAndOrientation(body, [x, y, BLOCK_SIZE[2] / 2], _quat(th))
+        c.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+
+    # ------------------------------------------------------------------ motion
+    def push(self, p: float, phi: float, ell: float) -> None:
+        """Execute one push u = [p, phi, ell] (see DESIGN §2) and let the block come to rest."""
+        x, y, th = self.block_pose()
+        hx, hy = BLOCK_SIZE[0] / 2, BLOCK_SIZE[1] / 2
+        cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the block frame
+        rot = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        contact = np.array([x, y]) + rot @ cl
+        psi = th + phi
+        d = np.array([math.cos(psi), math.sin(psi)])
+        start = contact - d * (PUSHER_RADIUS + APPROACH_GAP)
+        travel = APPROACH_GAP + ell * MAX_PUSH
+        orn = self.sim.getQuaternionFromEuler([math.pi, 0.0, psi])  # fingers across the push
+
+        self._teleport([*start, PUSH_HEIGHT], orn)
+        along = _profile(travel)  # (n,) distance along the push line at each step
+        path = np.column_stack([start + d * along[:, None], np.full(len(along), PUSH_HEIGHT)])
+        self._follow(path, orn)
+        end = start + d * travel
+        back, lift = RETREAT
+        length = math.hypot(back, lift)
+        f = _profile(length, decel=None)[:, None] / length
+        self._follow(np.column_stack([end - d * back * f, PUSH_HEIGHT + lift * f]), orn)
+        self._teleport_joints(HOME)
+        self._settle()
+
+    def _ik(self, pos, orn) -> list[float]:
+        q = self.sim.calculateInverseKinematics(
+            self.arm, EE_LINK, pos, orn, lowerLimits=self._lower, upperLimits=self._upper,
+            jointRanges=self._ranges, restPoses=HOME, maxNumIterations=50,
+            residualThreshold=1e-5)
+        return list(q[:7])
+
+    def _hold(self, q) -> None:
+        self.sim.setJointMotorControlArray(
+            self.arm, ARM_JOINTS, pb.POSITION_CONTROL, targetPositions=q, forces=JOINT_FORCE)
+
+    def _teleport_joints(self, q) -> None:
+        for j, qj in zip(ARM_JOINTS, q, strict=True):
+            self.sim.resetJointState(self.arm, j, qj)
+        self._hold(q)
+
+    def _teleport(self, pos, orn) -> None:
+        # IK from the current configuration converges better in a few rounds
+        for _ in range(3):
+            self._teleport_joints(self._ik(pos, orn))
+
+    def _follow(self, path: np.ndarray, orn) -> None:
+        """Track a Cartesian path (n, 3), one point per simulation step.
+
+        IK runs every IK_EVERY steps; joint targets in between are interpolated, which on
+        these straight millimetre-scale segments differs from per-step IK by far less than
+        the controller's own tracking error and costs a quarter of the time.
+        """
+        q_prev = np.array([s[0] for s in self.sim.getJointStates(self.arm, ARM_JOINTS)])
+        for k0 in range(0, len(path), IK_EVERY):
+            k1 = min(k0 + IK_EVERY, len(path))
+            q_next = np.array(self._ik(path[k1 - 1].tolist(), orn))
+            for k in range(k0, k1):
+                w = (k - k0 + 1) / (k1 - k0)
+                self._hold((q_prev + w * (q_next - q_prev)).tolist())
+                self.sim.stepSimulation()
+            self.sim_steps += k1 - k0
+            q_prev = q_next
+
+    def _settle(self) -> None:
+        for _ in range(SETTLE_STEPS):
+            self.sim.stepSimulation()
+            self.sim_steps += 1
+            v, w = self.sim.getBaseVelocity(self.block)
+            if math.hypot(v[0], v[1]) < 1e-3 and abs(w[2]) < 1e-2:
+                break
+
+    def ee_position(self) -> np.ndarray:
+        return np.array(self.sim.getLinkState(self.arm, EE_LINK)[4])
+
+    # ------------------------------------------------------------------ pictures
+    def observe(self, pose=None) -> np.ndarray:
+        """The camera's image (C, S, S) uint8 with the block at `pose` (default: where it is).
+
+        Rendered in the camera world, so it never disturbs the simulation: `observe(goal)`
+        is the goal image used by control.
+        """
+        pose = self.block_pose() if pose is None else pose
+        self._set_pose(self.cam, self.cam_block, pose)
+        return self._to_obs(self._render(self.cam, self.cfg.image_size))
+
+    def observe_full_scene(self) -> np.ndarray:
+        """The same image rendered in the simulation (arm included, goal marker hidden).
+
+        Slow; exists to check that :meth:`observe` shows exactly what the camera would.
+        """
+        self.sim.resetBasePositionAndOrientation(self.goal, PARKED, [0, 0, 0, 1])
+        try:
+            return self._to_obs(self._render(self.sim, self.cfg.image_size))
+        finally:
+            self._set_pose(self.sim, self.goal, self.goal_pose)
+
+    def render_rgb(self) -> np.ndarray:
+        """A larger (S, S, 3) RGB frame of the whole scene with the goal marker, for people."""
+        return self._render(self.sim, self.cfg.render_size)
+
+    def _render(self, c: BulletClient, size: int) -> np.ndarray:
+        _, _, rgba, _, _ = c.getCameraImage(
+            size, size, self._view, self._proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK)
+        return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[..., :3]
+
+    def _to_obs(self, rgb: np.ndarray) -> np.ndarray:
+        if self.cfg.channels == 3:
+            return np.ascontiguousarray(rgb.transpose(2, 0, 1))
+        gray = rgb.astype(np.float32) @ np.array([0.2989, 0.587, 0.114], dtype=np.float32)
+        return np.clip(np.rint(gray), 0, 255).astype(np.uint8)[None]
