@@ -24,6 +24,9 @@ PAPER_GOAL = (0.7, 0.0, 0.0)
 BLOCK_SIZE = (0.1, 0.1, 0.05)  # metres: length (block x), width (block y), height
 MAX_PUSH = 0.1  # metres: push length at ell = 1
 CONTACT_SPAN = 0.95  # p = +-1 reaches this fraction of the half-width
+#: The action box of u = [p, phi, ell].
+ACTION_LOW = (-1.0, -math.pi / 2, 0.0)
+ACTION_HIGH = (1.0, math.pi / 2, 1.0)
 
 
 @dataclass(frozen=True)
@@ -60,9 +63,12 @@ class PushEnvConfig:
     """Lower corner (x, y, theta) of the region start and goal poses are sampled from."""
     workspace_high: tuple[float, float, float] = (0.7, 0.35, math.pi / 2)
     """Upper corner (x, y, theta) of the sampling region."""
-    bounds_margin: float = 0.1
-    """The episode ends when the block leaves the sampling region grown by this margin (m).
-    The margin keeps goals on the region's edge (the paper's x = 0.7) reachable."""
+    bounds_low: tuple[float, float] = (0.25, -0.4)
+    """The episode ends when the block's (x, y) leaves [bounds_low, bounds_high]: the part
+    of the table the camera sees (|y| < 0.4) and the arm reaches (x < 0.8). It is wider than
+    the sampling region so that goals on its edge (the paper's x = 0.7) stay reachable."""
+    bounds_high: tuple[float, float] = (0.8, 0.4)
+    """Upper corner (x, y) of the in-bounds region."""
     success_distance: float = 0.1
     """Course success criterion: block position within this distance of the goal (m)."""
     success_angle_deg: float | None = None
@@ -85,6 +91,11 @@ class PushEnvConfig:
         for lo, hi in zip(self.workspace_low, self.workspace_high, strict=True):
             if not lo < hi:
                 raise UserError(f"workspace_low {self.workspace_low} must lie below workspace_high")
+        for lo, hi, wlo, whi in zip(self.bounds_low, self.bounds_high, self.workspace_low,
+                                    self.workspace_high, strict=False):
+            if not lo <= wlo < whi <= hi:
+                raise UserError(f"bounds {self.bounds_low}..{self.bounds_high} must contain the "
+                                f"workspace {self.workspace_low}..{self.workspace_high}")
         if self.success_distance <= 0 or self.strict_distance <= 0:
             raise UserError("success distances must be positive")
 

@@ -18,11 +18,12 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+from latent_sindy.envs import config as C
 from latent_sindy.envs.config import PAPER_GOAL, PAPER_START, PushEnvConfig
 from latent_sindy.envs.world import PushWorld, wrap_angle
 
-ACTION_LOW = np.array([-1.0, -math.pi / 2, 0.0], dtype=np.float32)
-ACTION_HIGH = np.array([1.0, math.pi / 2, 1.0], dtype=np.float32)
+ACTION_LOW = np.array(C.ACTION_LOW, dtype=np.float32)
+ACTION_HIGH = np.array(C.ACTION_HIGH, dtype=np.float32)
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
 
 
@@ -31,7 +32,7 @@ class PandaPushEnv(gym.Env):
 
     Reward is the negative distance (m) from block to goal, for RL users; this project's
     controllers do not use it. `terminated` is true when the block leaves the workspace
-    (grown by `bounds_margin`); success is reported in `info` and does not end the episode.
+    (`bounds_low`..`bounds_high`); success is reported in `info` and does not end the episode.
     """
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -85,7 +86,7 @@ class PandaPushEnv(gym.Env):
                 f"action {a.tolist()} is outside the action box "
                 f"[{ACTION_LOW.tolist()}, {ACTION_HIGH.tolist()}]; clip it first")
         a = np.clip(a, ACTION_LOW, ACTION_HIGH)
-        self._world.push(*a)
+        self._world.push(*a)  # a push out of the arm's reach is skipped: info["push_executed"]
         info = self._info()
         terminated = not info["in_bounds"]
         return self._world.observe(), -info["distance"], terminated, False, info
@@ -130,9 +131,7 @@ class PandaPushEnv(gym.Env):
         dist = float(np.hypot(*(pose[:2] - goal[:2])))
         dth = wrap_angle(float(pose[2] - goal[2]))
         angle_ok = cfg.success_angle_deg is None or abs(math.degrees(dth)) < cfg.success_angle_deg
-        margin = cfg.bounds_margin
-        in_bounds = bool(np.all(pose[:2] >= self._low[:2] - margin)
-                         and np.all(pose[:2] <= self._high[:2] + margin))
+        in_bounds = bool(np.all(pose[:2] >= cfg.bounds_low) and np.all(pose[:2] <= cfg.bounds_high))
         return {
             "pose": pose,
             "goal": goal.copy(),
@@ -142,4 +141,5 @@ class PandaPushEnv(gym.Env):
             "is_success_strict": bool(dist < cfg.strict_distance
                                       and abs(math.degrees(dth)) < cfg.strict_angle_deg),
             "in_bounds": in_bounds,
+            "push_executed": self._world.last_push_executed,
         }

@@ -21,7 +21,11 @@ w.reset((0.5, 0, 0), (0.7, 0, 0)); w.push(0, 0, 1); print(w.block_pose())"
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import math
+import os
+import sys
 
 import numpy as np
 import pybullet as pb
@@ -29,6 +33,30 @@ import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
 
 from latent_sindy.envs.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence what PyBullet's C code prints when it connects ("argv[0]=")."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, ValueError, OSError):  # stdout replaced (e.g. captured): nothing to do
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(fd)
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, fd)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(Exception):
+            ctypes.CDLL(None).fflush(None)
+        os.dup2(saved, fd)
+        os.close(saved)
+        os.close(null)
+
+
 
 EE_LINK = 11  # panda_grasptarget: between the fingertips
 ARM_JOINTS = list(range(7))
@@ -45,6 +73,7 @@ PUSH_DECEL = 0.5  # m/s^2 slowing down: below the block's friction deceleration 
 #                   the block stops with the pusher instead of sliding on
 IK_EVERY = 4  # simulation steps between IK solutions (joint targets interpolated between)
 RETREAT = (0.02, 0.06)  # back off (m along -push) and lift (m) before leaving
+START_TOLERANCE = 0.005  # m: IK error beyond which a push start counts as out of reach
 SETTLE_STEPS = 240  # at most one simulated second for the block to come to rest
 DT = 1.0 / 240.0
 
@@ -111,8 +140,9 @@ class PushWorld:
 
     def __init__(self, cfg: PushEnvConfig | None = None) -> None:
         self.cfg = cfg or PushEnvConfig()
-        self.sim = BulletClient(connection_mode=pb.DIRECT)
-        self.cam = BulletClient(connection_mode=pb.DIRECT)
+        with _quiet_stdout():
+            self.sim = BulletClient(connection_mode=pb.DIRECT)
+            self.cam = BulletClient(connection_mode=pb.DIRECT)
         self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
         self.cam_block = _add_table_and_block(self.cam, self.cfg)
         self._build()
@@ -121,6 +151,7 @@ class PushWorld:
             c.target, c.distance, c.yaw, c.pitch, 0.0, 2)
         self._proj = self.sim.computeProjectionMatrixFOV(c.fov, 1.0, c.near, c.far)
         self.goal_pose = np.array([0.0, 0.0, 0.0])
+        self.last_push_executed = True
         self.sim_steps = 0  # simulated steps since construction, for benchmarks
 
     def _build(self) -> None:
@@ -156,6 +187,7 @@ class PushWorld:
     def reset(self, start: tuple[float, float, float], goal: tuple[float, float, float]) -> None:
         """Rebuild the world with the block resting at `start` and the goal marker at `goal`."""
         self._build()
+        self.last_push_executed = True
         self._set_pose(self.sim, self.block, start)
         self.goal_pose = np.asarray(goal, dtype=float)
         self._set_pose(self.sim, self.goal, goal)
@@ -166,11 +198,10 @@ class PushWorld:
         return np.array([pos[0], pos[1], self.sim.getEulerFromQuaternion(orn)[2]])
 
     def close(self) -> None:
-        for c in (self.sim, self.cam):
-            try:
-                c.disconnect()
-            except pb.error:
-                pass
+        with _quiet_stdout():
+            for c in (self.sim, self.cam):
+                with contextlib.suppress(pb.error):
+                    c.disconnect()
 
     @staticmethod
     def _set_pose(c: BulletClient, body: int, pose) -> None:
@@ -193,6 +224,12 @@ class PushWorld:
         orn = self.sim.getQuaternionFromEuler([math.pi, 0.0, psi])  # fingers across the push
 
         self._teleport([*start, PUSH_HEIGHT], orn)
+        self.last_push_executed = self._can_start_at(start)
+        if not self.last_push_executed:
+            # out of the arm's reach, or the arm would have to pass through the block: the
+            # robot does not attempt it and the block stays where it is
+            self._teleport_joints(HOME)
+            return
         along = _profile(travel)  # (n,) distance along the push line at each step
         path = np.column_stack([start + d * along[:, None], np.full(len(along), PUSH_HEIGHT)])
         self._follow(path, orn)
@@ -203,6 +240,13 @@ class PushWorld:
         self._follow(np.column_stack([end - d * back * f, PUSH_HEIGHT + lift * f]), orn)
         self._teleport_joints(HOME)
         self._settle()
+
+    def _can_start_at(self, start: np.ndarray) -> bool:
+        """Did the teleport reach the push's start, with the arm clear of the block?"""
+        if np.linalg.norm(self.ee_position()[:2] - start) > START_TOLERANCE:
+            return False
+        self.sim.performCollisionDetection()
+        return all(c[8] > -1e-3 for c in self.sim.getContactPoints(self.arm, self.block))
 
     def _ik(self, pos, orn) -> list[float]:
         q = self.sim.calculateInverseKinematics(
@@ -279,6 +323,15 @@ class PushWorld:
     def render_rgb(self) -> np.ndarray:
         """A larger (S, S, 3) RGB frame of the whole scene with the goal marker, for people."""
         return self._render(self.sim, self.cfg.render_size)
+
+    def world_to_pixel(self, xyz) -> np.ndarray:
+        """(row, col) of a world point in the observation image (float, pixel units)."""
+        view = np.array(self._view).reshape(4, 4).T  # PyBullet matrices are column-major
+        proj = np.array(self._proj).reshape(4, 4).T
+        clip = proj @ view @ np.array([*xyz, 1.0])
+        ndc = clip[:3] / clip[3]
+        s = self.cfg.image_size
+        return np.array([(1 - ndc[1]) / 2 * s - 0.5, (ndc[0] + 1) / 2 * s - 0.5])
 
     def _render(self, c: BulletClient, size: int) -> np.ndarray:
         _, _, rgba, _, _ = c.getCameraImage(

@@ -1,0 +1,236 @@
+"""Collect random-push trajectories in parallel, resumably, into a trajectory file.
+
+Trajectory i depends only on (seed, i): its start pose and its actions come from
+``numpy.random.default_rng([seed, i, attempt])``, so the data set is the same whatever the
+number of workers and however often the collection was interrupted. A trajectory whose
+block leaves the workspace is discarded and drawn again (attempt + 1).
+
+While it runs, finished trajectories are kept one file each in ``OUT.partial/`` (each
+written to a temporary name and renamed, so none is ever half-written). When all are in,
+they are assembled into ``OUT`` (again through a temporary file) and the folder is removed.
+Killed at any moment, the command can be re-run as it was and completes what is missing.
+
+    latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
+from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.errors import UserError
+
+MAX_ATTEMPTS = 50
+
+
+@dataclass(frozen=True)
+class CollectionPlan:
+    """What to collect; two runs with equal plans produce identical files."""
+
+    trajectories: int = 200
+    steps: int = 10
+    seed: int = 0
+    val_fraction: float = 0.25
+    test_fraction: float = 0.25
+    env: PushEnvConfig = field(default_factory=PushEnvConfig)
+
+    def __post_init__(self) -> None:
+        if self.trajectories < 1:
+            raise UserError(f"--trajectories {self.trajectories}: collect at least 1")
+        if self.steps < 1:
+            raise UserError(f"--steps {self.steps}: each trajectory needs at least 1 push")
+        if self.seed < 0:
+            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
+        for name, v in (("val", self.val_fraction), ("test", self.test_fraction)):
+            if not 0.0 <= v < 1.0:
+                raise UserError(f"--{name}-fraction {v}: use a fraction in [0, 1)")
+        if self.split_counts()["train"] < 1:
+            raise UserError(
+                f"--val-fraction {self.val_fraction} and --test-fraction {self.test_fraction} "
+                f"leave no training trajectory out of {self.trajectories}: lower them")
+
+    def split_counts(self) -> dict[str, int]:
+        n_val = round(self.trajectories * self.val_fraction)
+        n_test = round(self.trajectories * self.test_fraction)
+        return {"train": self.trajectories - n_val - n_test, "val": n_val, "test": n_test}
+
+    def split_ids(self) -> np.ndarray:
+        """Contiguous blocks: train, then validation, then test (trajectories are i.i.d.)."""
+        c = self.split_counts()
+        return np.repeat(np.arange(len(SPLITS), dtype=np.uint8), [c[s] for s in SPLITS])
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------- one trajectory
+def collect_one(env, index: int, plan: CollectionPlan) -> dict[str, np.ndarray]:
+    """Roll out trajectory `index` of `plan` in `env` (a PandaPushEnv)."""
+    low, high = np.array(ACTION_LOW), np.array(ACTION_HIGH)
+    for attempt in range(MAX_ATTEMPTS):
+        rng = np.random.default_rng([plan.seed, index, attempt])
+        obs, info = env.reset(seed=int(rng.integers(2**31)))
+        actions = rng.uniform(low, high, size=(plan.steps, 3)).astype(np.float32)
+        images, poses = [obs], [info["pose"]]
+        for a in actions:
+            obs, _, terminated, _, info = env.step(a)
+            images.append(obs)
+            poses.append(info["pose"])
+            if terminated:
+                break
+        else:
+            return {"images": np.stack(images), "actions": actions,
+                    "poses": np.stack(poses).astype(np.float32),
+                    "attempts": np.array(attempt + 1)}
+    raise RuntimeError(f"trajectory {index}: the block left the workspace in all "
+                       f"{MAX_ATTEMPTS} attempts")
+
+
+_worker_env = None
+
+
+def _worker_init(env_config: dict) -> None:
+    global _worker_env
+    from latent_sindy.envs.panda_push import PandaPushEnv
+
+    _worker_env = PandaPushEnv(PushEnvConfig.from_dict(env_config))
+
+
+def _worker_run(job: tuple[int, CollectionPlan]) -> tuple[int, dict]:
+    index, plan = job
+    return index, collect_one(_worker_env, index, plan)
+
+
+# --------------------------------------------------------------------------- the journal
+def _partial_dir(out: Path) -> Path:
+    return out.with_name(out.name + ".partial")
+
+
+def _save_atomic_npz(path: Path, arrays: dict) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
+    os.close(fd)
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _load_done(partial: Path, plan: CollectionPlan) -> dict[int, dict]:
+    """Finished trajectories of an interrupted run; anything unreadable is dropped."""
+    done = {}
+    for f in sorted(partial.glob("traj_*.npz")):
+        try:
+            i = int(f.stem.split("_")[1])
+            with np.load(f, allow_pickle=False) as z:
+                item = {k: z[k] for k in z.files}
+            ok = (0 <= i < plan.trajectories and item["actions"].shape == (plan.steps, 3)
+                  and item["images"].shape[0] == plan.steps + 1)
+        except (ValueError, OSError, KeyError, IndexError):
+            ok = False
+        if ok:
+            done[i] = item
+        else:
+            f.unlink(missing_ok=True)
+    return done
+
+
+def _open_journal(out: Path, plan: CollectionPlan) -> Path:
+    partial = _partial_dir(out)
+    manifest = partial / "plan.json"
+    if partial.exists():
+        try:
+            previous = json.loads(manifest.read_text())
+        except (OSError, ValueError):
+            previous = None
+        if previous is not None and previous != json.loads(json.dumps(plan.to_dict())):
+            raise UserError(
+                f"{partial} holds an interrupted collection with other settings; re-run it "
+                f"with the same settings to finish it, or delete {partial} to start over")
+    partial.mkdir(parents=True, exist_ok=True)
+    tmp = manifest.with_suffix(".tmp")
+    tmp.write_text(json.dumps(plan.to_dict(), indent=1))
+    os.replace(tmp, manifest)
+    return partial
+
+
+# --------------------------------------------------------------------------- the command
+def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
+            progress: Callable[[Iterable, int, int], Iterable] | None = None) -> Path:
+    """Collect `plan` into the trajectory file `out`, resuming an interrupted run.
+
+    `progress(iterable, total, initial)` wraps the stream of finished trajectories (a
+    progress bar); None shows nothing. Returns the path of the finished file.
+    """
+    out = Path(out)
+    if workers < 1:
+        raise UserError(f"--workers {workers}: use 1 or more worker processes")
+    if out.exists():
+        try:
+            existing = read_trajectories(out)
+        except UserError as e:
+            raise UserError(f"--out {out} exists and is not a usable trajectory file ({e}); "
+                            "delete it or choose another --out") from e
+        if existing.collection.get("plan") == json.loads(json.dumps(plan.to_dict())):
+            return out  # already complete
+        raise UserError(f"{out} already exists with other collection settings; choose another "
+                        "--out or delete the file")
+    if out.suffix not in (".h5", ".hdf5"):
+        raise UserError(f"--out {out}: trajectory files end in .h5")
+    partial = _open_journal(out, plan)
+    done = _load_done(partial, plan)
+    todo = [i for i in range(plan.trajectories) if i not in done]
+
+    results = _run(todo, plan, workers)
+    if progress is not None:
+        results = progress(results, plan.trajectories, len(done))
+    for i, item in results:
+        _save_atomic_npz(partial / f"traj_{i:06d}.npz", item)
+        done[i] = item
+
+    order = range(plan.trajectories)
+    data = Trajectories(
+        images=np.stack([done[i]["images"] for i in order]),
+        actions=np.stack([done[i]["actions"] for i in order]),
+        poses=np.stack([done[i]["poses"] for i in order]),
+        split_ids=plan.split_ids(),
+        env_config=plan.env,
+        seed=plan.seed,
+        collection={"plan": plan.to_dict(),
+                    "attempts": [int(done[i]["attempts"]) for i in order]},
+        source=str(out),
+    )
+    write_trajectories(out, data)
+    shutil.rmtree(partial, ignore_errors=True)
+    return out
+
+
+def _run(todo: list[int], plan: CollectionPlan, workers: int):
+    """Yield (index, trajectory) as they finish, in-process or from worker processes."""
+    if not todo:
+        return
+    if workers == 1:
+        from latent_sindy.envs.panda_push import PandaPushEnv
+
+        env = PandaPushEnv(plan.env)
+        try:
+            for i in todo:
+                yield i, collect_one(env, i, plan)
+        finally:
+            env.close()
+        return
+    ctx = mp.get_context("spawn")  # fresh interpreters: no inherited PyBullet or torch state
+    with ctx.Pool(min(workers, len(todo)), initializer=_worker_init,
+                  initargs=(plan.env.to_dict(),)) as pool:
+        yield from pool.imap_unordered(_worker_run, [(i, plan) for i in todo])

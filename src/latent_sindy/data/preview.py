@@ -1,0 +1,50 @@
+"""A picture of a trajectory file: a grid of camera images, one row per trajectory.
+
+    latent-sindy preview data/push.h5 --out data/push.png
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from latent_sindy.data.store import SPLITS, Trajectories
+
+
+def save_preview(data: Trajectories, out: str | os.PathLike, rows: int = 6) -> Path:
+    """Save a PNG grid of the first `rows` trajectories (every frame) with the true poses."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = max(1, min(rows, data.n))
+    cols = data.steps + 1
+    fig, axes = plt.subplots(rows, cols, figsize=(1.1 * cols, 1.25 * rows), squeeze=False)
+    for r in range(rows):
+        for t in range(cols):
+            ax = axes[r, t]
+            img = data.images[r, t]  # (C, S, S)
+            if img.shape[0] == 1:
+                ax.imshow(img[0], cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+            else:
+                ax.imshow(np.moveaxis(img, 0, -1), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            x, y = data.poses[r, t, :2]
+            ax.set_xlabel(f"{x:.2f},{y:.2f}", fontsize=6, labelpad=1)
+            if r == 0:
+                ax.set_title(f"t={t}", fontsize=7)
+        axes[r, 0].set_ylabel(f"#{r} {SPLITS[data.split_ids[r]]}", fontsize=7)
+    fig.suptitle(f"{Path(data.source).name}: first {rows} of {data.n} trajectories "
+                 "(labels: block x, y in m)", fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, out)
+    return out
