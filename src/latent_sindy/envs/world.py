@@ -66,7 +66,7 @@ JOINT_FORCE = [87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0]  # Panda torque limits 
 
 PUSH_HEIGHT = 0.025  # pusher height above the table: the block's mid-height
 PUSHER_RADIUS = 0.014  # closed fingertips' half-thickness along the push (m)
-APPROACH_GAP = 0.005  # free space left between pusher and block when the push starts (m)
+APPROACH_GAPS = (0.005, 0.015, 0.03, 0.05)  # free space before contact at the push's start (m)
 PUSH_SPEED = 0.25  # m/s cruise speed along the push line
 PUSH_ACCEL = 2.0  # m/s^2 speeding up
 PUSH_DECEL = 0.5  # m/s^2 slowing down: below the block's friction deceleration (0.1 g), so
@@ -219,17 +219,21 @@ class PushWorld:
         contact = np.array([x, y]) + rot @ cl
         psi = th + phi
         d = np.array([math.cos(psi), math.sin(psi)])
-        start = contact - d * (PUSHER_RADIUS + APPROACH_GAP)
-        travel = APPROACH_GAP + ell * MAX_PUSH
         orn = self.sim.getQuaternionFromEuler([math.pi, 0.0, psi])  # fingers across the push
-
-        self._teleport([*start, PUSH_HEIGHT], orn)
-        self.last_push_executed = self._can_start_at(start)
-        if not self.last_push_executed:
-            # out of the arm's reach, or the arm would have to pass through the block: the
-            # robot does not attempt it and the block stays where it is
+        # Start just behind the contact point; at steep angles a finger's side would be
+        # inside the block there, so back off along the push line until the arm is clear.
+        for gap in APPROACH_GAPS:
+            start = contact - d * (PUSHER_RADIUS + gap)
+            self._teleport([*start, PUSH_HEIGHT], orn)
+            if self._can_start_at(start):
+                break
+        else:
+            # out of the arm's reach: the robot does not attempt it, the block stays put
+            self.last_push_executed = False
             self._teleport_joints(HOME)
             return
+        self.last_push_executed = True
+        travel = self._distance_to_touch(d, gap) + ell * MAX_PUSH  # ell counts from first touch
         along = _profile(travel)  # (n,) distance along the push line at each step
         path = np.column_stack([start + d * along[:, None], np.full(len(along), PUSH_HEIGHT)])
         self._follow(path, orn)
@@ -247,6 +251,20 @@ class PushWorld:
             return False
         self.sim.performCollisionDetection()
         return all(c[8] > -1e-3 for c in self.sim.getContactPoints(self.arm, self.block))
+
+    def _distance_to_touch(self, d: np.ndarray, gap: float) -> float:
+        """How far the hand can move along `d` before it first touches the block.
+
+        From the closest points between each arm link and the block: a gap `dist` closes
+        at rate -n.d per metre moved, n the block's surface normal there.
+        """
+        best = gap
+        for c in self.sim.getClosestPoints(self.arm, self.block, distance=0.1):
+            n = np.array(c[7][:2])  # contact normal on the block, pointing to the arm
+            rate = -float(n @ d)
+            if rate > 0.1:
+                best = min(best, max(0.0, c[8]) / rate)
+        return best
 
     def _ik(self, pos, orn) -> list[float]:
         q = self.sim.calculateInverseKinematics(

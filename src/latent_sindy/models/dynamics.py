@@ -1,0 +1,331 @@
+"""Latent dynamics models behind one interface: SINDy, globally linear (E2C-like) and MLP.
+
+Every model is a ``torch.nn.Module`` with ``step(z, u) -> z_next`` on batched tensors and a
+shared ``rollout``, so MPPI, evaluation and figures never ask which model they hold.
+Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p library terms.
+
+    >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
+    >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
+    >>> fast = model.compile_sparse()  # same step, only the active library terms
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import torch
+from torch import nn
+
+from latent_sindy.sindy.library import CandidateLibrary, LibrarySubset
+
+__all__ = [
+    "DYNAMICS_KINDS",
+    "LatentDynamics",
+    "LinearDynamics",
+    "MlpDynamics",
+    "SindyDynamics",
+    "SparseSindyDynamics",
+    "make_dynamics",
+]
+
+
+class LatentDynamics(nn.Module):
+    """Base class: a discrete-time latent model ``z_{t+1} = f(z_t, u_t)``.
+
+    Subclasses implement :meth:`step`; :meth:`rollout` is shared. ``kind`` names the model in
+    :data:`DYNAMICS_KINDS`, and :meth:`hparams` returns the constructor arguments, so
+    ``make_dynamics(m.kind, **m.hparams())`` rebuilds an untrained copy of ``m``.
+    """
+
+    kind: ClassVar[str] = ""
+
+    def __init__(self, nz: int, nu: int) -> None:
+        super().__init__()
+        if nz < 1 or nu < 0:
+            raise ValueError(f"need nz >= 1 and nu >= 0, got nz={nz}, nu={nu}")
+        self.nz = nz
+        self.nu = nu
+
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """One step: z (K, nz), u (K, nu) -> z_next (K, nz)."""
+        raise NotImplementedError
+
+    def forward(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        return self.step(z, u)
+
+    def rollout(self, z0: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Open-loop prediction: z0 (B, nz), actions (B, H, nu) -> (B, H+1, nz), z0 at index 0."""
+        if actions.ndim != 3 or actions.shape[0] != z0.shape[0] or actions.shape[2] != self.nu:
+            raise ValueError(
+                f"rollout expects actions of shape (B={z0.shape[0]}, H, nu={self.nu}), "
+                f"got {tuple(actions.shape)}"
+            )
+        zs = [z0]
+        for t in range(actions.shape[1]):
+            zs.append(self.step(zs[-1], actions[:, t]))
+        return torch.stack(zs, dim=1)  # (B, H+1, nz)
+
+    def hparams(self) -> dict[str, Any]:
+        """Constructor keyword arguments (nz and nu included) that rebuild this model."""
+        return {"nz": self.nz, "nu": self.nu}
+
+
+def _format_coefficient(value: float, precision: int) -> str:
+    """``value`` to ``precision`` significant digits (``g`` format: 0.0312, 1.5, 2e-05)."""
+    return f"{value:.{precision}g}"
+
+
+class SindyDynamics(LatentDynamics):
+    """Residual SINDy step ``z_{t+1} = z_t + Θ(z_t, u_t) (M ⊙ Ψ)``.
+
+    Ψ (p, nz) is a parameter; M (p, nz) is a persistent boolean buffer (part of the state
+    dict) that :meth:`threshold` only ever turns off. Column j of ``M ⊙ Ψ`` holds the
+    coefficients of latent state j.
+
+    Args:
+        nz, nu: latent and action sizes.
+        order: polynomial order of the library (1-4).
+        include_sine, include_cosine: add sin(z_i) / cos(z_i) candidates.
+        init_scale: standard deviation of the normal initialisation of Ψ.
+        seed: seed for that initialisation; None draws from the global torch generator.
+    """
+
+    kind = "sindy"
+    mask: torch.Tensor  # (p, nz) bool
+
+    def __init__(
+        self,
+        nz: int,
+        nu: int,
+        order: int = 2,
+        include_sine: bool = True,
+        include_cosine: bool = False,
+        init_scale: float = 1e-3,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(nz, nu)
+        self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
+        p = self.library.n_terms
+        gen = None if seed is None else torch.Generator().manual_seed(seed)
+        self.psi = nn.Parameter(torch.randn(p, nz, generator=gen) * init_scale)  # (p, nz)
+        self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
+        self._init = {
+            "order": order,
+            "include_sine": include_sine,
+            "include_cosine": include_cosine,
+            "init_scale": init_scale,
+            "seed": seed,
+        }
+
+    @property
+    def names(self) -> list[str]:
+        """Library term names, one per row of Ψ."""
+        return self.library.names
+
+    def hparams(self) -> dict[str, Any]:
+        return {**super().hparams(), **self._init}
+
+    def coefficients(self) -> torch.Tensor:
+        """The effective coefficients M ⊙ Ψ: (p, nz)."""
+        return self.psi * self.mask
+
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        theta = self.library(z, u)  # (K, p)
+        return z + theta @ self.coefficients()  # (K, nz)
+
+    @torch.no_grad()
+    def threshold(self, tau: float) -> int:
+        """Prune active coefficients with ``|Ψ| < tau``; return how many were newly pruned.
+
+        Compares magnitudes, so negative coefficients are judged like positive ones. The mask
+        only goes from on to off; pruned entries of Ψ are set to 0.
+        """
+        if tau < 0 or math.isnan(tau):
+            raise ValueError(f"threshold tau must be a non-negative number, got {tau}")
+        newly = self.mask & (self.psi.abs() < tau)
+        self.mask &= ~newly
+        self.psi.masked_fill_(~self.mask, 0.0)
+        return int(newly.sum())
+
+    def l1_penalty(self) -> torch.Tensor:
+        """‖M ⊙ Ψ‖₁, a scalar tensor with gradient."""
+        return self.coefficients().abs().sum()
+
+    def n_active(self) -> int:
+        """Number of active (unmasked) coefficients."""
+        return int(self.mask.sum())
+
+    def sparsity(self) -> float:
+        """Fraction of coefficients pruned by the mask (the paper's "sparsity")."""
+        return 1.0 - self.n_active() / self.mask.numel()
+
+    def active_terms(self) -> torch.Tensor:
+        """Indices of library terms active in at least one state: (p_active,) long."""
+        return self.mask.any(dim=1).nonzero().flatten()
+
+    @torch.no_grad()
+    def coefficient_table(self) -> list[tuple[str, str, float]]:
+        """Active coefficients as ``(state, term, value)`` rows, by state then library order."""
+        coef = self.coefficients().detach().cpu()
+        names = self.names
+        rows = []
+        for j in range(self.nz):
+            for i in self.mask[:, j].nonzero().flatten().tolist():
+                rows.append((f"z{j}", names[i], float(coef[i, j])))
+        return rows
+
+    def equations(self, precision: int = 3) -> list[str]:
+        """One readable update rule per latent state, active terms only.
+
+        Right-hand variables are at time t, coefficients rounded to ``precision`` significant
+        digits, e.g. ``z0[t+1] = z0 + 0.512 u0 - 0.0312 z1 z2``. The leading ``z0`` is the
+        residual (identity) part of the model and is always there.
+        """
+        per_state: dict[str, list[str]] = {f"z{j}": [] for j in range(self.nz)}
+        for state, term, value in self.coefficient_table():
+            sign = "-" if value < 0 else "+"
+            mag = _format_coefficient(abs(value), precision)
+            per_state[state].append(f"{sign} {mag}" if term == "1" else f"{sign} {mag} {term}")
+        return [" ".join([f"{state}[t+1] = {state}", *parts]) for state, parts in per_state.items()]
+
+    def compile_sparse(self) -> SparseSindyDynamics:
+        """A frozen copy of the current model that evaluates only the active library terms.
+
+        Its ``step`` equals this model's ``step`` to float precision. It holds a snapshot of
+        the coefficients (no gradient): compile again after further training or pruning.
+        """
+        return SparseSindyDynamics(self)
+
+    def extra_repr(self) -> str:
+        return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.mask.numel()}"
+
+
+class SparseSindyDynamics(LatentDynamics):
+    """Fast, frozen SINDy step over the terms active in any state (for control).
+
+    ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
+    C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer.
+    """
+
+    kind = "sindy-sparse"
+    coef: torch.Tensor  # (|S|, nz)
+
+    def __init__(self, model: SindyDynamics) -> None:
+        super().__init__(model.nz, model.nu)
+        terms = model.active_terms()
+        self.library: LibrarySubset = model.library.subset(terms)
+        self.register_buffer("coef", model.coefficients().detach()[terms].clone())
+
+    @property
+    def names(self) -> list[str]:
+        return self.library.names
+
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        return z + self.library(z, u) @ self.coef  # (K, nz)
+
+
+class LinearDynamics(LatentDynamics):
+    """Globally linear latent model ``z_{t+1} = A z_t + B u_t + c`` (the E2C-style baseline).
+
+    A (nz, nz) starts near the identity, B (nz, nu) small, c (nz,) zero.
+    """
+
+    kind = "linear"
+
+    def __init__(self, nz: int, nu: int, init_scale: float = 1e-3, seed: int | None = None) -> None:
+        super().__init__(nz, nu)
+        gen = None if seed is None else torch.Generator().manual_seed(seed)
+        self.A = nn.Parameter(torch.eye(nz) + init_scale * torch.randn(nz, nz, generator=gen))
+        self.B = nn.Parameter(init_scale * torch.randn(nz, nu, generator=gen))
+        self.c = nn.Parameter(torch.zeros(nz))
+        self._init = {"init_scale": init_scale, "seed": seed}
+
+    def hparams(self) -> dict[str, Any]:
+        return {**super().hparams(), **self._init}
+
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        return z @ self.A.T + u @ self.B.T + self.c  # (K, nz)
+
+    @torch.no_grad()
+    def fit_least_squares(
+        self, Z: torch.Tensor, U: torch.Tensor, Znext: torch.Tensor
+    ) -> LinearDynamics:
+        """Set A, B, c to the least-squares fit of Znext ≈ A Z + B U + c; returns self.
+
+        Z (N, nz), U (N, nu), Znext (N, nz); solved in float64.
+        """
+        n = Z.shape[0]
+        if U.shape != (n, self.nu) or Z.shape != (n, self.nz) or Znext.shape != Z.shape:
+            raise ValueError(
+                f"fit_least_squares expects Z, Znext (N, {self.nz}) and U (N, {self.nu}), got "
+                f"{tuple(Z.shape)}, {tuple(Znext.shape)}, {tuple(U.shape)}"
+            )
+        X = torch.cat([Z, U, torch.ones(n, 1, dtype=Z.dtype, device=Z.device)], dim=1)
+        W = torch.linalg.lstsq(X.double().cpu(), Znext.double().cpu()).solution  # (nz+nu+1, nz)
+        W = W.to(self.A.dtype).to(self.A.device)
+        self.A.copy_(W[: self.nz].T)
+        self.B.copy_(W[self.nz : self.nz + self.nu].T)
+        self.c.copy_(W[-1])
+        return self
+
+    @classmethod
+    def from_least_squares(
+        cls, Z: torch.Tensor, U: torch.Tensor, Znext: torch.Tensor
+    ) -> LinearDynamics:
+        """A new model fitted by least squares (see :meth:`fit_least_squares`)."""
+        return cls(Z.shape[1], U.shape[1]).fit_least_squares(Z, U, Znext)
+
+
+class MlpDynamics(LatentDynamics):
+    """Neural latent model ``z_{t+1} = z_t + MLP([z_t, u_t])``.
+
+    ``layers`` hidden layers of width ``hidden`` with SiLU; the output layer starts at a tenth
+    of PyTorch's default scale so the untrained model is close to the identity.
+    """
+
+    kind = "mlp"
+
+    def __init__(self, nz: int, nu: int, hidden: int = 128, layers: int = 2) -> None:
+        super().__init__(nz, nu)
+        if layers < 1 or hidden < 1:
+            raise ValueError(
+                f"MlpDynamics needs layers >= 1 and hidden >= 1, got layers={layers}, "
+                f"hidden={hidden}"
+            )
+        mods: list[nn.Module] = []
+        width = nz + nu
+        for _ in range(layers):
+            mods += [nn.Linear(width, hidden), nn.SiLU()]
+            width = hidden
+        out = nn.Linear(width, nz)
+        with torch.no_grad():
+            out.weight.mul_(0.1)
+            out.bias.zero_()
+        self.net = nn.Sequential(*mods, out)
+        self._init = {"hidden": hidden, "layers": layers}
+
+    def hparams(self) -> dict[str, Any]:
+        return {**super().hparams(), **self._init}
+
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        return z + self.net(torch.cat([z, u], dim=-1))  # (K, nz)
+
+
+DYNAMICS_KINDS: dict[str, type[LatentDynamics]] = {
+    cls.kind: cls for cls in (SindyDynamics, LinearDynamics, MlpDynamics)
+}
+
+
+def make_dynamics(kind: str, nz: int, nu: int, **kwargs: Any) -> LatentDynamics:
+    """Build a latent dynamics model by name: one of ``"sindy"``, ``"linear"``, ``"mlp"``.
+
+    Extra keyword arguments go to the model's constructor (e.g. ``order=3`` for SINDy).
+    """
+    try:
+        cls = DYNAMICS_KINDS[kind]
+    except KeyError:
+        raise ValueError(
+            f"unknown dynamics kind {kind!r}; valid kinds: {', '.join(sorted(DYNAMICS_KINDS))}"
+        ) from None
+    return cls(nz, nu, **kwargs)
