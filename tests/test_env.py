@@ -15,11 +15,9 @@ from latent_sindy.envs.panda_push import PandaPushEnv
 
 
 def push_from(env, start, action):
-    env.reset(seed=0, options={"start": start, "goal": (0.7, 0.0, 0.0)})
-    before = env.unwrapped.world.block_pose() if hasattr(env, "unwrapped") else None
-    obs0 = env.observe()
+    obs0, _ = env.reset(seed=0, options={"start": start, "goal": (0.7, 0.0, 0.0)})
     obs1, _, _, _, info = env.step(np.array(action, dtype=np.float32))
-    return before, info["pose"], obs0, obs1, info
+    return info["pose"], obs0, obs1, info
 
 
 def in_push_frame(start, end, direction):
@@ -32,7 +30,7 @@ def in_push_frame(start, end, direction):
 @pytest.mark.parametrize("theta", [0.0, 0.7, -1.2])
 def test_centred_push_moves_block_forward_by_push_length(env, theta):
     start = (0.5, 0.05, theta)
-    _, end, _, _, info = push_from(env, start, (0.0, 0.0, 1.0))
+    end, _, _, info = push_from(env, start, (0.0, 0.0, 1.0))
     forward, lateral = in_push_frame(start, end, theta)
     assert info["push_executed"]
     assert 0.08 < forward < 0.12  # ell = 1 is 0.1 m
@@ -42,15 +40,15 @@ def test_centred_push_moves_block_forward_by_push_length(env, theta):
 
 def test_half_push_moves_about_half_as_far(env):
     start = (0.5, 0.0, 0.0)
-    _, end, _, _, _ = push_from(env, start, (0.0, 0.0, 0.5))
+    end, _, _, _ = push_from(env, start, (0.0, 0.0, 0.5))
     forward, _ = in_push_frame(start, end, 0.0)
     assert 0.035 < forward < 0.065
 
 
 def test_off_centre_pushes_rotate_in_opposite_directions(env):
     start = (0.5, 0.0, 0.3)
-    _, left, _, _, _ = push_from(env, start, (0.8, 0.0, 1.0))
-    _, right, _, _, _ = push_from(env, start, (-0.8, 0.0, 1.0))
+    left, _, _, _ = push_from(env, start, (0.8, 0.0, 1.0))
+    right, _, _, _ = push_from(env, start, (-0.8, 0.0, 1.0))
     # contact at +y of the block frame turns it clockwise (negative theta), and vice versa
     assert left[2] - 0.3 < -0.2
     assert right[2] - 0.3 > 0.2
@@ -58,7 +56,7 @@ def test_off_centre_pushes_rotate_in_opposite_directions(env):
 
 def test_angled_push_slides_along_the_face(env):
     start = (0.5, 0.0, 0.0)
-    _, end, _, _, _ = push_from(env, start, (0.0, 0.6, 1.0))
+    end, _, _, _ = push_from(env, start, (0.0, 0.6, 1.0))
     d = end[:2] - np.array(start[:2])
     # finger-block friction is low (0.1): the pusher slides along the face, so the block
     # goes mostly along the face normal (+x), drifting a little towards the push (+y)
@@ -68,14 +66,14 @@ def test_angled_push_slides_along_the_face(env):
 
 def test_zero_length_push_leaves_block_in_place(env):
     start = (0.55, -0.1, 0.4)
-    _, end, obs0, obs1, _ = push_from(env, start, (0.3, -0.4, 0.0))
+    end, obs0, obs1, _ = push_from(env, start, (0.3, -0.4, 0.0))
     assert np.allclose(end, start, atol=1e-3)
     assert np.array_equal(obs0, obs1)
 
 
 def test_block_motion_shows_in_the_image(env):
     start = (0.45, 0.0, 0.0)
-    _, end, obs0, obs1, _ = push_from(env, start, (0.0, 0.0, 1.0))
+    end, obs0, obs1, _ = push_from(env, start, (0.0, 0.0, 1.0))
     assert not np.array_equal(obs0, obs1)
 
     def centroid(obs):  # the block is the dark blob on the light table
@@ -130,7 +128,7 @@ def test_leaving_the_workspace_terminates(env):
 
 def test_same_seed_same_trajectory():
     def run(env):
-        obs, info = env.reset(seed=11)
+        obs, _ = env.reset(seed=11)
         out = [obs]
         rng = np.random.default_rng(5)
         for _ in range(3):

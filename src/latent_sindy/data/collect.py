@@ -20,6 +20,7 @@ import multiprocessing as mp
 import os
 import shutil
 import tempfile
+import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -137,7 +138,7 @@ def _load_done(partial: Path, plan: CollectionPlan) -> dict[int, dict]:
                 item = {k: z[k] for k in z.files}
             ok = (0 <= i < plan.trajectories and item["actions"].shape == (plan.steps, 3)
                   and item["images"].shape[0] == plan.steps + 1)
-        except (ValueError, OSError, KeyError, IndexError):
+        except (ValueError, OSError, KeyError, IndexError, zipfile.BadZipFile):
             ok = False
         if ok:
             done[i] = item

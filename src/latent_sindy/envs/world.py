@@ -22,41 +22,13 @@ w.reset((0.5, 0, 0), (0.7, 0, 0)); w.push(0, 0, 1); print(w.block_pose())"
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import math
-import os
-import sys
 
 import numpy as np
-import pybullet as pb
-import pybullet_data
-from pybullet_utils.bullet_client import BulletClient
 
+from latent_sindy.envs._bullet import BulletClient, pybullet_data, quiet_c_output
+from latent_sindy.envs._bullet import pybullet as pb
 from latent_sindy.envs.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
-
-
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence what PyBullet's C code prints when it connects ("argv[0]=")."""
-    try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, ValueError, OSError):  # stdout replaced (e.g. captured): nothing to do
-        yield
-        return
-    sys.stdout.flush()
-    saved = os.dup(fd)
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, fd)
-    try:
-        yield
-    finally:
-        with contextlib.suppress(Exception):
-            ctypes.CDLL(None).fflush(None)
-        os.dup2(saved, fd)
-        os.close(saved)
-        os.close(null)
-
-
 
 EE_LINK = 11  # panda_grasptarget: between the fingertips
 ARM_JOINTS = list(range(7))
@@ -140,7 +112,7 @@ class PushWorld:
 
     def __init__(self, cfg: PushEnvConfig | None = None) -> None:
         self.cfg = cfg or PushEnvConfig()
-        with _quiet_stdout():
+        with quiet_c_output():
             self.sim = BulletClient(connection_mode=pb.DIRECT)
             self.cam = BulletClient(connection_mode=pb.DIRECT)
         self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
@@ -198,7 +170,7 @@ class PushWorld:
         return np.array([pos[0], pos[1], self.sim.getEulerFromQuaternion(orn)[2]])
 
     def close(self) -> None:
-        with _quiet_stdout():
+        with quiet_c_output():
             for c in (self.sim, self.cam):
                 with contextlib.suppress(pb.error):
                     c.disconnect()

@@ -1,0 +1,87 @@
+"""Every command answers by subprocess; bad input is one line on stderr, exit 2, no damage."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from latent_sindy.data.store import write_trajectories
+from synthetic import make_trajectories
+
+
+def run(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "latent_sindy.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def assert_one_line_error(r: subprocess.CompletedProcess, *needles: str) -> None:
+    assert r.returncode == 2, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("latent-sindy: error:"), r.stderr
+    assert "Traceback" not in r.stderr
+    for n in needles:
+        assert n in lines[0]
+
+
+def test_help_lists_commands_and_options():
+    r = run("--help")
+    assert r.returncode == 0
+    for cmd in ("collect", "info", "preview", "demo"):
+        assert cmd in r.stdout
+    r = run("collect", "--help")
+    assert r.returncode == 0 and "--trajectories" in r.stdout and "resum" in r.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--steps", "0"], "--steps 0"),
+        (["--workers", "-2"], "--workers -2"),
+        (["--trajectories", "0"], "--trajectories 0"),
+        (["--channels", "2"], "channels=2"),
+        (["--test-fraction", "-0.1"], "--test-fraction -0.1"),
+    ],
+)
+def test_collect_rejects_impossible_settings(tmp_path, args, needle):
+    out = tmp_path / "d.h5"
+    r = run("collect", "--out", str(out), "--no-progress", *args)
+    assert_one_line_error(r, needle)
+    assert not out.exists()
+
+
+def test_info_on_missing_foreign_and_valid_files(tmp_path):
+    assert_one_line_error(run("info", str(tmp_path / "none.h5")), "does not exist")
+    junk = tmp_path / "junk.h5"
+    junk.write_text("hello")
+    assert_one_line_error(run("info", str(junk)), str(junk), "not an HDF5 file")
+    good = tmp_path / "good.h5"
+    write_trajectories(good, make_trajectories())
+    r = run("info", str(good))
+    assert r.returncode == 0 and "valid latent-sindy trajectory file" in r.stdout
+
+
+def test_collect_does_not_overwrite_a_foreign_file(tmp_path):
+    out = tmp_path / "d.h5"
+    out.write_bytes(b"precious")
+    r = run("collect", "--out", str(out), "--trajectories", "2", "--steps", "1",
+            "--no-progress")
+    assert_one_line_error(r, str(out), "delete it or choose another --out")
+    assert out.read_bytes() == b"precious"
+
+
+def test_collect_info_preview_end_to_end(tmp_path):
+    out = tmp_path / "d.h5"
+    r = run("collect", "--out", str(out), "--trajectories", "3", "--steps", "2",
+            "--workers", "2", "--val-fraction", "0.34", "--test-fraction", "0")
+    assert r.returncode == 0, r.stderr
+    assert "wrote" in r.stdout and out.exists()
+    r = run("collect", "--out", str(out), "--trajectories", "3", "--steps", "2",
+            "--workers", "2", "--val-fraction", "0.34", "--test-fraction", "0")
+    assert r.returncode == 0 and "already complete" in r.stdout
+    r = run("preview", str(out), "--rows", "2")
+    assert r.returncode == 0, r.stderr
+    png = out.with_suffix(".png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert_one_line_error(run("preview", str(out), "--rows", "0"), "--rows 0")

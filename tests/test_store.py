@@ -1,0 +1,134 @@
+"""The trajectory file round-trips and refuses every kind of bad file with one clear line."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from latent_sindy.data.store import (
+    FORMAT,
+    Trajectories,
+    read_trajectories,
+    write_trajectories,
+)
+from latent_sindy.envs.config import PushEnvConfig
+from latent_sindy.errors import UserError
+from synthetic import make_trajectories
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_round_trip(tmp_path, channels):
+    data = make_trajectories(channels=channels)
+    path = tmp_path / "d.h5"
+    write_trajectories(path, data)
+    back = read_trajectories(path)
+    for name in ("images", "actions", "poses", "split_ids"):
+        assert np.array_equal(getattr(back, name), getattr(data, name)), name
+    assert back.images.dtype == np.uint8 and back.actions.dtype == np.float32
+    assert back.env_config == data.env_config and back.seed == data.seed
+    with h5py.File(path) as f:
+        assert f.attrs["format"] == FORMAT
+        assert f.attrs["pixel_mean"] == pytest.approx(data.pixel_stats()[0])
+        assert "package_version" in f.attrs and "created" in f.attrs
+
+
+def test_splits_and_training_statistics(trajectories):
+    assert trajectories.split_counts() == {"train": 2, "val": 2, "test": 2}
+    train = trajectories.split("train")
+    assert train.n == 2 and np.all(train.split_ids == 0)
+    # statistics come from the training split only
+    mean, _ = trajectories.pixel_stats()
+    assert mean == pytest.approx(train.images.astype(float).mean())
+    trajectories.images[trajectories.split_ids == 1] = 0
+    assert trajectories.pixel_stats()[0] == pytest.approx(mean)
+    with pytest.raises(UserError, match="split 'dev'"):
+        trajectories.split("dev")
+
+
+def test_write_is_atomic_and_leaves_no_temporary(tmp_path, trajectories, monkeypatch):
+    path = tmp_path / "d.h5"
+    path.write_bytes(b"previous content")
+
+    def disk_full(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", disk_full)
+    with pytest.raises(OSError, match="disk full"):
+        write_trajectories(path, trajectories)
+    assert path.read_bytes() == b"previous content"
+    assert [p.name for p in tmp_path.iterdir()] == ["d.h5"]
+
+
+def _error(path) -> str:
+    with pytest.raises(UserError) as e:
+        read_trajectories(path)
+    msg = str(e.value)
+    assert "\n" not in msg and str(path) in msg
+    return msg
+
+
+def test_missing_file(tmp_path):
+    assert "does not exist" in _error(tmp_path / "nope.h5")
+
+
+def test_foreign_and_truncated_files(tmp_path, trajectories):
+    junk = tmp_path / "junk.h5"
+    junk.write_bytes(b"\x00not hdf5 at all" * 100)
+    assert "not an HDF5 file" in _error(junk)
+
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["x"] = np.zeros(3)
+    assert "not a latent-sindy trajectory file" in _error(foreign)
+
+    good = tmp_path / "good.h5"
+    write_trajectories(good, trajectories)
+    cut = tmp_path / "cut.h5"
+    raw = good.read_bytes()
+    cut.write_bytes(raw[: len(raw) // 2])
+    msg = _error(cut)
+    assert "re-collect" in msg or "not an HDF5" in msg
+
+
+def _tamper(path, **datasets):
+    with h5py.File(path, "a") as f:
+        for name, value in datasets.items():
+            del f[name]
+            f[name] = value
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (lambda t: {"actions": t.actions[:, :-1]}, "actions have shape"),
+        (lambda t: {"images": t.images.astype(np.float32)}, "images must be uint8"),
+        (lambda t: {"poses": t.poses[:-1]}, "poses have shape"),
+        (lambda t: {"actions": np.where(np.arange(3) == 1, np.nan, t.actions)}, "NaN"),
+        (lambda t: {"actions": t.actions + np.array([0, 0, 2.0], np.float32)}, "outside"),
+        (lambda t: {"split": np.full(t.n, 7, np.uint8)}, "split labels"),
+    ],
+)
+def test_wrong_contents(tmp_path, trajectories, change, expected):
+    path = tmp_path / "d.h5"
+    write_trajectories(path, trajectories)
+    _tamper(path, **change(trajectories))
+    assert expected in _error(path)
+
+
+def test_missing_dataset_and_version(tmp_path, trajectories):
+    path = tmp_path / "d.h5"
+    write_trajectories(path, trajectories)
+    with h5py.File(path, "a") as f:
+        del f["poses"]
+    assert "lacks dataset(s) poses" in _error(path)
+    write_trajectories(path, trajectories)
+    with h5py.File(path, "a") as f:
+        f.attrs["format_version"] = 99
+    assert "format version 99" in _error(path)
+
+
+def test_channels_must_match_recorded_environment():
+    t = make_trajectories(channels=1)
+    with pytest.raises(UserError, match="recorded environment"):
+        Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig(channels=3))
