@@ -7,7 +7,7 @@ Two physics clients, both headless (DIRECT):
 * the *camera world*: table and block only. Observations are rendered here with the block
   copied to its simulated pose. The arm has retreated out of view before every observation,
   so the picture is the same (a test checks it pixel for pixel) while TinyRenderer no longer
-  rasterises the arm's meshes, which cost about 80x the rest of the frame.
+  rasterises the arm's meshes, which cost about 65x the rest of the frame.
 
 Free-space arm moves (to the start of a push, and home out of the camera's view afterwards)
 are kinematic resets: they never touch the block, so simulating them would only spend time.
