@@ -1,0 +1,1 @@
+"""The paper's study and our additions: experiments, figures and the report."""
