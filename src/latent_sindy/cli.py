@@ -3,6 +3,9 @@
     latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
     latent-sindy info data/push.h5
     latent-sindy preview data/push.h5 --out data/push.png
+    latent-sindy train --data data/push.h5 --model sindy --order 2 --horizon 1 --out runs/sindy2
+    latent-sindy equations runs/sindy2
+    latent-sindy control runs/sindy2 --task paper --episodes 1
     latent-sindy demo --out runs/demo
 
 Mistakes a user can fix (a missing file, an impossible setting) end with one line on
@@ -14,13 +17,14 @@ from __future__ import annotations
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
 from latent_sindy.errors import UserError
+from latent_sindy.training import TrainConfig
 
 
 def _progress(desc: str):
@@ -120,6 +124,124 @@ class Preview:
 
 
 @dataclass
+class Train:
+    """Train a latent model (autoencoder + SINDy / linear / MLP dynamics) into a run folder.
+
+    The run folder describes itself (config.json, model.pt with the SINDy mask,
+    checkpoint.pt, metrics.csv, loss.png); every later command needs only the folder.
+    An interrupted run continues with --resume to the same final model.
+    """
+
+    config: Annotated[TrainConfig, tyro.conf.arg(name=""), tyro.conf.OmitArgPrefixes] = field(
+        default_factory=TrainConfig)
+    threads: int = 1
+    """torch CPU threads (1 is fastest when other jobs share the cores)."""
+    progress: bool = True
+    """Show a progress bar."""
+
+    def run(self) -> None:
+        import torch
+
+        from latent_sindy.training import TqdmProgress, train
+
+        if self.threads < 1:
+            raise UserError(f"--threads {self.threads}: use 1 or more")
+        torch.set_num_threads(self.threads)
+        out = train(self.config, TqdmProgress() if self.progress else None)
+        print(f"wrote {out} (config.json, model.pt, metrics.csv, loss.png)")
+
+
+@dataclass
+class Equations:
+    """Print a run's discovered latent equations and export its coefficients (CSV, JSON)."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """Run folder written by `latent-sindy train`."""
+    precision: int = 3
+    """Significant digits shown (the exported files keep full precision)."""
+    export: bool = True
+    """Write RUN/coefficients.csv and RUN/coefficients.json."""
+
+    def run(self) -> None:
+        from latent_sindy.equations import equations_report
+
+        if self.precision < 1:
+            raise UserError(f"--precision {self.precision}: use 1 or more digits")
+        print(equations_report(self.run_dir, export=self.export, precision=self.precision))
+
+
+@dataclass
+class Control:
+    """Push the block to a goal with MPPI in a trained run's latent space (closed loop).
+
+    Writes RUN/control-TASK[-image]/results.json, results.csv and episode GIFs, and prints
+    a summary: success rates (course and strict criteria), steps to goal, planning time.
+    """
+
+    run_dir: tyro.conf.Positional[Path]
+    """Run folder written by `latent-sindy train`."""
+    task: Literal["paper", "random"] = "paper"
+    """paper: start (0.4, 0, 0.2 pi), goal (0.7, 0, 0); random: start and goal from the seed."""
+    episodes: int = 1
+    """Number of episodes."""
+    seed: int = 0
+    """Seeds the random tasks and the controller's noise."""
+    image_space: bool = False
+    """Plan with the cost in image space (decode each predicted latent, compare with the goal
+    image) instead of latent space."""
+    max_steps: int = 20
+    """Pushes allowed per episode (course: 20 latent, 30 image space)."""
+    until: Literal["course", "strict"] = "course"
+    """Stop an episode when this success criterion is met."""
+    samples: int = 100
+    """MPPI samples K (course: 100)."""
+    horizon: int = 10
+    """MPPI horizon H (course: 10)."""
+    sigma: float = 0.1
+    """MPPI noise variance per action dimension (course: 0.1)."""
+    lambda_: Annotated[float, tyro.conf.arg(name="lambda")] = 0.01
+    """MPPI temperature (course: 0.01)."""
+    gif_episodes: int = 1
+    """Save a GIF of the first this many episodes."""
+    out: Path | None = None
+    """Output folder (default: RUN/control-TASK, with -image for image space)."""
+    threads: int = 1
+    """torch CPU threads."""
+    progress: bool = True
+    """Show a progress bar over episodes."""
+
+    def run(self) -> None:
+        import torch
+
+        from latent_sindy.control.closed_loop import ControlSettings, format_summary, run_control
+        from latent_sindy.training import load_run
+
+        settings = ControlSettings(
+            task=self.task, episodes=self.episodes, seed=self.seed,
+            image_space=self.image_space, max_steps=self.max_steps, until=self.until,
+            samples=self.samples, horizon=self.horizon, sigma=self.sigma,
+            lambda_=self.lambda_, gif_episodes=self.gif_episodes)
+        torch.set_num_threads(max(1, self.threads))
+        run = load_run(self.run_dir)
+        out = self.out or self.run_dir / (
+            f"control-{self.task}" + ("-image" if self.image_space else ""))
+        progress = None
+        if self.progress:
+            from tqdm import tqdm
+
+            def progress(it, total):
+                return tqdm(it, total=total, desc="episodes", unit="ep", file=sys.stderr)
+
+        _, summary = run_control(run.model, run.normalizer, run.env_config, settings, out,
+                                 progress)
+        space = "image" if self.image_space else "latent"
+        print(format_summary(summary, f"{self.run_dir} ({run.config.model.kind}), "
+                                      f"{self.task} task, {space}-space MPPI:"))
+        print(f"wrote {out}/results.json, results.csv"
+              + (", episode GIFs" if self.gif_episodes else ""))
+
+
+@dataclass
 class Demo:
     """The main job on its defaults: collect a small data set and write its preview."""
 
@@ -137,7 +259,8 @@ class Demo:
         Preview(data, out=self.out / "data_preview.png").run()
 
 
-COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "demo": Demo}
+COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train,
+            "equations": Equations, "control": Control, "demo": Demo}
 
 
 def main(argv: list[str] | None = None) -> int:

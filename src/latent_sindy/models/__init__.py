@@ -1,10 +1,12 @@
-"""Learned models: latent dynamics (SINDy, linear, MLP) behind one ``step``/``rollout`` interface.
+"""Learned models: latent dynamics (SINDy, linear, MLP) behind one ``step``/``rollout`` interface,
+the image autoencoder, and the latent model joining them with the training loss.
 
 >>> from latent_sindy.models import make_dynamics
 >>> make_dynamics("linear", nz=16, nu=3).step(torch.zeros(8, 16), torch.zeros(8, 3)).shape
 torch.Size([8, 16])
 """
 
+from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
 from latent_sindy.models.dynamics import (
     DYNAMICS_KINDS,
     LatentDynamics,
@@ -14,12 +16,19 @@ from latent_sindy.models.dynamics import (
     SparseSindyDynamics,
     make_dynamics,
 )
+from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 
 __all__ = [
     "DYNAMICS_KINDS",
+    "LOSS_TERMS",
+    "Autoencoder",
+    "AutoencoderConfig",
     "LatentDynamics",
+    "LatentModel",
     "LinearDynamics",
+    "LossWeights",
     "MlpDynamics",
+    "ModelConfig",
     "SindyDynamics",
     "SparseSindyDynamics",
     "make_dynamics",

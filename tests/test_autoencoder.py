@@ -1,0 +1,149 @@
+"""Autoencoder shapes, the latent model's loss terms (eq. 1-4) and its configuration."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+import torch
+
+from latent_sindy.errors import UserError
+from latent_sindy.models import (
+    LOSS_TERMS,
+    Autoencoder,
+    AutoencoderConfig,
+    LatentModel,
+    LossWeights,
+    ModelConfig,
+)
+
+KINDS = ("sindy", "linear", "mlp")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def tiny(kind: str, **kw) -> LatentModel:
+    torch.manual_seed(0)
+    cfg = ModelConfig(
+        kind=kind,
+        latent_dim=4,
+        channels=1,
+        image_size=32,
+        encoder_hidden=16,
+        decoder_hidden=(32,),
+        mlp_hidden=16,
+        **kw,
+    )
+    return LatentModel(cfg)
+
+
+def batch(b: int = 5, h: int = 2, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(b, h + 1, 1, 32, 32, generator=g), torch.rand(b, h, 3, generator=g)
+
+
+@pytest.mark.parametrize(("channels", "size"), [(1, 32), (3, 32), (1, 64)])
+def test_autoencoder_shapes(channels: int, size: int) -> None:
+    ae = Autoencoder(AutoencoderConfig(channels=channels, image_size=size, latent_dim=16))
+    x = torch.randn(2, 3, channels, size, size)
+    z = ae.encode(x)
+    assert z.shape == (2, 3, 16)
+    assert ae.decode(z).shape == x.shape
+    # Leading dimensions are only folded: encoding per frame gives the same latents.
+    torch.testing.assert_close(z[1, 2], ae.encode(x[1, 2][None])[0])
+
+
+def test_course_encoder_sizes() -> None:
+    cfg = AutoencoderConfig()
+    assert cfg.conv_size() == 5  # 32 -> 28 -> 14 -> 10 -> 5: 4 maps x 5 x 5 = 100 features
+    fc = Autoencoder(cfg).encoder.net[7]
+    assert (fc.in_features, fc.out_features) == (100, 100)
+    with pytest.raises(ValueError, match="too small"):
+        AutoencoderConfig(image_size=12)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_loss_matches_equations(kind: str) -> None:
+    """Each term recomputed by hand from encode / rollout / decode, and the weighted sums."""
+    model = tiny(kind)
+    x, u = batch(h=3)
+    w = LossWeights(pred_x=0.7, pred_z=0.3, l1=0.05)
+    terms = model.loss(x, u, w)
+    assert set(terms) == set(LOSS_TERMS)
+    assert all(torch.isfinite(v) and v.ndim == 0 for v in terms.values())
+    z = model.encode(x)  # (B, 4, nz)
+    z_hat = model.rollout_latent(z[:, 0], u)  # (B, 4, nz)
+    torch.testing.assert_close(terms["recon"], ((model.decode(z) - x) ** 2).mean())
+    pred = model.decode(z_hat[:, 1:])
+    torch.testing.assert_close(terms["pred_x"], ((pred - x[:, 1:]) ** 2).mean())
+    torch.testing.assert_close(terms["pred_z"], ((z_hat[:, 1:] - z[:, 1:]) ** 2).mean())
+    objective = terms["recon"] + 0.7 * terms["pred_x"] + 0.3 * terms["pred_z"]
+    torch.testing.assert_close(terms["objective"], objective)
+    torch.testing.assert_close(terms["total"], objective + 0.05 * terms["l1"])
+    if kind == "sindy":
+        torch.testing.assert_close(terms["l1"], model.dynamics.coefficients().abs().sum())
+        assert terms["l1"] > 0
+    else:
+        assert terms["l1"] == 0
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_loss_terms_depend_on_the_right_parts(kind: str) -> None:
+    """recon ignores actions and dynamics; pred_z ignores the decoder; pred_x needs all three."""
+    model = tiny(kind, init_scale=0.1)
+    x, u = batch()
+    u.requires_grad_(True)
+    dec = list(model.autoencoder.decoder.parameters())
+    dyn = list(model.dynamics.parameters())
+    enc = list(model.autoencoder.encoder.parameters())
+
+    def grads(term: str, params: list[torch.Tensor]) -> list[torch.Tensor | None]:
+        out = model.loss(x, u)[term]
+        return torch.autograd.grad(out, params, allow_unused=True)
+
+    def nonzero(gs) -> bool:
+        return any(g is not None and g.abs().sum() > 0 for g in gs)
+
+    assert not nonzero(grads("recon", [u, *dyn]))
+    assert nonzero(grads("recon", enc)) and nonzero(grads("recon", dec))
+    assert nonzero(grads("pred_x", [u])) and nonzero(grads("pred_x", dyn))
+    assert nonzero(grads("pred_x", dec)) and nonzero(grads("pred_x", enc))
+    assert not nonzero(grads("pred_z", dec))
+    assert nonzero(grads("pred_z", [u])) and nonzero(grads("pred_z", enc))
+    if kind == "sindy":
+        assert nonzero(grads("l1", dyn)) and not nonzero(grads("l1", [*enc, *dec]))
+
+
+def test_loss_rejects_bad_shapes() -> None:
+    x, u = batch(h=2)
+    with pytest.raises(ValueError, match="loss expects"):
+        tiny("linear").loss(x, u[:, :1])
+
+
+def test_model_config_round_trip_and_resolve() -> None:
+    cfg = ModelConfig(kind="mlp", decoder_hidden=(64, 32), mlp_layers=3)
+    back = ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert back == cfg
+    resolved = cfg.resolve(3, 32)
+    assert (resolved.channels, resolved.image_size) == (3, 32) and cfg.channels is None
+    assert dataclasses.replace(resolved) == resolved.resolve(3, 32)
+    with pytest.raises(UserError, match=r"channels is 1 but data\.h5 has channels 3"):
+        ModelConfig(channels=1).resolve(3, 32, "data.h5")
+    with pytest.raises(ValueError, match="resolve"):
+        LatentModel(cfg)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"kind": "gru"}, "unknown"), ({"order": 5}, "order 5"), ({"latent_dim": 0}, "latent_dim")],
+)
+def test_model_config_rejects(kwargs: dict, message: str) -> None:
+    with pytest.raises(UserError, match=message):
+        ModelConfig(**kwargs)

@@ -1,0 +1,376 @@
+"""The trainer on a small collected data set: learning, pruning, run folders, resume, errors.
+
+One data set (6 trajectories x 3 pushes: 4 train, 1 val, 1 test) is collected once for the
+module; models are tiny except in the end-to-end test.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import itertools
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.data.collect import CollectionPlan, collect
+from latent_sindy.data.store import read_trajectories, write_trajectories
+from latent_sindy.equations import CSV_FILE, JSON_FILE, coefficient_rows, equations_report
+from latent_sindy.errors import UserError
+from latent_sindy.models import LatentModel, ModelConfig
+from latent_sindy.training import (
+    METRIC_COLUMNS,
+    TrainConfig,
+    TrainingDiverged,
+    load_run,
+    read_metrics,
+    train,
+)
+
+KINDS = ("sindy", "linear", "mlp")
+TINY = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,), "mlp_hidden": 16}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("data") / "push.h5"
+    plan = CollectionPlan(trajectories=6, steps=3, seed=0, val_fraction=0.2, test_fraction=0.2)
+    return collect(out, plan, workers=1)
+
+
+def config(data: Path, out: Path, kind: str = "sindy", **kw) -> TrainConfig:
+    model = ModelConfig(kind=kind, **{**TINY, **kw.pop("model", {})})
+    kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "threshold_every": 0, **kw}
+    return TrainConfig(data=data, out=out, model=model, **kw)
+
+
+def states_equal(a: torch.nn.Module, b: torch.nn.Module) -> None:
+    sa, sb = a.state_dict(), b.state_dict()
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        assert torch.equal(sa[k], sb[k]), f"{k} differs"
+
+
+def losses(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "time_s"} for r in rows]
+
+
+class Recorder:
+    """A Progress that remembers what it was told."""
+
+    def __init__(self, on_update=None) -> None:
+        self.calls: list[tuple] = []
+        self.on_update = on_update
+
+    def start(self, total: int, initial: int) -> None:
+        self.calls.append(("start", total, initial))
+
+    def update(self, epoch: int, metrics) -> None:
+        self.calls.append(("update", epoch, dict(metrics)))
+        if self.on_update:
+            self.on_update(epoch)
+
+    def note(self, text: str) -> None:
+        self.calls.append(("note", text))
+
+    def close(self) -> None:
+        self.calls.append(("close",))
+
+
+# ----------------------------------------------------------------------------- learning
+def _dark_centroid(img: np.ndarray, level: float = 150.0) -> np.ndarray:
+    ys, xs = np.nonzero(img < level)
+    return np.array([ys.mean(), xs.mean()]) if len(ys) else np.array([np.inf, np.inf])
+
+
+def test_end_to_end_learns_recognisable_images(data: Path, tmp_path: Path) -> None:
+    cfg = TrainConfig(
+        data=data, out=tmp_path / "run", epochs=120, lr=3e-3, batch_size=500, threshold_every=30
+    )
+    run = train(cfg)
+    for name in ("config.json", "model.pt", "checkpoint.pt", "metrics.csv", "loss.png"):
+        assert (run / name).is_file(), name
+    rows = read_metrics(run)
+    assert [r["epoch"] for r in rows] == list(range(1, 121))
+    assert rows[-1]["train/objective"] < 0.1 * rows[0]["train/objective"]
+    assert rows[-1]["sindy/active"] < rows[0]["sindy/active"]  # pruned at 30, 60, 90, 120
+
+    model, norm, loaded_cfg, _ = load_run(run)
+    assert loaded_cfg == cfg
+    d = read_trajectories(data).split("train")
+    x = norm.normalize(d.images)  # (4, 4, 1, 32, 32)
+    with torch.no_grad():
+        x_rec = model.decode(model.encode(x))
+    mse = float((x_rec - x).square().mean())
+    mean_image_mse = float((x - x.mean(dim=(0, 1))).square().mean())
+    assert mse < 0.2 * mean_image_mse
+    pixels = norm.denormalize(x_rec).numpy()
+    for i in range(d.n):
+        for t in range(d.steps + 1):
+            true, got = _dark_centroid(d.images[i, t, 0]), _dark_centroid(pixels[i, t, 0])
+            assert np.linalg.norm(true - got) < 2.0, (i, t, true, got)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_trains_and_logs(data: Path, tmp_path: Path, kind: str) -> None:
+    progress = Recorder()
+    cfg = config(data, tmp_path / kind, kind, epochs=6, horizon=2)
+    run = train(cfg, progress)
+    rows = read_metrics(run)
+    with (run / "metrics.csv").open() as f:
+        assert tuple(next(csv.reader(f))) == METRIC_COLUMNS
+    assert rows[-1]["train/objective"] < rows[0]["train/objective"]
+    assert rows[-1]["val/objective"] is not None
+    for r in rows:
+        assert math.isclose(
+            r["train/total"] - r["train/objective"], cfg.lambda_l1 * r["train/l1"], abs_tol=1e-6
+        )
+        assert (r["train/l1"] > 0) == (kind == "sindy")
+        assert (r["sindy/active"] is not None) == (kind == "sindy")
+    assert progress.calls[0] == ("start", 6, 0) and progress.calls[-1] == ("close",)
+    assert [c[1] for c in progress.calls if c[0] == "update"] == list(range(1, 7))
+
+
+# ----------------------------------------------------------------------------- pruning and mask
+@pytest.fixture(scope="module")
+def pruned_run(data: Path, tmp_path_factory: pytest.TempPathFactory):
+    """A SINDy run pruned every 2 epochs, with the mask of every epoch's checkpoint."""
+    out = tmp_path_factory.mktemp("pruned") / "run"
+    masks: list[torch.Tensor] = []
+
+    def grab(epoch: int) -> None:
+        ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+        assert ckpt["epoch"] == epoch
+        masks.append(ckpt["model"]["dynamics.mask"].clone())
+
+    cfg = config(
+        data,
+        out,
+        epochs=8,
+        threshold=3e-3,
+        threshold_every=2,
+        checkpoint_every=1,
+        model={"init_scale": 3e-3},
+    )
+    return train(cfg, Recorder(grab)), masks
+
+
+def test_thresholding_never_revives_a_term(pruned_run) -> None:
+    run, masks = pruned_run
+    counts = [int(m.sum()) for m in masks]
+    assert counts[0] == masks[0].numel()  # nothing pruned before epoch 2
+    assert counts[-1] < counts[1] < counts[0]  # pruned at 2 and again later
+    for before, after in itertools.pairwise(masks):
+        assert not (after & ~before).any()  # once off, off for good
+    assert all(counts[i] == counts[i - 1] for i in (2, 4, 6))  # pruned at even epochs only
+    rows = read_metrics(run)
+    assert [int(r["sindy/active"]) for r in rows] == counts
+    model = load_run(run).model
+    assert (model.dynamics.psi[~model.dynamics.mask] == 0).all()  # AdamW moments cleared too
+
+
+def test_mask_survives_load_and_drives_step(pruned_run) -> None:
+    run, masks = pruned_run
+    dyn = load_run(run).model.dynamics
+    assert torch.equal(dyn.mask, masks[-1]) and not dyn.mask.all()
+    g = torch.Generator().manual_seed(0)
+    z, u = torch.randn(7, 4, generator=g), torch.rand(7, 3, generator=g)
+    before = dyn.step(z, u)
+    with torch.no_grad():
+        dyn.psi[~dyn.mask] = 5.0  # pruned coefficients must not matter
+    torch.testing.assert_close(dyn.step(z, u), before, rtol=0, atol=0)
+    torch.testing.assert_close(dyn.compile_sparse().step(z, u), before)
+
+
+def test_equations_report_lists_the_active_terms(pruned_run) -> None:
+    run, _ = pruned_run
+    dyn = load_run(run).model.dynamics
+    text = equations_report(run)
+    eqs = [line for line in text.splitlines() if re.match(r"z\d+\[t\+1\] = ", line)]
+    assert len(eqs) == dyn.nz
+    assert f"active coefficients: {dyn.n_active()} of {dyn.mask.numel()}" in text
+    for j, line in enumerate(eqs):
+        rhs = line.split(" = ", 1)[1]
+        parts = re.split(r" [+-] ", rhs)[1:]  # the first part is the residual z_j
+        terms = {p.split(" ", 1)[1] if " " in p else "1" for p in parts}
+        assert terms == {dyn.names[i] for i in dyn.mask[:, j].nonzero().flatten().tolist()}
+    expected = coefficient_rows(dyn)
+    with (run / CSV_FILE).open() as f:
+        got = [(r["state"], r["term"], float(r["value"])) for r in csv.DictReader(f)]
+    assert got == expected
+    doc = json.loads((run / JSON_FILE).read_text())
+    assert [(c["state"], c["term"], c["value"]) for c in doc["coefficients"]] == expected
+    assert doc["n_active"] == dyn.n_active() == len(expected)
+
+
+def test_equations_of_linear_and_mlp_runs(data: Path, tmp_path: Path) -> None:
+    lin = train(config(data, tmp_path / "linear", "linear", epochs=1))
+    text = equations_report(lin)
+    A = load_run(lin).model.dynamics.A.detach()
+    assert "z[t+1] = A z + B u + c" in text
+    assert sum(bool(re.match(r"z\d+\[t\+1\] = ", line)) for line in text.splitlines()) == 4
+    with (lin / CSV_FILE).open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4 * (4 + 3 + 1)
+    assert float(rows[1]["value"]) == float(A[0, 1]) and rows[1]["term"] == "z1"
+    mlp = train(config(data, tmp_path / "mlp", "mlp", epochs=1))
+    assert "no readable equations" in equations_report(mlp)
+    assert not (mlp / CSV_FILE).exists()
+
+
+# ----------------------------------------------------------------------------- resume
+@pytest.mark.parametrize("kind", KINDS)
+def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str) -> None:
+    """N epochs, then resume to 2N == 2N straight (pruning at epochs 2 and 4 included)."""
+    kw = {"threshold": 3e-3, "threshold_every": 2, "model": {"init_scale": 3e-3}}
+    straight = train(config(data, tmp_path / "straight", kind, epochs=6, **kw))
+    part = config(data, tmp_path / "resumed", kind, epochs=3, checkpoint_every=1, **kw)
+    train(part)
+    progress = Recorder()
+    resumed = train(dataclasses.replace(part, epochs=6, resume=True), progress)
+    assert progress.calls[0] == ("start", 6, 3)
+    states_equal(load_run(straight).model, load_run(resumed).model)
+    assert losses(read_metrics(straight)) == losses(read_metrics(resumed))
+    # The comparison is sensitive: another shuffle order gives another model.
+    other = train(config(data, tmp_path / "other", kind, epochs=6, seed=1, **kw))
+    with pytest.raises(AssertionError):
+        states_equal(load_run(straight).model, load_run(other).model)
+
+
+def test_resume_after_a_kill_mid_run(data: Path, tmp_path: Path) -> None:
+    """Killed in epoch 5 with checkpoints every 2: resume restarts after epoch 4."""
+    kw = {"threshold_every": 3, "threshold": 3e-3, "model": {"init_scale": 3e-3}}
+    straight = train(config(data, tmp_path / "straight", epochs=6, **kw))
+    cfg = config(data, tmp_path / "killed", epochs=6, checkpoint_every=2, **kw)
+
+    def kill(epoch: int) -> None:
+        if epoch == 5:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, Recorder(kill))
+    assert not (cfg.out / "model.pt").exists()
+    assert len(read_metrics(cfg.out)) == 5  # epoch 5 was logged, but not checkpointed
+    with pytest.raises(UserError, match="interrupted run"):
+        train(cfg)
+    with pytest.raises(UserError, match="did not finish"):
+        load_run(cfg.out)
+    assert load_run(cfg.out, checkpoint=True).model is not None
+    train(dataclasses.replace(cfg, resume=True))
+    states_equal(load_run(straight).model, load_run(cfg.out).model)
+    assert losses(read_metrics(straight)) == losses(read_metrics(cfg.out))
+
+
+def test_resume_with_other_settings_names_them(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2)
+    train(cfg)
+    changed = dataclasses.replace(
+        cfg, resume=True, epochs=4, lr=1e-2, model=dataclasses.replace(cfg.model, order=3)
+    )
+    with pytest.raises(UserError, match=r"lr \(run 0\.003, now 0\.01\); model\.order"):
+        train(changed)
+    with pytest.raises(UserError, match="past --epochs"):
+        train(dataclasses.replace(cfg, resume=True, epochs=1))
+
+
+def test_finished_run_is_not_overwritten(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=1)
+    train(cfg)
+    stamp = (cfg.out / "model.pt").stat().st_mtime_ns
+    with pytest.raises(UserError, match="already holds a trained model"):
+        train(cfg)
+    assert (cfg.out / "model.pt").stat().st_mtime_ns == stamp
+    train(dataclasses.replace(cfg, overwrite=True, epochs=2))
+    assert len(read_metrics(cfg.out)) == 2
+
+
+# ----------------------------------------------------------------------------- failures
+def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypatch) -> None:
+    calls = {"n": 0}
+    original = LatentModel.loss
+
+    def poisoned(self, x, u, weights=None):
+        terms = original(self, x, u, weights)
+        calls["n"] += self.training  # validation runs in eval mode
+        if calls["n"] > 3 and self.training:  # 1 batch per epoch: epoch 4 goes bad
+            terms["pred_x"] = terms["pred_x"] * float("nan")
+            terms["total"] = terms["total"] + terms["pred_x"]
+        return terms
+
+    monkeypatch.setattr(LatentModel, "loss", poisoned)
+    cfg = config(data, tmp_path / "run", epochs=10, batch_size=500, checkpoint_every=2)
+    progress = Recorder()
+    with pytest.raises(TrainingDiverged, match=r"epoch 4: loss term pred_x \(nan\).*epoch 2\)"):
+        train(cfg, progress)
+    assert progress.calls[-1] == ("close",)
+    monkeypatch.undo()
+    model = load_run(cfg.out, checkpoint=True).model
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    assert torch.load(cfg.out / "checkpoint.pt", weights_only=True)["epoch"] == 2
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"epochs": 0}, "--epochs 0"),
+        ({"batch_size": 0}, "--batch-size 0"),
+        ({"horizon": 0}, "--horizon 0"),
+        ({"lr": -1.0}, "--lr"),
+        ({"threshold_every": -1}, "--threshold-every"),
+        ({"resume": True, "overwrite": True}, "contradict"),
+    ],
+)
+def test_bad_settings(tmp_path: Path, kwargs: dict, message: str) -> None:
+    with pytest.raises(UserError, match=message):
+        TrainConfig(out=tmp_path, **kwargs)
+
+
+def test_bad_inputs(data: Path, tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="--horizon 4 is longer"):
+        train(config(data, tmp_path / "a", horizon=4))
+    with pytest.raises(UserError, match="does not exist"):
+        train(config(tmp_path / "missing.h5", tmp_path / "b"))
+    with pytest.raises(UserError, match="channels is 3 but"):
+        train(config(data, tmp_path / "c", model={"channels": 3}))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UserError, match="is a file"):
+        train(config(data, tmp_path / "file"))
+
+
+def test_no_validation_split(data: Path, tmp_path: Path) -> None:
+    d = read_trajectories(data)
+    d.split_ids = np.zeros_like(d.split_ids)
+    path = tmp_path / "all_train.h5"
+    write_trajectories(path, d)
+    progress = Recorder()
+    run = train(config(path, tmp_path / "run", epochs=2), progress)
+    assert any(c[0] == "note" and "no validation" in c[1] for c in progress.calls)
+    assert all(r["val/objective"] is None for r in read_metrics(run))
+
+
+def test_load_run_errors(data: Path, tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="does not exist"):
+        load_run(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(UserError, match="not a run folder"):
+        load_run(tmp_path / "empty")
+    run = train(config(data, tmp_path / "run", epochs=1))
+    (run / "model.pt").write_bytes(b"not a torch file")
+    with pytest.raises(UserError, match=r"model\.pt is damaged"):
+        load_run(run)
+    (run / "config.json").write_text("{")
+    with pytest.raises(UserError, match=r"config\.json is damaged"):
+        load_run(run)
