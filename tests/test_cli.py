@@ -85,3 +85,41 @@ def test_collect_info_preview_end_to_end(tmp_path):
     png = out.with_suffix(".png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert_one_line_error(run("preview", str(out), "--rows", "0"), "--rows 0")
+
+
+def test_train_equations_control_smoke(tmp_path):
+    data = tmp_path / "d.h5"
+    write_trajectories(data, make_trajectories(n=6, steps=3))
+    run_dir = tmp_path / "run"
+    r = run("train", "--data", str(data), "--model", "sindy", "--order", "1", "--epochs", "2",
+            "--threshold-every", "1", "--out", str(run_dir), "--no-progress")
+    assert r.returncode == 0, r.stderr
+    for name in ("config.json", "model.pt", "metrics.csv", "loss.png"):
+        assert (run_dir / name).is_file(), name
+    assert_one_line_error(
+        run("train", "--data", str(data), "--out", str(run_dir), "--epochs", "2"),
+        "already holds a trained model")
+    r = run("equations", str(run_dir))
+    assert r.returncode == 0, r.stderr
+    assert "z0[t+1] = z0" in r.stdout and "sparsity" in r.stdout
+    assert (run_dir / "coefficients.csv").is_file()
+    r = run("control", str(run_dir), "--max-steps", "2", "--samples", "8", "--horizon", "2",
+            "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = run_dir / "control-paper"
+    assert (out / "results.json").is_file() and (out / "episode_000.gif").is_file()
+    assert "success (course)" in r.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["train", "--epochs", "0"], "--epochs 0"),
+        (["train", "--order", "5"], "order 5"),
+        (["train", "--data", "nowhere.h5"], "does not exist"),
+        (["equations", "no-run"], "no-run"),
+        (["control", "no-run"], "no-run"),
+    ],
+)
+def test_learning_commands_reject_bad_input(tmp_path, args, needle):
+    assert_one_line_error(run(*args, cwd=tmp_path), needle)

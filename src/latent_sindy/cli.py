@@ -264,10 +264,11 @@ COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train
 
 
 def main(argv: list[str] | None = None) -> int:
-    cmd = tyro.extras.subcommand_cli_from_dict(
-        COMMANDS, prog="latent-sindy", args=argv,
-        description="Sparse latent dynamics (SINDy) from images, for planar pushing.")
     try:
+        # settings are validated while tyro builds them, so parsing is inside the try
+        cmd = tyro.extras.subcommand_cli_from_dict(
+            COMMANDS, prog="latent-sindy", args=argv,
+            description="Sparse latent dynamics (SINDy) from images, for planar pushing.")
         cmd.run()
     except UserError as e:
         if os.environ.get("LATENT_SINDY_DEBUG"):
