@@ -1,0 +1,270 @@
+"""Closed-loop pushing with a trained run: encode the image, plan with MPPI, push, repeat.
+
+Each episode encodes the goal image (the camera's view with the block at the goal), then at
+every step encodes the current image, asks MPPI for a push in latent space (or in image
+space: the cost decodes every predicted latent and compares it with the goal image),
+executes it in the PyBullet world and looks again, until the block is at the goal or the step
+limit is reached.
+
+    latent-sindy control runs/sindy2 --task paper --episodes 1
+    latent-sindy control runs/sindy2 --task random --episodes 20 --image-space --max-steps 30
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from latent_sindy.control.costs import ImageCost, LatentCost
+from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.errors import UserError
+
+
+@dataclass(frozen=True)
+class ControlSettings:
+    """How episodes are posed and planned (MPPI defaults: the course's K, H, Σ, λ)."""
+
+    task: Literal["paper", "random"] = "paper"
+    episodes: int = 1
+    seed: int = 0
+    image_space: bool = False
+    max_steps: int = 20
+    until: Literal["course", "strict"] = "course"
+    samples: int = 100
+    horizon: int = 10
+    sigma: float = 0.1
+    lambda_: float = 0.01
+    u_init: tuple[float, float, float] = (0.0, 0.0, 0.5)
+    gif_episodes: int = 1
+
+    def __post_init__(self) -> None:
+        if self.task not in ("paper", "random"):
+            raise UserError(f"--task {self.task}: use paper or random")
+        if self.until not in ("course", "strict"):
+            raise UserError(f"--until {self.until}: use course or strict")
+        for name in ("episodes", "max_steps", "samples", "horizon"):
+            if getattr(self, name) < 1:
+                raise UserError(f"--{name.replace('_', '-')} {getattr(self, name)}: use 1 or more")
+        if self.gif_episodes < 0:
+            raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
+        if not (self.sigma > 0 and self.lambda_ > 0):
+            raise UserError(f"--sigma {self.sigma} and --lambda {self.lambda_} must be positive")
+
+    def mppi_config(self, seed: int) -> MPPIConfig:
+        return MPPIConfig(nu=3, K=self.samples, H=self.horizon, sigma=self.sigma,
+                          lambda_=self.lambda_, low=ACTION_LOW, high=ACTION_HIGH,
+                          u_init=self.u_init, seed=seed)
+
+
+@dataclass
+class EpisodeResult:
+    """What one episode did; errors in metres and degrees, times in milliseconds."""
+
+    episode: int
+    seed: int
+    start: list[float]
+    goal: list[float]
+    success: bool
+    """Course criterion (position within the success distance) reached."""
+    steps_to_goal: int | None
+    strict_success: bool
+    """Strict criterion (0.02 m and 10 degrees by default) reached."""
+    steps_to_strict: int | None
+    steps: int
+    final_distance: float
+    final_angle_error_deg: float
+    left_workspace: bool
+    plan_ms_mean: float
+    plan_ms_max: float
+    discarded: int
+    """MPPI samples given zero weight because their rollout or cost was not finite."""
+    actions: list[list[float]] = field(default_factory=list)
+
+
+class Controller:
+    """A trained model with its MPPI, ready to push: `act(obs) -> action`."""
+
+    def __init__(self, model, normalizer: Normalizer, settings: ControlSettings) -> None:
+        self.model = model.eval()
+        self.normalizer = normalizer
+        self.settings = settings
+        self.step = latent_step(model.dynamics)  # active SINDy terms only
+
+    @torch.no_grad()
+    def encode(self, obs: np.ndarray) -> torch.Tensor:
+        """uint8 image (C, S, S) -> latent (nz,)."""
+        return self.model.encode(self.normalizer.normalize(obs)[None])[0]
+
+    @torch.no_grad()
+    def start(self, goal_obs: np.ndarray, seed: int) -> None:
+        if self.settings.image_space:
+            goal = self.normalizer.normalize(goal_obs)
+            cost = ImageCost(self.model.decode, goal)
+        else:
+            cost = LatentCost(self.encode(goal_obs), 1.0)
+        self.mppi = MPPI(self.step, cost, self.settings.mppi_config(seed))
+
+    def act(self, obs: np.ndarray):
+        action, info = self.mppi.command(self.encode(obs))
+        return action.numpy(), info
+
+
+def _episode_options(env, settings: ControlSettings, seed: int) -> tuple[int, dict]:
+    """The reset seed and options of an episode; random tasks never start at the goal."""
+    if settings.task == "paper":
+        return seed, {"task": "paper"}
+    for k in range(100):
+        s = seed * 1000 + k
+        _, info = env.reset(seed=s)
+        if not info["is_success"]:
+            return s, {"start": info["pose"], "goal": info["goal"]}
+    raise RuntimeError("could not draw a random task whose start is away from the goal")
+
+
+def run_episode(env, controller: Controller, episode: int, settings: ControlSettings,
+                frames: list | None = None) -> EpisodeResult:
+    """One closed-loop episode in `env` (a PandaPushEnv); appends rendered frames if asked."""
+    seed = int(np.random.default_rng([settings.seed, episode]).integers(2**31))
+    reset_seed, options = _episode_options(env, settings, seed)
+    obs, info = env.reset(seed=reset_seed, options=options)
+    start, goal = info["pose"].tolist(), info["goal"].tolist()
+    controller.start(env.goal_observation(), seed)
+    key = "is_success" if settings.until == "course" else "is_success_strict"
+    if frames is not None:
+        frames.append(env.render())
+    steps_goal = 0 if info["is_success"] else None
+    steps_strict = 0 if info["is_success_strict"] else None
+    plan_ms, actions, discarded, left = [], [], 0, False
+    steps = 0
+    while steps < settings.max_steps and not info[key]:
+        action, plan = controller.act(obs)
+        plan_ms.append(plan.seconds * 1e3)
+        discarded += plan.discarded
+        actions.append([float(a) for a in action])
+        obs, _, terminated, _, info = env.step(action)
+        steps += 1
+        if frames is not None:
+            frames.append(env.render())
+        if info["is_success"] and steps_goal is None:
+            steps_goal = steps
+        if info["is_success_strict"] and steps_strict is None:
+            steps_strict = steps
+        if terminated:
+            left = True
+            break
+    return EpisodeResult(
+        episode=episode, seed=reset_seed, start=start, goal=goal,
+        success=steps_goal is not None, steps_to_goal=steps_goal,
+        strict_success=steps_strict is not None, steps_to_strict=steps_strict, steps=steps,
+        final_distance=float(info["distance"]),
+        final_angle_error_deg=float(math.degrees(info["angle_error"])),
+        left_workspace=left,
+        plan_ms_mean=float(np.mean(plan_ms)) if plan_ms else 0.0,
+        plan_ms_max=float(np.max(plan_ms)) if plan_ms else 0.0,
+        discarded=discarded, actions=actions)
+
+
+def summarize(results: list[EpisodeResult]) -> dict[str, float]:
+    """Success rates, mean steps to goal (successful episodes), errors, planning time."""
+    ok = [r for r in results if r.success]
+    ok_strict = [r for r in results if r.strict_success]
+    plan = [r.plan_ms_mean for r in results if r.steps]
+    return {
+        "episodes": len(results),
+        "success_rate": len(ok) / len(results),
+        "strict_success_rate": len(ok_strict) / len(results),
+        "steps_to_goal_mean": float(np.mean([r.steps_to_goal for r in ok])) if ok else math.nan,
+        "steps_to_strict_mean": (float(np.mean([r.steps_to_strict for r in ok_strict]))
+                                 if ok_strict else math.nan),
+        "final_distance_mean": float(np.mean([r.final_distance for r in results])),
+        "plan_ms_mean": float(np.mean(plan)) if plan else math.nan,
+        "discarded_total": int(sum(r.discarded for r in results)),
+        "left_workspace": int(sum(r.left_workspace for r in results)),
+    }
+
+
+def format_summary(summary: dict[str, float], title: str) -> str:
+    s = summary
+    return "\n".join([
+        title,
+        f"  success (course)   {s['success_rate']:6.1%}   mean steps to goal "
+        f"{s['steps_to_goal_mean']:.1f}",
+        f"  success (strict)   {s['strict_success_rate']:6.1%}   mean steps "
+        f"{s['steps_to_strict_mean']:.1f}",
+        f"  final distance     {100 * s['final_distance_mean']:.1f} cm (mean)",
+        f"  planning           {s['plan_ms_mean']:.1f} ms per step (mean)",
+        f"  discarded samples  {s['discarded_total']}   left workspace "
+        f"{s['left_workspace']} episode(s)",
+    ])
+
+
+def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
+                settings: ControlSettings, out: str | os.PathLike,
+                progress: Callable[[Iterable, int], Iterable] | None = None,
+                ) -> tuple[list[EpisodeResult], dict]:
+    """Run every episode, write results.json, results.csv and episode GIFs into `out`."""
+    from latent_sindy.envs.panda_push import PandaPushEnv
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    env = PandaPushEnv(env_config, render_mode="rgb_array")
+    controller = Controller(model, normalizer, settings)
+    results = []
+    episodes: Iterable[int] = range(settings.episodes)
+    if progress is not None:
+        episodes = progress(episodes, settings.episodes)
+    try:
+        for i in episodes:
+            frames: list | None = [] if i < settings.gif_episodes else None
+            results.append(run_episode(env, controller, i, settings, frames))
+            if frames:
+                save_gif(frames, out / f"episode_{i:03d}.gif")
+    finally:
+        env.close()
+    summary = summarize(results)
+    record = {"settings": asdict(settings), "summary": summary,
+              "episodes": [asdict(r) for r in results]}
+    _write_text(out / "results.json", json.dumps(record, indent=1))
+    rows = [{k: v for k, v in asdict(r).items() if k != "actions"} for r in results]
+    _write_csv(out / "results.csv", rows)
+    return results, summary
+
+
+def save_gif(frames: list[np.ndarray], path: Path, ms_per_frame: int = 500) -> None:
+    import imageio.v3 as iio
+
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".gif", dir=path.parent)
+    os.close(fd)
+    try:
+        iio.imwrite(tmp, np.stack(frames), extension=".gif", duration=ms_per_frame, loop=0)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(tmp, path)

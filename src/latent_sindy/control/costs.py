@@ -1,0 +1,92 @@
+"""State costs for MPPI: plain batched callables ``cost(z (K, nz)) -> (K,)``.
+
+``LatentCost`` is the paper's quadratic cost in latent space, ``ImageCost`` its image-space
+variant (decode each predicted latent and compare with the goal image).
+
+    >>> cost = LatentCost(z_goal=torch.zeros(16), Q=1.0)
+    >>> cost(torch.ones(5, 16))  # (5,): tensor([16., 16., 16., 16., 16.])
+    >>> icost = ImageCost(autoencoder.decode, goal_image)  # goal_image (1, 32, 32)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from latent_sindy.errors import UserError
+
+__all__ = ["ImageCost", "LatentCost", "StateCost"]
+
+#: ``cost(z (K, nz)) -> (K,)``
+StateCost = Callable[[Tensor], Tensor]
+
+
+class LatentCost:
+    """Quadratic latent cost ``(z - z_goal)ᵀ Q (z - z_goal)``.
+
+    Args:
+        z_goal: (nz,) goal latent, e.g. the encoded goal image.
+        Q: scalar (Q·I), the diagonal (nz,), or a full symmetric (nz, nz) matrix.
+    """
+
+    def __init__(self, z_goal: Tensor, Q: float | Sequence[float] | Tensor = 1.0) -> None:
+        goal = torch.as_tensor(z_goal)
+        if not goal.is_floating_point():
+            goal = goal.float()
+        self.z_goal = goal.reshape(-1)  # (nz,)
+        nz = self.z_goal.numel()
+        q = torch.as_tensor(Q, dtype=goal.dtype, device=goal.device)
+        if not torch.isfinite(self.z_goal).all():
+            raise UserError(f"LatentCost: z_goal has non-finite values: {self.z_goal.tolist()}")
+        if q.shape not in ((), (nz,), (nz, nz)) or not torch.isfinite(q).all():
+            raise UserError(
+                f"LatentCost: Q must be a finite scalar, ({nz},) diagonal or ({nz}, {nz}) "
+                f"matrix for a goal of size nz={nz}, got shape {tuple(q.shape)}"
+            )
+        if q.ndim < 2 and (q < 0).any():
+            raise UserError(f"LatentCost: Q weights must be >= 0, got {q.tolist()}")
+        self.Q = q
+        # Resolved once: a full matrix needs d Q dᵀ, a diagonal only (d ⊙ d) q.
+        self._weight = q.expand(nz).clone() if q.ndim < 2 else q  # (nz,) or (nz, nz)
+        self._full = q.ndim == 2
+
+    def __call__(self, z: Tensor) -> Tensor:
+        d = z - self.z_goal  # (K, nz)
+        if self._full:
+            return ((d @ self._weight) * d).sum(-1)  # (K,)
+        return (d * d) @ self._weight  # (K,)
+
+
+class ImageCost:
+    """Image-space cost ``weight · ‖decoder(z) - goal_image‖²`` per sample.
+
+    Args:
+        decoder: ``decoder(z (K, nz)) -> (K, ...)`` images (any shape with goal_image's size).
+        goal_image: the goal picture, in the decoder's output space (normalised like it).
+        weight: scale of the squared error (summed over pixels).
+    """
+
+    def __init__(self, decoder: Callable[[Tensor], Tensor], goal_image: Tensor,
+                 weight: float = 1.0) -> None:
+        goal = torch.as_tensor(goal_image)
+        if not goal.is_floating_point():
+            goal = goal.float()
+        if not torch.isfinite(goal).all():
+            raise UserError("ImageCost: goal_image has non-finite values")
+        if not weight > 0:
+            raise UserError(f"ImageCost: weight={weight!r} must be positive")
+        self.decoder = decoder
+        self.goal = goal.reshape(1, -1)  # (1, D)
+        self.weight = float(weight)
+
+    def __call__(self, z: Tensor) -> Tensor:
+        x = self.decoder(z)  # (K, ...)
+        if x[0].numel() != self.goal.shape[1]:
+            raise UserError(
+                f"ImageCost: decoder output {tuple(x.shape[1:])} does not match the goal image "
+                f"size {self.goal.shape[1]}"
+            )
+        d = x.reshape(x.shape[0], -1) - self.goal  # (K, D)
+        return self.weight * (d * d).sum(-1)  # (K,)

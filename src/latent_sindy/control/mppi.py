@@ -1,0 +1,312 @@
+"""Model predictive path integral control (MPPI) on batched latent dynamics (DESIGN §4).
+
+Every command samples K perturbations of the nominal action sequence, rolls all K candidates
+out through the model in one batched loop over the horizon H, weights them by their cost and
+moves the nominal sequence towards the good ones (Williams et al., the paper's §II.D):
+
+    cost_k = Σ_{t=1..H} c(z_t^k) + w_T c(z_H^k) + λ Σ_{t=0..H-1} u_tᵀ Σ⁻¹ ε_t^k
+    ω_k ∝ exp(-(cost_k - min_j cost_j) / λ),   u_t += Σ_k ω_k ε_t^k
+
+Dimensions: K samples, H horizon, nz latent size, nu action size.
+
+    >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
+    >>> from latent_sindy.models import make_dynamics
+    >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
+    >>> cfg = MPPIConfig(nu=3, K=100, H=10, sigma=0.1, lambda_=0.01,
+    ...                  low=(-1, -1.57, 0), high=(1, 1.57, 1))
+    >>> mppi = MPPI(latent_step(model), torch.zeros(16), cfg)  # goal vector: quadratic cost
+    >>> action, info = mppi.command(torch.ones(16))  # (3,), MPPIInfo(discarded=0, ...)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from latent_sindy.control.costs import LatentCost, StateCost
+from latent_sindy.control.sindy_step import SparseSindyStep
+from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics import LatentDynamics, SindyDynamics, SparseSindyDynamics
+
+__all__ = ["MPPI", "DynamicsStep", "MPPIConfig", "MPPIInfo", "latent_step"]
+
+#: ``step(z (K, nz), u (K, nu)) -> z_next (K, nz)``: any latent model's ``step`` fits.
+DynamicsStep = Callable[[Tensor, Tensor], Tensor]
+
+Vector = float | Sequence[float]
+
+
+@dataclass(frozen=True)
+class MPPIConfig:
+    """Settings of one MPPI controller; validated on construction (raises :class:`UserError`).
+
+    Scalars stand for the same value in every action (or latent) dimension. The defaults are
+    the course's settings: K = 100, H = 10, Σ = 0.1·I, λ = 0.01, Q = I.
+    """
+
+    nu: int
+    """Action size."""
+    K: int = 100
+    """Number of sampled action sequences per command."""
+    H: int = 10
+    """Planning horizon (model steps)."""
+    sigma: Vector = 0.1
+    """Diagonal of the noise covariance Σ (a variance, not a standard deviation): the paper's
+    Σ = 0.1·I is ``sigma=0.1``. Scalar or one value per action dimension."""
+    lambda_: float = 0.01
+    """Temperature λ: smaller trusts the best samples more."""
+    Q: Vector = 1.0
+    """State weight of the quadratic latent cost built when MPPI is given a goal vector
+    (scalar or the diagonal); unused when it is given a cost callable."""
+    terminal_weight: float = 0.0
+    """Extra weight w_T on the cost of the last predicted state (0: running cost only)."""
+    low: Vector | None = None
+    """Lower bounds of the action box (None: unbounded)."""
+    high: Vector | None = None
+    """Upper bounds of the action box (None: unbounded)."""
+    u_init: Vector | None = None
+    """Default action: fills the nominal sequence at reset (and after shifts with
+    ``shift="init"``). None: zero, clamped into the box."""
+    shift: Literal["init", "repeat"] = "init"
+    """Warm start: after each command the nominal sequence moves one step forward; its new
+    last step is ``u_init`` ("init") or a repeat of the previous last step ("repeat")."""
+    seed: int = 0
+    """Seed of the controller's own noise generator."""
+    compile: bool = False
+    """``torch.compile`` the rollout (dynamics and cost over the horizon) at the first command.
+    Compiling takes from seconds (inductor's disk cache warm) to a minute per controller and
+    saves ~1-2.5 ms per command, so it pays off over thousands of commands
+    (``benchmarks/mppi.py``)."""
+    dtype: torch.dtype = torch.float32
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        def positive_int(name: str) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"MPPIConfig.{name}={v!r}: must be a positive integer")
+
+        for name in ("nu", "K", "H"):
+            positive_int(name)
+        if not self.dtype.is_floating_point:
+            raise UserError(f"MPPIConfig.dtype={self.dtype}: use a floating dtype (float32)")
+        big = torch.finfo(self.dtype).max
+        sigma = self._vector("sigma", self.sigma, self.nu)
+        if not all(0 < s and math.sqrt(s) * 10 < big for s in sigma):
+            raise UserError(
+                f"MPPIConfig.sigma={self.sigma!r}: noise variances must be positive and finite "
+                f"in {self.dtype}"
+            )
+        if not (0 < self.lambda_ < math.inf):
+            raise UserError(f"MPPIConfig.lambda_={self.lambda_!r}: must be a positive number")
+        q = self.Q if isinstance(self.Q, int | float) else tuple(self.Q)
+        if not all(0 <= v < math.inf for v in ([q] if isinstance(q, int | float) else q)):
+            raise UserError(f"MPPIConfig.Q={self.Q!r}: weights must be finite and >= 0")
+        if not (0 <= self.terminal_weight < math.inf):
+            raise UserError(
+                f"MPPIConfig.terminal_weight={self.terminal_weight!r}: must be finite and >= 0"
+            )
+        low = self._vector("low", -math.inf if self.low is None else self.low, self.nu)
+        high = self._vector("high", math.inf if self.high is None else self.high, self.nu)
+        pairs = zip(low, high, strict=True)
+        if not all(lo <= hi and lo < math.inf and hi > -math.inf for lo, hi in pairs):
+            raise UserError(
+                f"MPPIConfig: action bounds low={self.low!r}, high={self.high!r} must satisfy "
+                "low <= high in every dimension"
+            )
+        if self.u_init is not None:
+            u0 = self._vector("u_init", self.u_init, self.nu)
+            if not all(lo <= u <= hi for u, lo, hi in zip(u0, low, high, strict=True)):
+                raise UserError(
+                    f"MPPIConfig.u_init={self.u_init!r} lies outside the action box "
+                    f"[{self.low!r}, {self.high!r}]"
+                )
+        if self.shift not in ("init", "repeat"):
+            raise UserError(f"MPPIConfig.shift={self.shift!r}: use 'init' or 'repeat'")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise UserError(f"MPPIConfig.seed={self.seed!r}: must be an integer")
+        if not isinstance(self.compile, bool):
+            raise UserError(f"MPPIConfig.compile={self.compile!r}: use True or False")
+
+    @staticmethod
+    def _vector(name: str, value: Vector, n: int) -> tuple[float, ...]:
+        """``value`` as n floats (a scalar is repeated); NaN and wrong lengths are errors."""
+        vals = (value,) * n if isinstance(value, int | float) else tuple(value)
+        if len(vals) != n:
+            raise UserError(f"MPPIConfig.{name}={value!r}: needs 1 or {n} values (nu={n})")
+        out = tuple(float(v) for v in vals)
+        if any(math.isnan(v) for v in out):
+            raise UserError(f"MPPIConfig.{name}={value!r} contains NaN")
+        return out
+
+    def tensor(self, name: Literal["sigma", "low", "high"]) -> Tensor:
+        """Field ``name`` as a (nu,) tensor of the controller's dtype (bounds: ±inf if None)."""
+        default = {"low": -math.inf, "high": math.inf}.get(name)
+        value = getattr(self, name)
+        vals = self._vector(name, default if value is None else value, self.nu)
+        return torch.tensor(vals, dtype=self.dtype, device=self.device)
+
+
+@dataclass(frozen=True)
+class MPPIInfo:
+    """Diagnostics of one command."""
+
+    discarded: int
+    """Samples whose rollout or cost was NaN or infinite (given zero weight)."""
+    discarded_total: int
+    """Discarded samples over all commands since construction or :meth:`MPPI.reset`."""
+    min_cost: float
+    """Lowest total cost among the samples (inf when every sample was discarded)."""
+    mean_cost: float
+    """Mean total cost of the kept samples (NaN when every sample was discarded)."""
+    seconds: float
+    """Wall-clock time of the command."""
+
+
+def latent_step(model: LatentDynamics) -> DynamicsStep:
+    """The fastest equivalent ``step`` of a latent model for control.
+
+    A SINDy model (:class:`SindyDynamics` or its ``compile_sparse()``) becomes a
+    :class:`SparseSindyStep` over its active library terms only (a frozen snapshot: call again
+    after further training or pruning); every other model's own ``step`` is returned.
+    """
+    if isinstance(model, SindyDynamics | SparseSindyDynamics):
+        return SparseSindyStep(model)
+    return model.step
+
+
+class MPPI:
+    """MPPI controller over a batched dynamics step and a batched state cost.
+
+    Args:
+        dynamics_step: ``step(z (K, nz), u (K, nu)) -> (K, nz)``, e.g. :func:`latent_step`.
+        cost: a state cost ``cost(z (K, nz)) -> (K,)`` (e.g. :class:`LatentCost`,
+            :class:`ImageCost`), or a goal vector z_goal (nz,), which stands for
+            ``LatentCost(z_goal, config.Q)``.
+        config: :class:`MPPIConfig`.
+
+    Candidate actions are ``clamp(nominal + ε)`` into the action box, and the *clamped*
+    perturbation ``ε_c = candidate - nominal`` is what enters the action cost and the update.
+    Then the updated nominal ``u + Σ ω_k ε_c^k = Σ ω_k candidate_k`` is a convex combination of
+    in-box actions, so it never leaves the box, and the cost does not charge the part of a
+    perturbation the box cut off.
+
+    Samples whose total cost is NaN or ±inf (a diverging model, an overflowing cost) get cost
+    +inf and so zero weight; if no sample is finite every weight is 0 and the nominal sequence
+    stays as it was. Attributes of the last command, for inspection: ``actions`` (K, H, nu),
+    ``noise`` (K, H, nu) clamped perturbations, ``costs`` (K,), ``weights`` (K,).
+    """
+
+    def __init__(self, dynamics_step: DynamicsStep, cost: StateCost | Tensor,
+                 config: MPPIConfig) -> None:
+        cfg = config
+        self.config = cfg
+        self.step = dynamics_step
+        kw = {"dtype": cfg.dtype, "device": cfg.device}
+        self.cost: StateCost = (
+            LatentCost(torch.as_tensor(cost, **kw), cfg.Q) if isinstance(cost, Tensor) else cost
+        )
+        if not callable(self.cost):
+            raise UserError(f"MPPI cost must be a callable or a goal tensor, got {type(cost)}")
+        self.low = cfg.tensor("low")  # (nu,)
+        self.high = cfg.tensor("high")  # (nu,)
+        self._std = cfg.tensor("sigma").sqrt()  # (nu,)
+        self._lam_sigma_inv = cfg.lambda_ / cfg.tensor("sigma")  # (nu,) λ Σ⁻¹ (diagonal)
+        self._inv_lambda = 1.0 / cfg.lambda_
+        self._big = torch.finfo(cfg.dtype).max
+        self._lo, self._hi = self.low.clamp(min=-self._big), self.high.clamp(max=self._big)
+        u0 = torch.zeros(cfg.nu, **kw) if cfg.u_init is None else torch.tensor(cfg.u_init, **kw)
+        self.u_init = u0.clamp(self.low, self.high)  # (nu,)
+        self._repeat_last = cfg.shift == "repeat"
+        self._rollout = torch.compile(self._rollout_cost) if cfg.compile else self._rollout_cost
+        self._gen = torch.Generator(device=cfg.device)
+        self.reset(cfg.seed)
+
+    # ------------------------------------------------------------------ state
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the warm start (nominal := u_init everywhere) and the discarded count.
+
+        ``seed`` reseeds the noise generator; None continues its stream.
+        """
+        self._U = self.u_init.expand(self.config.H, -1).clone()  # (H, nu)
+        self.discarded_total = 0
+        if seed is not None:
+            self._gen.manual_seed(seed)
+        self.actions = self.noise = self.costs = self.weights = None
+
+    @property
+    def nominal(self) -> Tensor:
+        """A copy of the nominal action sequence (H, nu) that the next command starts from."""
+        return self._U.clone()
+
+    # ------------------------------------------------------------------ control
+    def command(self, z: Tensor, noise: Tensor | None = None) -> tuple[Tensor, MPPIInfo]:
+        """Plan from latent state z (nz,) and return the first action (nu,) with diagnostics.
+
+        ``noise`` (K, H, nu) replaces the sampled perturbations ε (for tests); the nominal
+        sequence is then shifted one step (warm start for the next command). Planning runs in
+        ``torch.inference_mode``; the returned action is an ordinary tensor (usable with
+        autograd), while ``actions``, ``noise``, ``costs`` and ``weights`` are inference tensors.
+        """
+        t0 = time.perf_counter()
+        action, discarded, min_cost, mean_cost = self._plan(z, noise)
+        self.discarded_total += discarded
+        info = MPPIInfo(discarded, self.discarded_total, min_cost, mean_cost,
+                        time.perf_counter() - t0)
+        return action.clone(), info
+
+    @torch.inference_mode()
+    def _plan(self, z: Tensor, noise: Tensor | None) -> tuple[Tensor, int, float, float]:
+        """One MPPI update; returns the first action and the diagnostics' numbers."""
+        cfg = self.config
+        K, H, nu = cfg.K, cfg.H, cfg.nu
+        U = self._U  # (H, nu)
+        if noise is None:
+            eps = torch.randn(K, H, nu, generator=self._gen, dtype=cfg.dtype, device=cfg.device)
+            eps.mul_(self._std)  # (K, H, nu)
+        elif noise.shape != (K, H, nu):
+            raise ValueError(f"noise must have shape (K, H, nu)={(K, H, nu)}, "
+                             f"got {tuple(noise.shape)}")
+        else:
+            eps = noise.to(U)
+        actions = torch.clamp(U + eps, self.low, self.high)  # (K, H, nu)
+        eps = actions - U  # clamped perturbations (K, H, nu)
+        # λ Σ_t u_tᵀ Σ⁻¹ ε_t^k as one matrix-vector product: (K,)
+        total = eps.reshape(K, H * nu) @ (U * self._lam_sigma_inv).reshape(H * nu)
+        total = total + self._rollout(z.to(U).reshape(1, -1), actions)
+
+        # NaN and ±inf totals all become +inf, so their weight below is exp(-inf) = 0.
+        costs = torch.nan_to_num(total, nan=math.inf, posinf=math.inf, neginf=math.inf)  # (K,)
+        best = costs.min()
+        # β = min cost, clamped finite so that an all-discarded batch gives weights 0, not NaN.
+        w = torch.exp((best.clamp(max=self._big) - costs) * self._inv_lambda)  # (K,), max 1
+        w = w / w.sum().clamp_min(1.0)  # the sum is >= 1 unless every weight is 0
+        # A convex combination of in-box candidates; the clamp only absorbs rounding.
+        U_new = (U + (w @ eps.reshape(K, H * nu)).reshape(H, nu)).clamp(self._lo, self._hi)
+        action = U_new[0]
+        fill = U_new[-1:] if self._repeat_last else self.u_init.unsqueeze(0)
+        self._U = torch.cat((U_new[1:], fill))  # warm start
+
+        n_kept = (costs < math.inf).sum()
+        kept_sum = torch.nan_to_num(costs, posinf=0.0).sum()
+        n_kept, min_cost, kept_sum = torch.stack((n_kept.to(costs.dtype), best, kept_sum)).tolist()
+        discarded = K - int(n_kept)
+        mean_cost = kept_sum / n_kept if n_kept else math.nan
+        self.actions, self.noise, self.costs, self.weights = actions, eps, costs, w
+        return action, discarded, min_cost, mean_cost
+
+    def _rollout_cost(self, z0: Tensor, actions: Tensor) -> Tensor:
+        """Σ_t c(z_t) + w_T c(z_H) of all K samples: z0 (1, nz), actions (K, H, nu) -> (K,)."""
+        z = z0.expand(actions.shape[0], -1)  # (K, nz)
+        total = c = z0.new_zeros(actions.shape[0])  # (K,)
+        for u in actions.unbind(1):  # H steps; u (K, nu)
+            z = self.step(z, u)
+            c = self.cost(z)
+            total = total + c
+        return total + self.config.terminal_weight * c
