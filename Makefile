@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-DEMO_DIR ?= runs/demo
+DEMO_DIR ?= results/demo
 
 .PHONY: demo test test-all lint bench clean install
 
@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/latent-sindy demo --out $(DEMO_DIR)
+	$(BIN)/latent-sindy reproduce --scale demo --out $(DEMO_DIR)
 
 test: $(STAMP)
 	$(BIN)/ruff check .

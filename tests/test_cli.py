@@ -28,7 +28,7 @@ def assert_one_line_error(r: subprocess.CompletedProcess, *needles: str) -> None
 def test_help_lists_commands_and_options():
     r = run("--help")
     assert r.returncode == 0
-    for cmd in ("collect", "info", "preview", "demo"):
+    for cmd in ("collect", "info", "preview", "train", "equations", "control", "reproduce"):
         assert cmd in r.stdout
     r = run("collect", "--help")
     assert r.returncode == 0 and "--trajectories" in r.stdout and "resum" in r.stdout

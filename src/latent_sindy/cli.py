@@ -6,7 +6,7 @@
     latent-sindy train --data data/push.h5 --model sindy --order 2 --horizon 1 --out runs/sindy2
     latent-sindy equations runs/sindy2
     latent-sindy control runs/sindy2 --task paper --episodes 1
-    latent-sindy demo --out runs/demo
+    latent-sindy reproduce --scale demo --out results/demo
 
 Mistakes a user can fix (a missing file, an impossible setting) end with one line on
 stderr and exit status 2; set LATENT_SINDY_DEBUG=1 to see the traceback.
@@ -24,6 +24,7 @@ from typing import Annotated, Literal
 import tyro
 
 from latent_sindy.errors import UserError
+from latent_sindy.experiments.reproduce import ReproduceConfig
 from latent_sindy.training import TrainConfig
 
 
@@ -242,25 +243,28 @@ class Control:
 
 
 @dataclass
-class Demo:
-    """The main job on its defaults: collect a small data set and write its preview."""
+class Reproduce:
+    """Reproduce the paper's study and our additions in one command, and write the report.
 
-    out: Path = Path("runs/demo")
-    """Folder for everything the demo writes."""
-    trajectories: int = 20
-    workers: int = 2
-    seed: int = 0
+    Collects the data if missing; trains SINDy orders 1-4, a multi-step SINDy, the linear (E2C)
+    and the MLP baselines on the same data, splits and seeds; evaluates losses, prediction
+    error against horizon, sparsity and closed-loop control (latent and image-space MPPI);
+    writes table1.md/csv, figures/, equations, summary.json and a self-contained report.html.
+    A re-run reuses finished pieces.
+    """
+
+    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), tyro.conf.OmitArgPrefixes] = (
+        field(default_factory=ReproduceConfig))
 
     def run(self) -> None:
-        data = self.out / "data.h5"
-        Collect(out=data, trajectories=self.trajectories, workers=self.workers,
-                seed=self.seed).run()
-        Info(data).run()
-        Preview(data, out=self.out / "data_preview.png").run()
+        from latent_sindy.experiments.reproduce import reproduce
+
+        report = reproduce(self.config)
+        print(f"report: {report}")
 
 
 COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train,
-            "equations": Equations, "control": Control, "demo": Demo}
+            "equations": Equations, "control": Control, "reproduce": Reproduce}
 
 
 def main(argv: list[str] | None = None) -> int:

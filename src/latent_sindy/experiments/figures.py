@@ -1,0 +1,177 @@
+"""The study's figures as PNG files: the paper's Fig. 6-10 and ours.
+
+Drawn with matplotlib's object API (no pyplot, so no global backend or open figures):
+
+* :func:`loss_histories` (Fig. 6/7): training and validation objective per epoch, a line per model;
+* :func:`rollout_strip` (Fig. 8): ground truth, single-step and multi-step model rollouts from
+  the same first image and actions;
+* :func:`coefficient_map` (Fig. 9/10): M ⊙ Ψ, rows latent states, columns candidate terms;
+* :func:`horizon_plot`: prediction error against horizon, a line per model;
+* :func:`control_bars`: closed-loop success rates and planning time per model.
+
+    from latent_sindy.experiments import figures
+    figures.coefficient_map(run.model.dynamics, "SINDy order 2", Path("figures/coef.png"))
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+
+from latent_sindy.models.dynamics import SindyDynamics
+
+__all__ = ["coefficient_map", "control_bars", "horizon_plot", "loss_histories", "rollout_strip"]
+
+#: Most columns a coefficient map shows (each labelled with its term's name).
+MAX_COLUMNS = 240
+
+
+def _figure(nrows: int = 1, ncols: int = 1, **kw) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=kw.pop("figsize", (6.5, 4)))
+    return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def loss_histories(histories: Mapping[str, list[dict]], labels: Mapping[str, str],
+                   path: Path) -> Path:
+    """Train (left) and validation (right) objective per epoch; one line per model."""
+    fig, axes = _figure(1, 2, figsize=(11, 4), sharey=True)
+    axes = axes[0]
+    for ax, split in zip(axes, ("train", "val"), strict=True):
+        for name, rows in histories.items():
+            pts = [(r["epoch"], r[f"{split}/objective"]) for r in rows
+                   if r.get(f"{split}/objective") is not None]
+            if pts:
+                ax.plot(*zip(*pts, strict=True), label=labels[name], lw=1.2)
+        ax.set(title=f"{'training' if split == 'train' else 'validation'} loss (Fig. "
+                     f"{6 if split == 'train' else 7})", xlabel="epoch", yscale="log")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("objective (recon + pred_x + pred_z)")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def rollout_strip(rows: Sequence[tuple[str, np.ndarray]], path: Path) -> Path:
+    """Image rows (label, frames (T+1, C, S, S) in pixel values), one column per time step."""
+    n_rows, n_cols = len(rows), len(rows[0][1])
+    fig, axes = _figure(n_rows, n_cols, figsize=(1.1 * n_cols + 1.6, 1.2 * n_rows + 0.3))
+    for i, (label, frames) in enumerate(rows):
+        for t in range(n_cols):
+            ax = axes[i, t]
+            img = np.clip(frames[t], 0, 255).astype(np.uint8)
+            img = img[0] if img.shape[0] == 1 else img.transpose(1, 2, 0)
+            ax.imshow(img, cmap="gray", vmin=0, vmax=255)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0:
+                ax.set_title(f"t={t}", fontsize=8)
+        axes[i, 0].set_ylabel(label, fontsize=8, rotation=0, ha="right", va="center")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
+    """M ⊙ Ψ as a signed heat map (rows latent states, columns candidate terms, labelled).
+
+    A library of at most ``MAX_COLUMNS`` terms (orders 1-2) is shown whole. A larger one
+    (orders 3-4) shows its active columns only (terms some state uses), and of those, when
+    there are more than ``MAX_COLUMNS``, the strongest by Σ_states |coefficient|.
+    """
+    coef = dyn.coefficients().detach().cpu().numpy().T  # (nz, p)
+    mask = dyn.mask.cpu().numpy().T  # (nz, p)
+    names = dyn.names
+    p = coef.shape[1]
+    if p <= MAX_COLUMNS:
+        cols, shown = np.arange(p), "all terms"
+    else:
+        active = np.flatnonzero(mask.any(axis=0))
+        cols = active
+        shown = f"the {len(active)} active terms of {p}"
+        if len(active) > MAX_COLUMNS:
+            strength = np.abs(coef[:, active]).sum(axis=0)
+            cols = np.sort(active[np.argsort(-strength, kind="stable")[:MAX_COLUMNS]])
+            shown = f"the {MAX_COLUMNS} strongest of {len(active)} active terms (of {p})"
+        if len(cols) == 0:
+            cols, shown = np.arange(1), f"no active term of {p}"
+    data = np.ma.masked_where(~mask[:, cols], coef[:, cols])
+    lim = float(np.abs(coef).max()) or 1.0
+    width, height = min(30.0, max(6.0, 0.11 * len(cols) + 2)), 4.2
+    fig, ax = _figure(figsize=(width, height))
+    ax = ax[0, 0]
+    # fixed margins: tight_layout measures every rotated label, seconds for 240 columns
+    fig.subplots_adjust(left=0.5 / width, right=1 - 1.0 / width, top=1 - 0.35 / height,
+                        bottom=0.85 / height)
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="#eeeeee")  # pruned: grey
+    im = ax.imshow(data, aspect="auto", cmap=cmap, vmin=-lim, vmax=lim, interpolation="nearest")
+    ax.set_yticks(range(coef.shape[0]), [f"z{j}" for j in range(coef.shape[0])], fontsize=6)
+    ax.set_xticks(range(len(cols)), [names[i] for i in cols], rotation=90,
+                  fontsize=7 if len(cols) <= 60 else 5)
+    ax.set_title(f"{title}: {int(mask.sum())} active coefficients of {mask.size} "
+                 f"({100 * (1 - mask.mean()):.1f}% sparse); showing {shown}", fontsize=9)
+    fig.colorbar(im, ax=ax, fraction=0.02, pad=0.01)
+    return _save(fig, path)
+
+
+def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
+                 labels: Mapping[str, str], path: Path) -> Path:
+    """Prediction error against horizon, log scale: {model: (means, stds)} per horizon 1..T.
+
+    The y axis stops at 100x the largest one-step error, so that one exploding rollout does
+    not flatten the others; a model that leaves the plot (or diverges) says where.
+    """
+    fig, ax = _figure()
+    ax = ax[0, 0]
+    first = [m[0] for m, _ in curves.values() if m and np.isfinite(m[0])]
+    top = 100 * max(first) if first else np.inf
+    for name, (mean, std) in curves.items():
+        m = np.asarray(mean, dtype=float)
+        s = np.nan_to_num(np.asarray(std, dtype=float))
+        h = np.arange(1, len(m) + 1)
+        out = ~(np.isfinite(m) & (m <= top))
+        label = labels[name]
+        if out.any():
+            label += f" (leaves the plot at h={int(h[out][0])})"
+        ok = np.isfinite(m)
+        ax.plot(h[ok], m[ok], marker="o", ms=3, label=label)
+        ax.fill_between(h[ok], np.maximum(m[ok] - s[ok], m[ok] * 0.5), m[ok] + s[ok], alpha=0.15)
+    ax.set(xlabel="prediction horizon (pushes)", ylabel="image MSE (normalised pixels)",
+           title="open-loop prediction error on test trajectories", yscale="log")
+    if np.isfinite(top):
+        ax.set_ylim(top=top)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def control_bars(models: Sequence[str], labels: Mapping[str, str],
+                 bars: Mapping[str, Mapping[str, float]], plan_ms: Mapping[str, float],
+                 path: Path) -> Path:
+    """Left: success rate per model for each condition; right: latent planning ms per step."""
+    fig, axes = _figure(1, 2, figsize=(12, 4), width_ratios=(2, 1))
+    ax, ax2 = axes[0]
+    x = np.arange(len(models))
+    width = 0.8 / max(len(bars), 1)
+    for k, (cond, values) in enumerate(bars.items()):
+        ax.bar(x + (k - (len(bars) - 1) / 2) * width,
+               [100 * np.nan_to_num(values.get(m, np.nan)) for m in models], width, label=cond)
+    ax.set_xticks(x, [labels[m] for m in models], rotation=20, fontsize=8)
+    ax.set(ylabel="success rate (%)", ylim=(0, 105), title="closed-loop success")
+    ax.legend(fontsize=7)
+    ax.grid(axis="y", alpha=0.3)
+    ax2.bar(x, [plan_ms.get(m, np.nan) for m in models], color="gray")
+    ax2.set_xticks(x, [labels[m] for m in models], rotation=20, fontsize=8)
+    ax2.set(ylabel="ms per control step", title="latent MPPI planning time")
+    ax2.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, path)

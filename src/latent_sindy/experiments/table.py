@@ -1,0 +1,151 @@
+"""The paper's Table I beside ours, as Markdown and CSV (rows metrics, columns models).
+
+Rows the paper reports come twice, "(paper)" then "(ours)"; the rows we add (success rates,
+planning time, discarded samples, prediction error) only as ours. Our values are mean ± std
+over the seeds (see :func:`latent_sindy.experiments.evaluation.aggregate`).
+
+    from latent_sindy.experiments.table import table1_rows, write_table1
+    write_table1(out_dir, models, labels, stats, seeds=2)  # table1.md, table1.csv
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from latent_sindy.experiments.evaluation import Stat
+
+__all__ = ["PAPER", "ROWS", "Row", "format_stat", "table1_rows", "write_table1"]
+
+#: The paper's Table I by column (SINDy orders 1-4, E2C); sparsity in percent.
+PAPER: dict[str, dict[str, float | None]] = {
+    "sindy1": {"loss/train": 0.0232, "loss/val": 0.0376, "loss/test": 0.0631,
+               "control/paper/latent/steps_to_goal_mean": 15, "sindy/sparsity": 98.3},
+    "sindy2": {"loss/train": 0.0255, "loss/val": 0.0409, "loss/test": 0.0597,
+               "control/paper/latent/steps_to_goal_mean": 15, "sindy/sparsity": 96.3},
+    "sindy3": {"loss/train": 0.0206, "loss/val": 0.0355, "loss/test": 0.0647,
+               "control/paper/latent/steps_to_goal_mean": 15, "sindy/sparsity": 96.0},
+    "sindy4": {"loss/train": 0.0587, "loss/val": 0.0804, "loss/test": 0.1018,
+               "control/paper/latent/steps_to_goal_mean": 15, "sindy/sparsity": 94.6},
+    "linear": {"loss/train": 0.0286, "loss/val": 0.0574, "loss/test": 0.2212,
+               "control/paper/latent/steps_to_goal_mean": 5, "sindy/sparsity": None},
+}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One metric of the table: its key in the metric dictionaries, label and format."""
+
+    key: str
+    label: str
+    fmt: str  # "loss", "pct" (a fraction shown in %), "pct100" (already in %), "num", "int"
+    in_paper: bool = False
+
+
+ROWS: tuple[Row, ...] = (
+    Row("loss/train", "training loss", "loss", True),
+    Row("loss/val", "validation loss", "loss", True),
+    Row("loss/test", "test loss", "loss", True),
+    Row("control/paper/latent/steps_to_goal_mean", "steps to goal (paper task, latent MPPI)",
+        "num", True),
+    Row("sindy/sparsity", "sparsity", "pct100", True),
+    Row("sindy/active", "active coefficients", "int"),
+    Row("control/paper/latent/success_rate", "success, paper task, latent MPPI", "pct"),
+    Row("control/random/latent/success_rate", "success, random tasks, latent MPPI (course)",
+        "pct"),
+    Row("control/random/latent/strict_success_rate",
+        "success, random tasks, latent MPPI (strict)", "pct"),
+    Row("control/random/latent/steps_to_goal_mean", "steps to goal, random tasks, latent MPPI",
+        "num"),
+    Row("control/paper/image/success_rate", "success, paper task, image-space MPPI", "pct"),
+    Row("control/random/image/success_rate", "success, random tasks, image-space MPPI (course)",
+        "pct"),
+    Row("control/latent/plan_ms_mean", "planning ms per step, latent MPPI", "num"),
+    Row("control/image/plan_ms_mean", "planning ms per step, image-space MPPI", "num"),
+    Row("control/discarded_total", "discarded MPPI samples (NaN/inf), all episodes", "int"),
+    Row("pred_err/h1", "prediction error, 1 step (test, image MSE)", "loss"),
+    Row("pred_err/hmax", "prediction error, last horizon (test, image MSE)", "loss"),
+)
+
+
+def _num(v: float, fmt: str) -> str:
+    if fmt == "loss":
+        return f"{v:.4f}" if 1e-3 <= abs(v) < 1e4 else f"{v:.2e}"
+    if fmt == "pct":
+        return f"{100 * v:.0f}%"
+    if fmt == "pct100":
+        return f"{v:.1f}%"
+    if fmt == "int":
+        return f"{v:.0f}"
+    return f"{v:.1f}"
+
+
+def format_stat(s: Stat | None, fmt: str, seeds: int) -> str:
+    """``mean ± std`` (± left out for one seed); "n/a" not applicable, "—" no result,
+    "diverged" for an infinite value."""
+    if s is None or s.mean is None:
+        return "n/a"
+    if math.isnan(s.mean):
+        return "—"
+    if math.isinf(s.mean):
+        return "diverged"
+    text = _num(s.mean, fmt)
+    if seeds > 1:
+        text += f" ± {_num(s.std, fmt)}"
+        if s.n < seeds:
+            text += f" ({s.n}/{seeds} seeds)"
+    return text
+
+
+def _ours(stats: Mapping[str, Stat], row: Row) -> Stat | None:
+    s = stats.get(row.key)
+    if s is not None and row.fmt == "pct100" and s.mean is not None:
+        return Stat(100 * s.mean, 100 * s.std, s.n)
+    return s
+
+
+def _paper(model: str, row: Row) -> str:
+    if model not in PAPER:
+        return "—"
+    v = PAPER[model].get(row.key)
+    return "n/a" if v is None else _num(v, row.fmt) if row.fmt != "num" else f"{v:g}"
+
+
+def table1_rows(models: Sequence[str], stats: Mapping[str, Mapping[str, Stat]],
+                seeds: int) -> list[list[str]]:
+    """Markdown/HTML rows: [label, one cell per model]; paper rows precede our rows."""
+    rows = []
+    for row in ROWS:
+        if row.in_paper:
+            rows.append([f"{row.label} (paper)", *(_paper(m, row) for m in models)])
+        cells = [format_stat(_ours(stats.get(m, {}), row), row.fmt, seeds) for m in models]
+        rows.append([f"{row.label} (ours)" if row.in_paper else row.label, *cells])
+    return rows
+
+
+def write_table1(out: Path, models: Sequence[str], labels: Mapping[str, str],
+                 stats: Mapping[str, Mapping[str, Stat]], seeds: int) -> tuple[Path, Path]:
+    """Write ``out/table1.md`` (formatted) and ``out/table1.csv`` (one row per metric, model)."""
+    header = ["metric", *(labels[m] for m in models)]
+    rows = table1_rows(models, stats, seeds)
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md += ["| " + " | ".join(r) + " |" for r in rows]
+    note = ("\n\nOurs: mean ± sample std over seeds where several; n/a: does not apply; —: no "
+            "value (the paper did not report it, or no episode reached the goal); diverged: "
+            "the open-loop rollout overflowed.\n")
+    (out / "table1.md").write_text("\n".join(md) + note)
+    with (out / "table1.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["metric", "model", "paper", "ours_mean", "ours_std", "ours_n", "ours"])
+        for row in ROWS:
+            for m in models:
+                s = _ours(stats.get(m, {}), row)
+                paper = PAPER.get(m, {}).get(row.key) if row.in_paper else None
+                w.writerow([row.label, m, "" if paper is None else paper,
+                            "" if s is None or s.mean is None else s.mean,
+                            "" if s is None or s.std is None else s.std,
+                            0 if s is None else s.n, format_stat(s, row.fmt, seeds)])
+    return out / "table1.md", out / "table1.csv"

@@ -1,0 +1,143 @@
+"""The study pipeline end to end at the tiny scale: every output, a report that renders, re-runs
+that reuse the finished pieces, and the mean ± std aggregation over seeds."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import replace
+
+import pytest
+
+from latent_sindy.errors import UserError
+from latent_sindy.experiments.evaluation import Stat, aggregate, mean_std
+from latent_sindy.experiments.jobs import ensure_trained
+from latent_sindy.experiments.reproduce import SCALES, ReproduceConfig, model_specs, reproduce
+from latent_sindy.experiments.table import PAPER, ROWS, format_stat
+from latent_sindy.training import TrainConfig
+from test_report import CHECK, _chromium, _render_title
+
+MODELS = [s.name for s in model_specs(SCALES["tiny"])]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory) -> dict:
+    """The tiny study run twice in one folder: timings, progress lines and file mtimes."""
+    out = tmp_path_factory.mktemp("study")
+    cfg = ReproduceConfig(scale="tiny", out=out, workers=1, verbose=False)
+    lines: list[str] = []
+    t0 = time.perf_counter()
+    report = reproduce(cfg, lines.append)
+    first = time.perf_counter() - t0
+    reused = [*out.glob("data.h5"), *out.glob("runs/seed0/*/model.pt"),
+              *out.glob("runs/seed0/*/evaluation.json"),
+              *out.glob("runs/seed0/*/control-*/results.json")]
+    mtimes = {p: p.stat().st_mtime_ns for p in reused}
+    t0 = time.perf_counter()
+    again = reproduce(cfg, lines.append)
+    second = time.perf_counter() - t0
+    return {"out": out, "cfg": cfg, "report": report, "again": again, "first": first,
+            "second": second, "mtimes": mtimes, "lines": lines}
+
+
+def test_pipeline_runs_in_well_under_a_minute(study):
+    assert study["report"] == study["out"] / "report.html" == study["again"]
+    assert study["first"] < 60, f"tiny study took {study['first']:.1f} s"
+    assert any(line.startswith("[4/4] report") for line in study["lines"])
+
+
+def test_rerun_reuses_data_runs_evaluations_and_episodes(study):
+    mtimes = study["mtimes"]
+    assert len(mtimes) == 1 + 2 * len(MODELS) + 4 * len(MODELS)  # data; model, evaluation; episodes
+    changed = [str(p) for p, t in mtimes.items() if p.stat().st_mtime_ns != t]
+    assert not changed
+    assert study["second"] < 0.5 * study["first"], (study["first"], study["second"])
+    assert "reused" in " ".join(study["lines"]) and "reusing" in " ".join(study["lines"])
+
+
+def test_table1_has_paper_values_and_ours_for_every_model(study):
+    out = study["out"]
+    md = (out / "table1.md").read_text()
+    for value in ("0.0232", "0.2212", "98.3%", "94.6%"):
+        assert value in md
+    with (out / "table1.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(ROWS) * len(MODELS)
+    by = {(r["metric"], r["model"]): r for r in rows}
+    for row in ROWS:
+        for m in MODELS:
+            r = by[(row.label, m)]
+            if row.in_paper and m in PAPER and PAPER[m].get(row.key) is not None:
+                assert float(r["paper"]) == PAPER[m][row.key]
+            if row.key.startswith(("loss/", "control/")) and "steps" not in row.key:
+                assert math.isfinite(float(r["ours_mean"])), (row.label, m)
+            if row.key.startswith("pred_err/"):  # inf would be a diverged rollout
+                assert not math.isnan(float(r["ours_mean"])), (row.label, m)
+    assert {r["model"] for r in rows} == set(MODELS)
+
+
+def test_every_figure_equation_and_summary_is_written(study):
+    out = study["out"]
+    fig = out / "figures"
+    expected = ["loss_histories.png", "prediction_error.png", "rollouts.png", "control.png",
+                *(f"coefficients_{m}.png" for m in MODELS if m.startswith("sindy"))]
+    for name in expected:
+        assert (fig / name).stat().st_size > 1000, name
+    gifs = {p.name for p in (fig / "gifs").glob("*.gif")}
+    assert gifs == {f"{m}_{task}-{space}.gif" for m in MODELS for task in ("paper", "random")
+                    for space in ("latent", "image")}
+    for m in MODELS:
+        assert (out / f"equations_{m}.txt").read_text().startswith("# seed 0")
+    summary = json.loads((out / "summary.json").read_text(),
+                         parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"))
+    assert summary["seeds"] == [0]
+    assert {"python", "torch", "pybullet", "latent-sindy"} <= set(summary["versions"])
+    assert set(summary["aggregate"]) == set(MODELS)
+    assert summary["aggregate"]["sindy4"]["control/discarded_total"]["mean"] == 0
+
+
+def test_report_renders_every_table_and_image(study, tmp_path):
+    browser = _chromium()
+    text = study["report"].read_text()
+    n_img, n_cells = text.count("<img "), text.count("<td>")
+    assert n_img >= 4 + 5 + 4 * len(MODELS) and "Table I" in text
+    page = tmp_path / "checked.html"
+    page.write_text(text.replace("</body>", CHECK + "</body>"))
+    title = _render_title(browser, page, tmp_path)
+    assert title == f"RENDER images {n_img}/{n_img} cells {n_cells}"
+
+
+def test_a_finished_run_with_other_settings_is_refused(study):
+    run = study["out"] / "runs" / "seed0" / "sindy1"
+    cfg = json.loads((run / "config.json").read_text())["train"]
+    same = TrainConfig.from_dict(cfg)
+    assert ensure_trained(same) == "reused"
+    with pytest.raises(UserError, match="epochs"):
+        ensure_trained(replace(same, epochs=same.epochs + 1))
+
+
+def test_mean_std_over_seeds():
+    s = mean_std([1.0, 3.0])
+    assert s.mean == 2.0 and s.std == pytest.approx(math.sqrt(2.0)) and s.n == 2  # ddof = 1
+    assert mean_std([5.0]) == Stat(5.0, 0.0, 1)
+    assert mean_std([None, None]) == Stat(None, None, 0)  # does not apply
+    nan = mean_std([math.nan, math.nan])
+    assert math.isnan(nan.mean) and nan.n == 0  # applies, but no result
+    assert mean_std([2.0, math.nan, 4.0]) == Stat(3.0, pytest.approx(math.sqrt(2.0)), 2)
+    agg = aggregate([{"loss": 0.1, "steps": 12.0, "sparsity": None},
+                     {"loss": 0.3, "steps": math.nan, "sparsity": None, "extra": 1.0}])
+    assert agg["loss"].mean == pytest.approx(0.2) and agg["loss"].std == pytest.approx(0.1414, 1e-3)
+    assert agg["steps"] == Stat(12.0, 0.0, 1) and agg["sparsity"].mean is None
+    assert agg["extra"] == Stat(1.0, 0.0, 1) and list(agg) == ["loss", "steps", "sparsity", "extra"]
+    assert format_stat(agg["loss"], "loss", seeds=2) == "0.2000 ± 0.1414"
+    assert format_stat(agg["steps"], "num", seeds=2) == "12.0 ± 0.0 (1/2 seeds)"
+    assert format_stat(agg["sparsity"], "pct100", seeds=2) == "n/a"
+
+
+def test_config_is_validated(tmp_path):
+    for bad in ({"seeds": ()}, {"seeds": (0, 0)}, {"seeds": (-1,)}, {"workers": 0},
+                {"scale": "huge"}):
+        with pytest.raises(UserError):
+            ReproduceConfig(out=tmp_path, **bad)
