@@ -17,6 +17,17 @@ def env():
     e.close()
 
 
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Run a module's tests on one torch thread (fast and repeatable on a shared 2-core box)."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 @pytest.fixture
 def trajectories() -> Trajectories:
     return make_trajectories()

@@ -21,12 +21,7 @@ from latent_sindy.models import (
 KINDS = ("sindy", "linear", "mlp")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def tiny(kind: str, **kw) -> LatentModel:

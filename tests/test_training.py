@@ -36,12 +36,7 @@ KINDS = ("sindy", "linear", "mlp")
 TINY = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,), "mlp_hidden": 16}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
