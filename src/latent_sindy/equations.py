@@ -20,8 +20,9 @@ import json
 import os
 from pathlib import Path
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.models.dynamics import LatentDynamics, LinearDynamics, SindyDynamics
-from latent_sindy.training import load_run, write_atomic
+from latent_sindy.training import load_run
 
 __all__ = ["CSV_FILE", "JSON_FILE", "coefficient_rows", "equations_report"]
 

@@ -32,7 +32,6 @@ import json
 import math
 import os
 import pickle
-import tempfile
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ from typing import Any, NamedTuple, Protocol
 
 import torch
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.envs.config import PushEnvConfig
@@ -281,18 +281,6 @@ class Run(NamedTuple):
 
 
 # ----------------------------------------------------------------------------- files
-def write_atomic(path: Path, write: Any, binary: bool = True) -> None:
-    """Call ``write(fileobj)`` on a temporary file beside ``path``, then rename it into place."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
-            write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _save_torch(obj: Any, path: Path) -> None:
     write_atomic(path, lambda f: torch.save(obj, f))
 

@@ -16,7 +16,6 @@ import csv
 import json
 import math
 import os
-import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+from latent_sindy.atomic import atomic_path, write_atomic
 from latent_sindy.control.costs import ImageCost, LatentCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data.windows import Normalizer
@@ -236,7 +236,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
     summary = summarize(results)
     record = {"settings": asdict(settings), "summary": summary,
               "episodes": [asdict(r) for r in results]}
-    _write_text(out / "results.json", json.dumps(record, indent=1))
+    write_atomic(out / "results.json", lambda f: f.write(json.dumps(record, indent=1)), False)
     rows = [{k: v for k, v in asdict(r).items() if k != "actions"} for r in results]
     _write_csv(out / "results.csv", rows)
     return results, summary
@@ -245,26 +245,14 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
 def save_gif(frames: list[np.ndarray], path: Path, ms_per_frame: int = 500) -> None:
     import imageio.v3 as iio
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".gif", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         iio.imwrite(tmp, np.stack(frames), extension=".gif", duration=ms_per_frame, loop=0)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as f:
+    def write(f) -> None:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    os.replace(tmp, path)
+
+    write_atomic(path, write, binary=False)

@@ -19,7 +19,6 @@ import json
 import multiprocessing as mp
 import os
 import shutil
-import tempfile
 import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from latent_sindy.atomic import atomic_path, write_atomic
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
 from latent_sindy.errors import UserError
@@ -118,14 +118,8 @@ def _partial_dir(out: Path) -> Path:
 
 
 def _save_atomic_npz(path: Path, arrays: dict) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         np.savez(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _load_done(partial: Path, plan: CollectionPlan) -> dict[int, dict]:
@@ -160,9 +154,7 @@ def _open_journal(out: Path, plan: CollectionPlan) -> Path:
                 f"{partial} holds an interrupted collection with other settings; re-run it "
                 f"with the same settings to finish it, or delete {partial} to start over")
     partial.mkdir(parents=True, exist_ok=True)
-    tmp = manifest.with_suffix(".tmp")
-    tmp.write_text(json.dumps(plan.to_dict(), indent=1))
-    os.replace(tmp, manifest)
+    write_atomic(manifest, lambda f: f.write(json.dumps(plan.to_dict(), indent=1)), False)
     return partial
 
 

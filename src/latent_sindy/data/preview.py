@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from latent_sindy.atomic import atomic_path
 from latent_sindy.data.store import SPLITS, Trajectories
 
 
@@ -42,9 +43,9 @@ def save_preview(data: Trajectories, out: str | os.PathLike, rows: int = 6) -> P
                  "(labels: block x, y in m)", fontsize=8)
     fig.tight_layout()
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, out)
+    try:
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
     return out

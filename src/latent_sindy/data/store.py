@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -29,6 +28,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from latent_sindy.atomic import atomic_path
 from latent_sindy.envs import config as C
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
@@ -128,36 +128,27 @@ def write_trajectories(path: str | os.PathLike, data: Trajectories) -> None:
     """Write `data` to `path` atomically (temporary file, then rename)."""
     from latent_sindy import __version__
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        mean, std = data.pixel_stats()
-        with h5py.File(tmp, "w") as f:
-            t1 = data.images.shape[1]
-            f.create_dataset("images", data=data.images, chunks=(1, *data.images.shape[1:]),
-                             compression="gzip", compression_opts=4, shuffle=True)
-            f.create_dataset("actions", data=data.actions.astype(np.float32))
-            f.create_dataset("poses", data=data.poses.astype(np.float32))
-            f.create_dataset("split", data=data.split_ids.astype(np.uint8))
-            f["split"].attrs["names"] = json.dumps(SPLITS)
-            f.attrs.update({
-                "format": FORMAT,
-                "format_version": FORMAT_VERSION,
-                "package_version": __version__,
-                "created": datetime.now(UTC).isoformat(timespec="seconds"),
-                "seed": -1 if data.seed is None else int(data.seed),
-                "steps": t1 - 1,
-                "env_config": json.dumps(data.env_config.to_dict()),
-                "collection": json.dumps(data.collection),
-                "pixel_mean": mean,
-                "pixel_std": std,
-            })
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    mean, std = data.pixel_stats()
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        t1 = data.images.shape[1]
+        f.create_dataset("images", data=data.images, chunks=(1, *data.images.shape[1:]),
+                         compression="gzip", compression_opts=4, shuffle=True)
+        f.create_dataset("actions", data=data.actions.astype(np.float32))
+        f.create_dataset("poses", data=data.poses.astype(np.float32))
+        f.create_dataset("split", data=data.split_ids.astype(np.uint8))
+        f["split"].attrs["names"] = json.dumps(SPLITS)
+        f.attrs.update({
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "package_version": __version__,
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+            "seed": -1 if data.seed is None else int(data.seed),
+            "steps": t1 - 1,
+            "env_config": json.dumps(data.env_config.to_dict()),
+            "collection": json.dumps(data.collection),
+            "pixel_mean": mean,
+            "pixel_std": std,
+        })
 
 
 def read_trajectories(path: str | os.PathLike) -> Trajectories:

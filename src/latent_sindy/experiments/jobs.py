@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -24,6 +23,7 @@ from typing import Any
 
 import torch
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.control.closed_loop import ControlSettings, run_control
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.errors import UserError
@@ -177,9 +177,7 @@ def eval_job(job: EvalJob) -> dict[str, Any]:
                   "horizon": evaluation.horizon_errors(run.model, held_out(data),
                                                        run.normalizer),
                   "stats": evaluation.model_stats(run.model)}
-        tmp = cache.with_name(f".{cache.name}.tmp")
-        tmp.write_text(json.dumps(record, indent=1))
-        os.replace(tmp, cache)
+        write_atomic(cache, lambda f: f.write(json.dumps(record, indent=1)), binary=False)
     control = {name: _control(run, job.run / name, s) for name, s in job.controls.items()}
     train_s = sum(r["time_s"] or 0.0 for r in read_metrics(job.run))
     return {**record, "control": control, "train_seconds": train_s,

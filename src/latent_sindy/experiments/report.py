@@ -16,9 +16,10 @@ from __future__ import annotations
 import base64
 import html
 import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+
+from latent_sindy.atomic import write_atomic
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".jpeg": "image/jpeg",
          ".svg": "image/svg+xml"}
@@ -87,13 +88,8 @@ class Report:
                 + "\n</body></html>\n")
 
     def write(self, path: str | os.PathLike) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(self.html())
-        os.replace(tmp, path)
-        return path
+        write_atomic(path, lambda f: f.write(self.html()), binary=False)
+        return Path(path)
 
 
 def _img(path: str | os.PathLike, alt: str) -> str:
