@@ -45,7 +45,7 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.envs.config import PushEnvConfig
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, reject_unknown_fields
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 
 __all__ = [
@@ -188,10 +188,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TrainConfig:
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise UserError(f"unknown training settings {sorted(unknown)}")
+        reject_unknown_fields(cls, d, "training")
         d = dict(d)
         d.update(
             data=Path(d["data"]),

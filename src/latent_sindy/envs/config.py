@@ -15,7 +15,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, reject_unknown_fields
 
 #: The paper's task: start and goal block poses (x, y, theta).
 PAPER_START = (0.4, 0.0, 0.2 * math.pi)
@@ -106,10 +106,7 @@ class PushEnvConfig:
     def from_dict(cls, d: dict) -> PushEnvConfig:
         """Rebuild from :meth:`to_dict` output (e.g. read back from a data file's attributes)."""
         d = dict(d)
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise UserError(f"unknown environment settings {sorted(unknown)}")
+        reject_unknown_fields(cls, d, "environment")
         cam = CameraConfig(**{k: tuple(v) if isinstance(v, list) else v
                               for k, v in d.pop("camera", {}).items()})
         d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}

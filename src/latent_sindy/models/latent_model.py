@@ -32,7 +32,7 @@ import torch
 import tyro
 from torch import nn
 
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, reject_unknown_fields
 from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
 from latent_sindy.models.dynamics import DYNAMICS_KINDS, LatentDynamics, make_dynamics
 from latent_sindy.sindy.library import VALID_ORDERS
@@ -144,10 +144,7 @@ class ModelConfig:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> ModelConfig:
         """Inverse of :meth:`to_dict` (JSON lists back to tuples); unknown keys are an error."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise UserError(f"unknown model settings {sorted(unknown)}")
+        reject_unknown_fields(cls, d, "model")
         d = dict(d)
         for key in ("conv_channels", "decoder_hidden"):
             if key in d:
