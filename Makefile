@@ -31,6 +31,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/collect.py
+	$(BIN)/python benchmarks/mppi.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info

@@ -9,15 +9,16 @@ Q=I, the pushing env's action box):
     the dense SINDy-2 model);
   * what each optimisation bought, on the SINDy order-2 model.
 
-No trained model exists yet: the SINDy models are random-initialised and pruned by magnitude
-to keep ``--keep`` of their coefficients (default 4%, like the paper's 95-98% sparsity). How
-many library terms stay active (what the sparse step evaluates) depends on how the kept
-coefficients spread over the terms; random pruning spreads them widely, a pessimistic case.
+The models: with ``--runs DIR`` the trained ones of a study (``DIR/sindy1`` .. ``sindy4``,
+``linear``, ``mlp``, e.g. ``results/demo/runs/seed0`` after ``make demo``), pruned as trained.
+Without it, random-initialised SINDy models pruned by magnitude to keep ``--keep`` of their
+coefficients (default 4%, like the paper's 95-98% sparsity); random pruning spreads the kept
+coefficients over many terms, a pessimistic case for the sparse step.
 
 Times are the best over ``--rounds`` interleaved rounds of the mean ms per command in a round
 (robust to other jobs on a shared machine).
 
-    .venv/bin/python benchmarks/mppi.py --threads 2
+    .venv/bin/python benchmarks/mppi.py --threads 2 [--runs results/demo/runs/seed0]
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ import os
 import time
 import types
 from collections.abc import Callable
-from dataclasses import replace
 from importlib.metadata import version
+from pathlib import Path
 
 import pytorch_mppi
 import torch
@@ -38,6 +39,7 @@ import torch
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig, latent_step
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW
 from latent_sindy.models import LatentDynamics, SindyDynamics, make_dynamics
+from latent_sindy.training import load_run
 
 NZ, NU = 16, 3
 SETTINGS = ((1000, 15), (100, 10))
@@ -53,7 +55,9 @@ def pruned_sindy(order: int, keep: float) -> SindyDynamics:
     return model
 
 
-def build(name: str, keep: float) -> LatentDynamics:
+def build(name: str, keep: float, runs: Path | None) -> LatentDynamics:
+    if runs is not None:
+        return load_run(runs / name).model.dynamics
     if name.startswith("sindy"):
         return pruned_sindy(int(name[-1]), keep)
     torch.manual_seed(0)
@@ -95,19 +99,18 @@ def with_grad_mode(ctl: MPPI, mode: Callable[[], object]) -> MPPI:
 
 
 def time_cases(cases: dict[str, Callable[[], object]], rounds: int, min_time: float
-               ) -> tuple[dict[str, float], dict[str, float]]:
-    """Best over interleaved rounds of the mean ms per call, and each case's first call (s).
+               ) -> dict[str, float]:
+    """Best over interleaved rounds of the mean ms per call.
 
     Cases taking over a second per call run in two rounds only.
     """
     best = dict.fromkeys(cases, math.inf)
-    first, warm = {}, {}
+    warm = {}
     for name, fn in cases.items():  # warm up: first-call allocations, compilation
+        fn()
         t0 = time.perf_counter()
         fn()
-        t1 = time.perf_counter()
-        fn()
-        first[name], warm[name] = t1 - t0, time.perf_counter() - t1
+        warm[name] = time.perf_counter() - t0
     for r in range(rounds):
         for name, fn in cases.items():
             if r >= 2 and warm[name] > 1.0:
@@ -120,7 +123,7 @@ def time_cases(cases: dict[str, Callable[[], object]], rounds: int, min_time: fl
                 if elapsed >= min_time:
                     break
             best[name] = min(best[name], 1e3 * elapsed / n)
-    return best, first
+    return best
 
 
 # What each optimisation bought, on SINDy order 2: (label, case key); linear for reference.
@@ -131,15 +134,14 @@ OPTIMISATIONS = (
     ("ours, dense model, no_grad", "ours-dense-nograd sindy2"),
     ("ours, dense model, inference_mode", "ours-dense sindy2"),
     ("ours, active terms (compile_sparse)", "ours-lib-sparse sindy2"),
-    ("ours, active terms feature-major (default)", "ours sindy2"),
-    ("ours, default + torch.compile", "ours-compiled sindy2"),
+    ("ours, fused numba kernel, called per step", "ours-kernel-steps sindy2"),
+    ("ours, fused kernel, whole horizon (default)", "ours sindy2"),
     ("linear model, ours (reference)", "ours linear"),
-    ("linear model, ours + torch.compile", "ours-compiled linear"),
 )
 
 
 def make_cases(models: dict[str, LatentDynamics], cfg: MPPIConfig, z: torch.Tensor,
-               goal: torch.Tensor, compile_: bool) -> dict[str, Callable[[], object]]:
+               goal: torch.Tensor) -> dict[str, Callable[[], object]]:
     cases: dict[str, Callable[[], object]] = {}
     for name, m in models.items():
         step = latent_step(m)
@@ -156,11 +158,9 @@ def make_cases(models: dict[str, LatentDynamics], cfg: MPPIConfig, z: torch.Tens
     cases["ours-dense sindy2"] = functools.partial(ours(m.step, cfg, goal).command, z)
     cases["ours-lib-sparse sindy2"] = functools.partial(
         ours(m.compile_sparse().step, cfg, goal).command, z)
-    if compile_:
-        compiled = replace(cfg, compile=True)
-        for name in ("sindy2", "linear"):
-            ctl = ours(latent_step(models[name]), compiled, goal)
-            cases[f"ours-compiled {name}"] = functools.partial(ctl.command, z)
+    kernel = latent_step(m)  # hidden behind a plain function: MPPI calls it H times
+    cases["ours-kernel-steps sindy2"] = functools.partial(
+        ours(lambda z, u: kernel(z, u), cfg, goal).command, z)
     return cases
 
 
@@ -168,9 +168,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
     ap.add_argument("--keep", type=float, default=0.04, help="fraction of SINDy coefficients kept")
+    ap.add_argument("--runs", type=Path, default=None,
+                    help="folder of trained runs sindy1..sindy4, linear, mlp (default: random)")
     ap.add_argument("--rounds", type=int, default=8)
     ap.add_argument("--min-time", type=float, default=0.1, help="seconds per case per round")
-    ap.add_argument("--no-compile", action="store_true", help="skip the torch.compile rows")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -178,22 +179,27 @@ def main() -> None:
     print(f"torch {torch.__version__}, pytorch_mppi {version('pytorch-mppi')} (same process), "
           f"{args.threads} torch threads, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start")
-    print(f"SINDy models: random-initialised, pruned to keep {args.keep:.0%} of coefficients "
-          "by magnitude (no trained model yet)")
-    models = {name: build(name, args.keep) for name in MODELS}
+    print(f"models: trained, from {args.runs}" if args.runs else
+          f"SINDy models: random-initialised, pruned to keep {args.keep:.0%} of coefficients "
+          "by magnitude")
+    models = {name: build(name, args.keep, args.runs) for name in MODELS}
     for name, m in models.items():
         if isinstance(m, SindyDynamics):
             print(f"  {name}: {m.n_active()} of {m.mask.numel()} coefficients active "
                   f"(sparsity {m.sparsity():.1%}), {len(m.active_terms())} of "
                   f"{m.library.n_terms} library terms active in some state")
+    t0 = time.perf_counter()
+    latent_step(models["sindy2"])(torch.zeros(1, NZ), torch.zeros(1, NU))
+    print(f"  first SINDy step (numba compiles the kernel, or loads it from its disk cache): "
+          f"{time.perf_counter() - t0:.2f} s")
     z = 0.1 * torch.randn(NZ)
     goal = torch.zeros(NZ)
-    results, firsts = {}, {}
+    results = {}
     for K, H in SETTINGS:
         cfg = MPPIConfig(nu=NU, K=K, H=H, sigma=0.1, lambda_=0.01, Q=1.0, low=ACTION_LOW,
                          high=ACTION_HIGH)
-        cases = make_cases(models, cfg, z, goal, not args.no_compile)
-        results[(K, H)], firsts[(K, H)] = time_cases(cases, args.rounds, args.min_time)
+        cases = make_cases(models, cfg, z, goal)
+        results[(K, H)] = time_cases(cases, args.rounds, args.min_time)
         print(f"  K={K} H={H} timed, load average {os.getloadavg()[0]:.2f}")
 
     for (K, H), res in results.items():
@@ -222,12 +228,6 @@ def main() -> None:
             cells.append(f"{ms:>8.2f} ({up:>6}, {results[s][first_key] / ms:>5.1f}x)")
         print(f"{label:<44}" + "".join(f"{c:>26}" for c in cells))
         prev = prev if "linear" in key else key
-    if not args.no_compile:
-        for (K, H), first in firsts.items():
-            print(f"  torch.compile, first command (compiles) at K={K} H={H}: SINDy-2 "
-                  f"{first['ours-compiled sindy2']:.1f} s, linear "
-                  f"{first['ours-compiled linear']:.1f} s (inductor's disk cache may shorten it)")
-
     print("\nTargets (SINDy order 2):")
     for (K, H), res in results.items():
         r1 = res["ours sindy2"] / res["ours linear"]
@@ -237,12 +237,6 @@ def main() -> None:
               f"{'met' if r1 <= 1.5 else 'NOT met'});\n    pytorch_mppi dense SINDy-2 / ours "
               f"SINDy-2 = {r2:.1f}x under no_grad (target >= 5x: "
               f"{'met' if r2 >= 5 else 'NOT met'}), {r3:.1f}x with autograd on")
-        if not args.no_compile:
-            c2, cl = res["ours-compiled sindy2"], res["ours-compiled linear"]
-            print(f"    with torch.compile: SINDy-2 / linear (both compiled) = {c2 / cl:.2f}x, "
-                  f"compiled SINDy-2 / eager linear = {c2 / res['ours linear']:.2f}x; "
-                  f"pytorch_mppi dense (no_grad) / compiled SINDy-2 = "
-                  f"{res['pm-dense sindy2'] / c2:.1f}x")
     print("\nNotes: pytorch_mppi shifts its nominal before planning (ours after), leaves the "
           "nominal unclamped and\n  samples from the global RNG; both clamp candidates into "
           "the box and use the clamped perturbation in\n  the action cost and the update. Our "

@@ -1,4 +1,7 @@
-"""State costs for MPPI: plain batched callables ``cost(z (K, nz)) -> (K,)``.
+"""State costs for MPPI: plain batched callables ``cost(z (..., nz)) -> (...)``.
+
+MPPI calls a cost once per command on all predicted states, z (H, K, nz) -> (H, K), so a
+cost must accept any leading batch dimensions.
 
 ``LatentCost`` is the paper's quadratic cost in latent space, ``ImageCost`` its image-space
 variant (decode each predicted latent and compare with the goal image).
@@ -19,7 +22,7 @@ from latent_sindy.errors import UserError
 
 __all__ = ["ImageCost", "LatentCost", "StateCost"]
 
-#: ``cost(z (K, nz)) -> (K,)``
+#: ``cost(z (..., nz)) -> (...)``, batched over any leading dimensions
 StateCost = Callable[[Tensor], Tensor]
 
 
@@ -53,17 +56,20 @@ class LatentCost:
         self._full = q.ndim == 2
 
     def __call__(self, z: Tensor) -> Tensor:
-        d = z - self.z_goal  # (K, nz)
+        d = z - self.z_goal  # (..., nz)
         if self._full:
-            return ((d @ self._weight) * d).sum(-1)  # (K,)
-        return (d * d) @ self._weight  # (K,)
+            return ((d @ self._weight) * d).sum(-1)  # (...)
+        if d.stride(-1) != 1:  # feature-major states (a fused rollout): no matmul copy
+            return d.square_().mul_(self._weight).sum(-1)  # (...)
+        return (d * d) @ self._weight  # (...)
 
 
 class ImageCost:
     """Image-space cost ``weight · ‖decoder(z) - goal_image‖²`` per sample.
 
     Args:
-        decoder: ``decoder(z (K, nz)) -> (K, ...)`` images (any shape with goal_image's size).
+        decoder: ``decoder(z (N, nz)) -> (N, ...)`` images (any shape with goal_image's size);
+            states with more leading dimensions are flattened to N for it.
         goal_image: the goal picture, in the decoder's output space (normalised like it).
         weight: scale of the squared error (summed over pixels).
     """
@@ -82,11 +88,11 @@ class ImageCost:
         self.weight = float(weight)
 
     def __call__(self, z: Tensor) -> Tensor:
-        x = self.decoder(z)  # (K, ...)
+        x = self.decoder(z.reshape(-1, z.shape[-1]))  # (N, ...)
         if x[0].numel() != self.goal.shape[1]:
             raise UserError(
                 f"ImageCost: decoder output {tuple(x.shape[1:])} does not match the goal image "
                 f"size {self.goal.shape[1]}"
             )
-        d = x.reshape(x.shape[0], -1) - self.goal  # (K, D)
-        return self.weight * (d * d).sum(-1)  # (K,)
+        d = x.reshape(x.shape[0], -1) - self.goal  # (N, D)
+        return (self.weight * (d * d).sum(-1)).reshape(z.shape[:-1])  # (...)

@@ -78,11 +78,6 @@ class MPPIConfig:
     last step is ``u_init`` ("init") or a repeat of the previous last step ("repeat")."""
     seed: int = 0
     """Seed of the controller's own noise generator."""
-    compile: bool = False
-    """``torch.compile`` the rollout (dynamics and cost over the horizon) at the first command.
-    Compiling takes from seconds (inductor's disk cache warm) to a minute per controller and
-    saves ~1-2.5 ms per command, so it pays off over thousands of commands
-    (``benchmarks/mppi.py``)."""
     dtype: torch.dtype = torch.float32
     device: str = "cpu"
 
@@ -131,8 +126,6 @@ class MPPIConfig:
             raise UserError(f"MPPIConfig.shift={self.shift!r}: use 'init' or 'repeat'")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise UserError(f"MPPIConfig.seed={self.seed!r}: must be an integer")
-        if not isinstance(self.compile, bool):
-            raise UserError(f"MPPIConfig.compile={self.compile!r}: use True or False")
 
     @staticmethod
     def _vector(name: str, value: Vector, n: int) -> tuple[float, ...]:
@@ -186,7 +179,8 @@ class MPPI:
 
     Args:
         dynamics_step: ``step(z (K, nz), u (K, nu)) -> (K, nz)``, e.g. :func:`latent_step`.
-        cost: a state cost ``cost(z (K, nz)) -> (K,)`` (e.g. :class:`LatentCost`,
+        cost: a state cost ``cost(z (..., nz)) -> (...)``, called on all predicted states
+            (H, K, nz) at once (e.g. :class:`LatentCost`,
             :class:`ImageCost`), or a goal vector z_goal (nz,), which stands for
             ``LatentCost(z_goal, config.Q)``.
         config: :class:`MPPIConfig`.
@@ -224,7 +218,6 @@ class MPPI:
         u0 = torch.zeros(cfg.nu, **kw) if cfg.u_init is None else torch.tensor(cfg.u_init, **kw)
         self.u_init = u0.clamp(self.low, self.high)  # (nu,)
         self._repeat_last = cfg.shift == "repeat"
-        self._rollout = torch.compile(self._rollout_cost) if cfg.compile else self._rollout_cost
         self._gen = torch.Generator(device=cfg.device)
         self.reset(cfg.seed)
 
@@ -279,7 +272,7 @@ class MPPI:
         eps = actions - U  # clamped perturbations (K, H, nu)
         # λ Σ_t u_tᵀ Σ⁻¹ ε_t^k as one matrix-vector product: (K,)
         total = eps.reshape(K, H * nu) @ (U * self._lam_sigma_inv).reshape(H * nu)
-        total = total + self._rollout(z.to(U).reshape(1, -1), actions)
+        total = total + self._rollout_cost(z.to(U).reshape(1, -1), actions)
 
         # NaN and ±inf totals all become +inf, so their weight below is exp(-inf) = 0.
         costs = torch.nan_to_num(total, nan=math.inf, posinf=math.inf, neginf=math.inf)  # (K,)
@@ -302,11 +295,21 @@ class MPPI:
         return action, discarded, min_cost, mean_cost
 
     def _rollout_cost(self, z0: Tensor, actions: Tensor) -> Tensor:
-        """Σ_t c(z_t) + w_T c(z_H) of all K samples: z0 (1, nz), actions (K, H, nu) -> (K,)."""
+        """Σ_t c(z_t) + w_T c(z_H) of all K samples: z0 (1, nz), actions (K, H, nu) -> (K,).
+
+        A step with a ``rollout(z0 (K, nz), actions (K, H, nu)) -> (K, H+1, nz)`` method (like
+        :class:`SparseSindyStep`) predicts the whole horizon in one call; any other step is
+        called H times. The cost then runs once on all predicted states, (H, K, nz).
+        """
         z = z0.expand(actions.shape[0], -1)  # (K, nz)
-        total = c = z0.new_zeros(actions.shape[0])  # (K,)
-        for u in actions.unbind(1):  # H steps; u (K, nu)
-            z = self.step(z, u)
-            c = self.cost(z)
-            total = total + c
-        return total + self.config.terminal_weight * c
+        rollout = getattr(self.step, "rollout", None)
+        if rollout is not None:
+            zs = rollout(z, actions)[:, 1:].transpose(0, 1)  # (H, K, nz)
+        else:
+            states = []
+            for u in actions.unbind(1):  # H steps; u (K, nu)
+                z = self.step(z, u)
+                states.append(z)
+            zs = torch.stack(states)  # (H, K, nz)
+        c = self.cost(zs)  # (H, K)
+        return c.sum(0) + self.config.terminal_weight * c[-1]

@@ -1,16 +1,22 @@
-"""A SINDy step for control: only the active library terms, evaluated feature-major.
+"""A SINDy step for control: one fused CPU kernel over the active library terms.
 
-``SparseSindyDynamics.step`` builds Θ_S sample-major, (K, |S|): every library term is a
-column gather from the feature matrix F (K, n_features). Here the same arithmetic runs on
-the transposes, so every gather copies whole contiguous rows of K values, and the identity
-and the coefficients fold into one ``addmm``:
+MPPI calls the dynamics H times per command on K samples at once. A pruned SINDy model's
+step ``z + Θ_S(z, u) C_S`` touches |S| active terms but only nnz(C_S) nonzero coefficients
+(a term is often active in one or two latent states). In torch every term costs a gather and
+a multiply over all K samples and the coefficients a dense (K, |S|) @ (|S|, nz) product; here
+one numba kernel does it in a single pass over cache-sized blocks of samples:
 
-    z_{t+1}ᵀ = z_tᵀ + C_Sᵀ Θ_Sᵀ,   Θ_Sᵀ[s] = Π_k Fᵀ[table[s, k]]    (Fᵀ: (n_features, K))
+    out_i = z_i + b_i + Σ_{(s, i, c) ∈ nnz(C_S)} c · θ_s,   θ_s = Π_k F[term_s[k]]
 
-Fᵀ lives in a buffer reused across calls, holding only the sines and cosines that some term
-uses. The step returns the transposed result as a (K, nz) view, so the next step's ``zᵀ`` is
-contiguous again. Results equal the model's own step to float rounding (checked on a probe
-batch when the step is built).
+with F = [z, u, sin z, cos z] for the block (only the sines and cosines some term uses; torch
+computes those, since its vectorised sine is ~7× faster than the kernel's scalar one) and b
+the constant term's coefficients. Terms are sorted lexicographically so a term reuses its
+predecessor's partial product over their common prefix (x0 x1 x2 after x0 x1: one multiply).
+Everything runs feature-major (nz, K): the step returns a transposed view, so the next step's
+input is contiguous again. Results equal the model's own step to float rounding (checked on a
+probe batch when the step is built).
+
+On devices other than the CPU the model's sparse torch step runs instead.
 
     >>> step = SparseSindyStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
     >>> z_next = step(z, u)  # z (K, nz), u (K, nu) -> (K, nz)
@@ -18,8 +24,10 @@ batch when the step is built).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -27,102 +35,138 @@ from latent_sindy.models.dynamics import SindyDynamics, SparseSindyDynamics
 
 __all__ = ["SparseSindyStep"]
 
+_FLOATS = (torch.float32, torch.float64)
+
+#: Samples per block of the kernel: features, partial products and outputs of one block stay
+#: in cache (measured fastest at K = 1000 on the development machine; BENCHMARKS.md).
+BLOCK = 512
+
+
+@functools.cache
+def _kernel() -> Callable[..., None]:
+    """The numba kernel: numba is imported on first use, which compiles the kernel once per
+    dtype and layout (about a second; numba caches it on disk for later processes)."""
+    from latent_sindy.control._sindy_kernel import sindy_rollout_kernel
+
+    return sindy_rollout_kernel
+
 
 class SparseSindyStep:
-    """Frozen, feature-major evaluation of ``z + Θ_S(z, u) C_S`` over the active terms S.
+    """Frozen, fused evaluation of ``z + Θ_S(z, u) C_S`` over the active terms S.
 
     Built from a :class:`SindyDynamics` (compiled to its active terms first: a snapshot, so
     build again after further training or pruning) or a :class:`SparseSindyDynamics`.
-    The library's feature vector is ``F = [z, u, 1, sin z, cos z]`` (see
-    :mod:`latent_sindy.sindy.library`); ``n_terms`` is |S|.
+    ``n_terms`` is |S| and ``n_coefficients`` the number of nonzero coefficients.
 
-    Made for control: no gradient flows through it (inputs are detached when autograd is on),
-    and its buffers make one object unsafe to call from two threads at once.
+    Made for control: no gradient flows through it, and its scratch buffers make one object
+    unsafe to call from two threads at once. The first call on the CPU compiles the kernel
+    (about a second; numba caches it on disk for later processes).
     """
 
     def __init__(self, model: SindyDynamics | SparseSindyDynamics) -> None:
         sparse = model.compile_sparse() if isinstance(model, SindyDynamics) else model
         if not isinstance(sparse, SparseSindyDynamics):
             raise TypeError(f"SparseSindyStep needs a SINDy model, got {type(model).__name__}")
+        self._sparse = sparse
         nz, nu = sparse.nz, sparse.nu
-        one = nz + nu  # library row of the constant; sin z_i at one + 1 + i, cos at + nz
-        table = sparse.library.table  # (|S|, order) indices into the library's F
-        # Our Fᵀ keeps only the sines and cosines some active term uses: remap the table.
-        used = torch.zeros(one + 1 + 2 * nz, dtype=torch.bool)
-        used[table.flatten()] = True
-        remap = torch.arange(one + 1 + 2 * nz)
-        self._trig: list[tuple[Callable[..., Tensor], Tensor | None]] = []
-        n_features = one + 1
-        for fn, first in ((torch.sin, one + 1), (torch.cos, one + 1 + nz)):
-            variables = used[first : first + nz].nonzero().flatten()  # (n_vars,)
-            if variables.numel():
-                remap[first + variables] = n_features + torch.arange(variables.numel())
-                n_features += variables.numel()
-                self._trig.append((fn, None if variables.numel() == nz else variables))
-        table = remap[table]
-        # Terms of highest degree first, so slot k multiplies a leading block of rows only.
-        degree = (table != one).sum(1)
-        perm = torch.argsort(degree, descending=True, stable=True)
-        table, degree = table[perm], degree[perm]
         self.nz, self.nu = nz, nu
+        one = nz + nu  # library feature layout: [z, u, 1, sin z, cos z]
+        table = sparse.library.table.cpu()  # (|S|, order)
+        coef = sparse.coef.detach().cpu().double()  # (|S|, nz)
         self.n_terms = int(table.shape[0])
-        self._n_features = n_features
-        cols = table.T.contiguous()  # (order, |S|)
-        self._first = cols[0]  # (|S|,)
-        # Slot k > 0 multiplies the rows of degree > k, a leading block: (rows, their feature
-        # indices). Past 3/4 of all rows, all rows (lower degrees pad with the constant 1.0:
-        # exact) cost less than the slicing.
-        self._slots: list[tuple[int | None, Tensor]] = []
-        for k in range(1, cols.shape[0]):
-            n = int((degree > k).sum())
-            if n > 0:
-                full = n > 0.75 * self.n_terms
-                self._slots.append((None, cols[k]) if full else (n, cols[k, :n].contiguous()))
-        self._coef_t = sparse.coef[perm].T.contiguous()  # (nz, |S|)
-        self._buffers: dict[tuple, tuple[Tensor, Tensor, Tensor, list[Tensor]]] = {}
-        self._check(sparse)
+        # Our features drop the constant and keep only the trig rows some term uses.
+        trig_rows = sorted({int(i) for i in table.flatten() if i > one})
+        trig_var = np.array([(r - one - 1) % nz for r in trig_rows], dtype=np.int64)
+        trig_shift = np.array([0.0 if r - one - 1 < nz else np.pi / 2 for r in trig_rows])
+        remap = {r: one + k for k, r in enumerate(trig_rows)} | {i: i for i in range(one)}
+        products = [tuple(sorted(remap[int(i)] for i in row if i != one)) for row in table]
+        bias = torch.zeros(nz, dtype=torch.float64)
+        order = sorted(range(self.n_terms), key=lambda s: products[s])
+        terms, start, ptr, rows, coefs, prev = [], [], [0], [], [], ()
+        for s in order:
+            p = products[s]
+            if not p:  # the constant term: its coefficients are a bias
+                bias += coef[s]
+                continue
+            pairs = enumerate(zip(p, prev, strict=False))
+            common = next((k for k, (a, b) in pairs if a != b), min(len(p), len(prev)))
+            start.append(max(1, common))
+            terms.append(p)
+            prev = p
+            nonzero = coef[s].nonzero().flatten()
+            rows += nonzero.tolist()
+            coefs += coef[s, nonzero].tolist()
+            ptr.append(len(rows))
+        width = max((len(p) for p in terms), default=1)
+        self.n_coefficients = len(rows)
+        self._n_features = one + len(trig_rows)
+        self._order = width
+        # Kernel arguments after (z0t, ut, out): those in float64 are cast per dtype.
+        self._args64 = (
+            trig_var, trig_shift, bias.numpy(),
+            np.array([p + (0,) * (width - len(p)) for p in terms],
+                     dtype=np.int64).reshape(-1, width),
+            np.array([len(p) for p in terms], dtype=np.int64), np.array(start, dtype=np.int64),
+            np.array(ptr, dtype=np.int64), np.array(rows, dtype=np.int64),
+            np.array(coefs, dtype=np.float64))
+        self._args: dict[torch.dtype, tuple[np.ndarray, ...]] = {}
+        self._check()
 
-    def _features(self, z: Tensor) -> tuple[Tensor, Tensor, Tensor, list[Tensor]]:
-        """Reused Fᵀ buffer for this batch, with views of its z, u and trig rows."""
-        key = (z.shape[0], z.dtype, z.device)
-        views = self._buffers.get(key)
-        if views is None:
-            nz, nu = self.nz, self.nu
-            with torch.inference_mode(False):  # a normal tensor: usable in and out of it
-                f = z.new_empty(self._n_features, z.shape[0])  # (n_features, K)
-            f[nz + nu] = 1.0
-            trig, row = [], nz + nu + 1
-            for _, variables in self._trig:
-                n = nz if variables is None else variables.numel()
-                trig.append(f[row : row + n])
-                row += n
-            views = self._buffers[key] = (f, f[:nz], f[nz : nz + nu], trig)
-        return views
+    def _kernel_args(self, dtype: torch.dtype) -> tuple[np.ndarray, ...]:
+        """The kernel's arguments after (z0t, ut, out) in ``dtype``, scratch included."""
+        args = self._args.get(dtype)
+        if args is None:
+            np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
+            floats = {1, 2, 8}  # trig_shift, bias, coefs
+            args = tuple(a.astype(np_dtype) if i in floats else a
+                         for i, a in enumerate(self._args64))
+            args = self._args[dtype] = (
+                *args, np.empty((self._n_features, BLOCK), np_dtype),
+                np.empty((self._order, BLOCK), np_dtype))
+        return args
 
     def __call__(self, z: Tensor, u: Tensor) -> Tensor:
-        if torch.is_grad_enabled():  # keep the reused buffer out of autograd graphs
-            z, u = z.detach(), u.detach()
-        zt = z.T  # (nz, K)
-        f, f_z, f_u, f_trig = self._features(z)
-        f_z.copy_(zt)
-        f_u.copy_(u.T)
-        for (fn, variables), out in zip(self._trig, f_trig, strict=True):  # sin, cos in use
-            fn(zt if variables is None else zt.index_select(0, variables), out=out)
-        theta = f.index_select(0, self._first)  # (|S|, K)
-        for n, cols in self._slots:  # at most order - 1 slots
-            (theta if n is None else theta[:n]).mul_(f.index_select(0, cols))
-        return torch.addmm(zt, self._coef_t, theta).T  # (K, nz), a transposed view
+        """One step: z (K, nz), u (K, nu) -> (K, nz) (a transposed view)."""
+        if not z.is_cpu or z.dtype not in _FLOATS:
+            return self._sparse.step(z, u)
+        return self._run(z.T, u.T.unsqueeze(0))[0].T
 
     step = __call__
 
+    def rollout(self, z0: Tensor, actions: Tensor) -> Tensor:
+        """Open-loop prediction like :meth:`LatentDynamics.rollout`, in one kernel call:
+        z0 (K, nz), actions (K, H, nu) -> (K, H+1, nz) with z0 at index 0 (a permuted view)."""
+        if not z0.is_cpu or z0.dtype not in _FLOATS:
+            return self._sparse.rollout(z0, actions)
+        K, H = actions.shape[:2]
+        if actions.shape[2] != self.nu or z0.shape != (K, self.nz):
+            raise ValueError(f"rollout expects z0 (K, {self.nz}) and actions (K, H, {self.nu}), "
+                             f"got {tuple(z0.shape)} and {tuple(actions.shape)}")
+        out = torch.empty(H + 1, self.nz, K, dtype=z0.dtype)  # (H+1, nz, K)
+        out[0] = z0.T
+        self._run(z0.T, actions.permute(1, 2, 0), out[1:])
+        return out.permute(2, 0, 1)
+
+    def _run(self, z0t: Tensor, ut: Tensor, out: Tensor | None = None) -> Tensor:
+        """The kernel on z0t (nz, K), ut (H, nu, K) (views, any strides) -> out (H, nz, K)."""
+        if z0t.requires_grad or ut.requires_grad:
+            z0t, ut = z0t.detach(), ut.detach()
+        if ut.dtype != z0t.dtype:
+            ut = ut.to(z0t.dtype)
+        if out is None:
+            out = torch.empty(ut.shape[0], self.nz, z0t.shape[1], dtype=z0t.dtype)
+        _kernel()(z0t.numpy(), ut.numpy(), out.numpy(), *self._kernel_args(z0t.dtype))
+        return out
+
     @torch.no_grad()
-    def _check(self, sparse: SparseSindyDynamics) -> None:
+    def _check(self) -> None:
         """Compare with the model's own step on a probe batch: guards the feature layout."""
         gen = torch.Generator().manual_seed(0)
-        dtype = self._coef_t.dtype
-        z = torch.randn(7, self.nz, generator=gen, dtype=dtype).to(self._coef_t.device) * 0.5
-        u = torch.randn(7, self.nu, generator=gen, dtype=dtype).to(self._coef_t.device) * 0.5
-        want, got = sparse.step(z, u), self(z, u)
+        z = torch.randn(7, self.nz, generator=gen) * 0.5
+        u = torch.randn(7, self.nu, generator=gen) * 0.5
+        like = self._sparse.coef
+        want = self._sparse.step(z.to(like), u.to(like)).to(z)
+        got = self(z, u)
         scale = 1.0 + want.abs().max()
         if not bool(((want - got).abs() <= 1e-4 * scale).all()):
             raise RuntimeError(

@@ -1,0 +1,90 @@
+"""The numba kernel behind :class:`latent_sindy.control.sindy_step.SparseSindyStep`.
+
+Imported only when a SINDy step first runs on the CPU (importing numba takes a moment).
+Every loop over samples is innermost and contiguous, so LLVM vectorises it; ``fastmath``
+lets it reorder the sums.
+"""
+
+import numba
+import numpy as np
+
+_jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False)
+
+
+@numba.njit(fastmath={"contract"}, inline="always", cache=True)
+def _sin(x):
+    """sin(x) in float64 arithmetic, vectorisable (no libm call): x = qπ + r with |r| <= π/2,
+    then the odd Taylor polynomial to r¹⁷ (truncation error < 5e-14 on |r| <= π/2) with the
+    sign (-1)^q."""
+    q = np.floor(x * 0.3183098861837907 + 0.5)
+    r = (x - q * 3.140625) - q * 0.000967653589793116  # π in two parts: exact q·3.140625
+    r2 = r * r
+    p = -7.647163731819816e-13 + r2 * 2.8114572543455206e-15
+    p = -2.505210838544172e-08 + r2 * (1.6059043836821613e-10 + r2 * p)
+    p = -0.0001984126984126984 + r2 * (2.7557319223985893e-06 + r2 * p)
+    p = r + r * r2 * (-0.16666666666666666 + r2 * (0.008333333333333333 + r2 * p))
+    return p * (1.0 - 2.0 * (q - 2.0 * np.floor(q * 0.5)))
+
+
+@_jit
+def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_shift, bias, terms, degree, start, ptr,
+                         rows, coefs, feat, prods):
+    """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j).
+
+    z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
+    repeats one start state); out (H, nz, K). Feature row nz + nu + i is
+    sin(z[trig_var[i]] + trig_shift[i]) (shift π/2: a cosine). terms (S, order): feature
+    indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
+    the first product level to recompute (lower levels are shared with term s-1); the nonzero
+    coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].
+    feat (nf, block) and prods (order, block) are scratch. Each block of samples runs the whole
+    horizon while it is in cache.
+    """
+    nz, K = z0t.shape
+    H, nu = ut.shape[0], ut.shape[1]
+    block = feat.shape[1]
+    for k0 in range(0, K, block):
+        n = min(block, K - k0)
+        for i in range(nz):
+            src = z0t[i, k0:k0 + n]
+            f = feat[i, :n]
+            for k in range(n):
+                f[k] = src[k]
+        for t in range(H):
+            if t > 0:
+                for i in range(nz):
+                    src = out[t - 1, i, k0:k0 + n]
+                    f = feat[i, :n]
+                    for k in range(n):
+                        f[k] = src[k]
+            for i in range(nu):
+                src = ut[t, i, k0:k0 + n]
+                f = feat[nz + i, :n]
+                for k in range(n):
+                    f[k] = src[k]
+            for i in range(trig_var.shape[0]):
+                src = feat[trig_var[i], :n]
+                f = feat[nz + nu + i, :n]
+                shift = trig_shift[i]
+                for k in range(n):
+                    f[k] = _sin(src[k] + shift)
+            for i in range(nz):
+                src = feat[i, :n]
+                o = out[t, i, k0:k0 + n]
+                b = bias[i]
+                for k in range(n):
+                    o[k] = src[k] + b
+            for s in range(terms.shape[0]):
+                d = degree[s]
+                for level in range(start[s], d):  # partial products not shared with term s-1
+                    prev = feat[terms[s, 0], :n] if level == 1 else prods[level - 1, :n]
+                    fac = feat[terms[s, level], :n]
+                    p = prods[level, :n]
+                    for k in range(n):
+                        p[k] = prev[k] * fac[k]
+                theta = feat[terms[s, 0], :n] if d == 1 else prods[d - 1, :n]
+                for j in range(ptr[s], ptr[s + 1]):
+                    o = out[t, rows[j], k0:k0 + n]
+                    c = coefs[j]
+                    for k in range(n):
+                        o[k] += c * theta[k]
