@@ -111,10 +111,11 @@ SCALES: dict[str, Scale] = {
     # and 20 random tasks per model and planner.
     "paper": Scale(200, 10, 3000, 500, 300, 4, paper_episodes=10, random_episodes=20,
                    image_paper_episodes=10, image_random_episodes=20),
-    # Sized for <= ~12 minutes on 2 cores (measured; see RESULTS.md). Batch 64 gives five
-    # updates per epoch on 300 training windows, where batch 500 would give one. Twice the
-    # data (120 trajectories) did not lower the validation loss at this training length.
-    "demo": Scale(60, 10, 200, 64, 20, 4, paper_episodes=1, random_episodes=10,
+    # The paper's data (100/50/50 trajectories) and a short schedule, sized for <= ~12
+    # minutes on 2 cores (measured; see RESULTS.md): 60 epochs of batch 64 are 960 updates,
+    # pruning every 6 epochs (10 times, as the paper's 3000/300). On 30 training
+    # trajectories every model overfitted (validation loss 3-5x the training loss).
+    "demo": Scale(200, 10, 60, 64, 6, 4, paper_episodes=1, random_episodes=10,
                   image_paper_episodes=1, image_random_episodes=4),
     # Seconds: only checks that the pipeline runs end to end (tests).
     "tiny": Scale(6, 3, 2, 500, 1, 2, paper_episodes=1, random_episodes=1,
@@ -138,6 +139,9 @@ class ReproduceConfig:
     """Trajectory file to use (default OUT/data.h5, collected for the scale if missing)."""
     data_seed: int = 0
     """Seed of the data collection (the same data serve every training seed)."""
+    decoder: Literal["conv", "fc"] = "conv"
+    """Decoder of every model: "conv" (transposed convolutions; generalises better) or "fc"
+    (the course's fully connected one)."""
     workers: int = 2
     """Processes for collection, training and control (1: everything in this process)."""
     threads: int = 1
@@ -182,15 +186,21 @@ class ModelSpec:
     """Relative training time, to start the longest jobs first."""
 
 
-def model_specs(scale: Scale) -> tuple[ModelSpec, ...]:
-    """SINDy orders 1-4, linear (E2C), MLP, and SINDy order 2 trained on H-step windows."""
+def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
+                ) -> tuple[ModelSpec, ...]:
+    """SINDy orders 1-4, linear (E2C), MLP, and SINDy order 2 trained on H-step windows, all
+    with the same autoencoder architecture."""
     h = scale.multistep_horizon
+
+    def model(kind: Literal["sindy", "linear", "mlp"], order: int = 2) -> ModelConfig:
+        return ModelConfig(kind=kind, order=order, decoder=decoder)
+
     return (
-        *(ModelSpec(f"sindy{k}", f"SINDy-{k}", ModelConfig(kind="sindy", order=k),
+        *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model("sindy", k),
                     cost=(1.0, 1.1, 1.2, 1.6)[k - 1]) for k in (1, 2, 3, 4)),
-        ModelSpec("linear", "linear (E2C)", ModelConfig(kind="linear"), cost=0.8),
-        ModelSpec("mlp", "MLP", ModelConfig(kind="mlp"), cost=0.9),
-        ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", ModelConfig(kind="sindy", order=2),
+        ModelSpec("linear", "linear (E2C)", model("linear"), cost=0.8),
+        ModelSpec("mlp", "MLP", model("mlp"), cost=0.9),
+        ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", model("sindy"),
                   horizon=h, cost=1.1 * (h + 1) / 2),
     )
 
@@ -232,7 +242,7 @@ def versions() -> dict[str, str | None]:
 
     out: dict[str, str | None] = {"python": platform.python_version(),
                                   "latent-sindy": __version__}
-    for pkg in ("torch", "numpy", "pybullet", "gymnasium", "matplotlib"):
+    for pkg in ("torch", "numpy", "numba", "pybullet", "gymnasium", "matplotlib"):
         try:
             out[pkg] = version(pkg)
         except PackageNotFoundError:
@@ -493,7 +503,7 @@ def reproduce(config: ReproduceConfig, progress: Callable[[str], None] | None = 
     say = progress or (say_stderr if config.verbose else (lambda _: None))
     out = config.out
     out.mkdir(parents=True, exist_ok=True)
-    specs = model_specs(config.preset)
+    specs = model_specs(config.preset, config.decoder)
     runs = {s: {m.name: out / "runs" / f"seed{s}" / m.name for m in specs} for s in config.seeds}
     study = Study(config, specs, runs)
     threads = torch.get_num_threads()

@@ -71,8 +71,13 @@ class ModelConfig:
     """Encoder: feature maps of the two 5x5 conv + max-pool stages."""
     encoder_hidden: int = 100
     """Encoder: width of the fully connected layer before the latent."""
+    decoder: Literal["fc", "conv"] = "fc"
+    """Decoder: "fc" fully connected (the course's), "conv" upsampling convolutions (better on
+    held-out images; see latent_sindy.models.autoencoder)."""
     decoder_hidden: tuple[int, ...] = (500, 500)
-    """Decoder: widths of the fully connected hidden layers."""
+    """fc decoder: widths of the fully connected hidden layers."""
+    decoder_channels: int = 16
+    """conv decoder: feature maps of its convolutions."""
     mlp_hidden: int = 128
     """MLP dynamics: hidden width."""
     mlp_layers: int = 2
@@ -121,7 +126,9 @@ class ModelConfig:
                 latent_dim=self.latent_dim,
                 conv_channels=self.conv_channels,
                 encoder_hidden=self.encoder_hidden,
+                decoder=self.decoder,
                 decoder_hidden=self.decoder_hidden,
+                decoder_channels=self.decoder_channels,
             )
         except ValueError as e:
             raise UserError(f"model architecture: {e}") from e
@@ -146,6 +153,7 @@ class ModelConfig:
         """Inverse of :meth:`to_dict` (JSON lists back to tuples); unknown keys are an error."""
         reject_unknown_fields(cls, d, "model")
         d = dict(d)
+        d.setdefault("decoder", "fc")  # runs saved before the conv decoder existed
         for key in ("conv_channels", "decoder_hidden"):
             if key in d:
                 d[key] = tuple(d[key])
