@@ -136,6 +136,12 @@ def test_mean_std_over_seeds():
     assert format_stat(agg["sparsity"], "pct100", seeds=2) == "n/a"
 
 
+@pytest.mark.parametrize(("value", "shown"), [(96.34, "96.3%"), (99.957, "99.96%"),
+                                              (99.9996, "99.9996%"), (100.0, "100.0%")])
+def test_sparsity_never_rounds_up_to_100_percent(value: float, shown: str) -> None:
+    assert format_stat(Stat(value, 0.0, 1), "pct100", seeds=1) == shown
+
+
 def test_config_is_validated(tmp_path):
     for bad in ({"seeds": ()}, {"seeds": (0, 0)}, {"seeds": (-1,)}, {"workers": 0},
                 {"scale": "huge"}):

@@ -145,10 +145,10 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
         "earlier invocations are reused, not redone).")
     if cfg.scale != "paper":
         r.paragraph(
-            f"This is the {cfg.scale} scale: far less data and training than the paper "
-            "(100/50/50 trajectories, 3000 epochs) and fewer control episodes than the "
-            "20 random tasks of the full comparison; the numbers show the pipeline and the "
-            "trends, not the paper-scale result. Run --scale paper for that.")
+            f"This is the {cfg.scale} scale: {scale.trajectories} trajectories (the paper: "
+            f"100/50/50), {scale.epochs} epochs (the paper: 3000) and fewer control episodes "
+            "than the 20 random tasks of the full comparison; the numbers show the pipeline "
+            "and the trends, not the paper-scale result. Run --scale paper for that.")
     if study.failures:
         r.paragraph("Failed runs (left out of the averages): " + "; ".join(study.failures))
 

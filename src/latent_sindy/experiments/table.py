@@ -76,8 +76,11 @@ def _num(v: float, fmt: str) -> str:
         return f"{v:.4f}" if 1e-3 <= abs(v) < 1e4 else f"{v:.2e}"
     if fmt == "pct":
         return f"{100 * v:.0f}%"
-    if fmt == "pct100":
-        return f"{v:.1f}%"
+    if fmt == "pct100":  # one decimal; more where rounding would turn 99.96% into 100.0%
+        digits = 1
+        while digits < 4 and v < 100 and round(v, digits) >= 100:
+            digits += 1
+        return f"{v:.{digits}f}%"
     if fmt == "int":
         return f"{v:.0f}"
     return f"{v:.1f}"
