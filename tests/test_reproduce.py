@@ -9,10 +9,12 @@ import math
 import time
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
+from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.evaluation import Stat, aggregate, mean_std
+from latent_sindy.experiments.evaluation import Stat, aggregate, baseline_errors, mean_std
 from latent_sindy.experiments.jobs import ensure_trained
 from latent_sindy.experiments.reproduce import SCALES, ReproduceConfig, model_specs, reproduce
 from latent_sindy.experiments.table import PAPER, ROWS, format_stat
@@ -96,6 +98,26 @@ def test_every_figure_equation_and_summary_is_written(study):
     assert {"python", "torch", "pybullet", "latent-sindy"} <= set(summary["versions"])
     assert set(summary["aggregate"]) == set(MODELS)
     assert summary["aggregate"]["sindy4"]["control/discarded_total"]["mean"] == 0
+    assert set(summary["baselines"]["pred_err"]) == {"still", "mean_image"}
+    assert "nothing moves scores" in (out / "report.html").read_text()
+
+
+def test_baseline_errors_equal_the_definitions_by_hand(trajectories):
+    norm = Normalizer.from_trajectories(trajectories)
+    train, test = trajectories.split("train"), trajectories.split("test")
+    got = baseline_errors(train, test, norm)
+    x = norm.normalize(test.images).double().numpy()  # (N, T+1, C, S, S)
+    mean = norm.normalize(train.images).double().numpy().reshape(-1, *x.shape[2:]).mean(0)
+    steps = x.shape[1] - 1
+    for h in range(1, steps + 1):
+        starts = range(steps - h + 1)
+        still = np.mean([((x[:, t + h] - x[:, t]) ** 2).mean() for t in starts])
+        mean_img = np.mean([((x[:, t + h] - mean) ** 2).mean() for t in starts])
+        assert got["still"][h - 1] == pytest.approx(still, rel=1e-5)
+        assert got["mean_image"][h - 1] == pytest.approx(mean_img, rel=1e-5)
+    # A world where nothing moves is predicted perfectly by "nothing moves".
+    frozen = replace(test, images=np.repeat(test.images[:, :1], steps + 1, axis=1))
+    assert baseline_errors(train, frozen, norm)["still"] == [0.0] * steps
 
 
 def test_report_renders_every_table_and_image(study, tmp_path):

@@ -7,6 +7,8 @@ Every model, whatever its dynamics, is judged on the same normalised images:
   so a multi-step-trained model is scored like the others;
 * ``horizon_errors``: image MSE of dec(rollout) against the true images, h = 1..T steps after
   every start of every test trajectory (open loop, normalised pixels);
+* ``baseline_errors``: the same for two predictors that learn nothing, for scale: "nothing
+  moves" (x̂_{t+h} = x_t) and "mean image" (the training split's mean image at every h);
 * ``model_stats``: active coefficients and sparsity (SINDy), coefficient / parameter counts;
 * ``aggregate``: mean ± std over seeds of flat metric dictionaries.
 
@@ -18,7 +20,7 @@ Every model, whatever its dynamics, is judged on the same normalised images:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +32,11 @@ from latent_sindy.models.dynamics import LinearDynamics, SindyDynamics
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.training import evaluate
 
-__all__ = ["Stat", "aggregate", "horizon_errors", "mean_std", "model_stats", "split_losses"]
+__all__ = ["BASELINES", "Stat", "aggregate", "baseline_errors", "horizon_errors", "mean_std",
+           "model_stats", "split_losses"]
+
+#: Model-free predictors of :func:`baseline_errors`, by name: their labels.
+BASELINES = {"still": "nothing moves", "mean_image": "mean training image"}
 
 
 def split_losses(model: LatentModel, data: Trajectories, normalizer: Normalizer,
@@ -46,24 +52,44 @@ def split_losses(model: LatentModel, data: Trajectories, normalizer: Normalizer,
     return out
 
 
-@torch.no_grad()
-def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> list[float]:
-    """Mean image MSE at horizon h = 1..T (index h-1), over all starts t with t + h <= T.
+def _by_horizon(x: torch.Tensor, predict: Callable[[int], torch.Tensor]) -> list[float]:
+    """Mean image MSE at horizon h = 1..T (index h-1) over all starts t with t + h <= T.
 
-    A rollout that diverged gives inf (never NaN).
+    x (N, T+1, C, S, S) true images; ``predict(t)`` gives the predictions of x[:, t+1:].
+    NaN (a diverged rollout) becomes inf.
     """
-    x = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
-    u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
-    steps = u.shape[1]
+    steps = x.shape[1] - 1
     sums, counts = np.zeros(steps), np.zeros(steps)
-    model.eval()
     for t in range(steps):
-        pred = model.predict(x[:, t], u[:, t:])  # (N, T-t+1, C, S, S)
-        err = (pred[:, 1:] - x[:, t + 1:]).square().mean(dim=(0, 2, 3, 4))  # (T-t,)
+        err = (predict(t) - x[:, t + 1:]).square().mean(dim=(0, 2, 3, 4))  # (T-t,)
         sums[: steps - t] += err.double().numpy() * len(x)
         counts[: steps - t] += len(x)
     err = sums / np.maximum(counts, 1)
-    return np.where(np.isnan(err), np.inf, err).tolist()  # NaN here means a diverged rollout
+    return np.where(np.isnan(err), np.inf, err).tolist()
+
+
+@torch.no_grad()
+def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> list[float]:
+    """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
+    over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN)."""
+    x = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
+    u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
+    model.eval()
+    return _by_horizon(x, lambda t: model.predict(x[:, t], u[:, t:])[:, 1:])
+
+
+@torch.no_grad()
+def baseline_errors(train: Trajectories, held_out: Trajectories,
+                    normalizer: Normalizer) -> dict[str, list[float]]:
+    """:func:`horizon_errors` of the model-free predictors in :data:`BASELINES` on
+    ``held_out``; the mean image is the training split's."""
+    x = normalizer.normalize(held_out.images)  # (N, T+1, C, S, S)
+    mean = normalizer.normalize(train.images).flatten(0, 1).mean(0)  # (C, S, S)
+    steps = x.shape[1] - 1
+    return {
+        "still": _by_horizon(x, lambda t: x[:, t:t + 1].expand(-1, steps - t, -1, -1, -1)),
+        "mean_image": _by_horizon(x, lambda t: mean.expand(len(x), steps - t, *mean.shape)),
+    }
 
 
 def model_stats(model: LatentModel) -> dict[str, float | None]:

@@ -123,11 +123,14 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
 
 
 def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
-                 labels: Mapping[str, str], path: Path) -> Path:
+                 labels: Mapping[str, str], path: Path,
+                 references: Mapping[str, list[float]] | None = None) -> Path:
     """Prediction error against horizon, log scale: {model: (means, stds)} per horizon 1..T.
 
-    The y axis stops at 100x the largest one-step error, so that one exploding rollout does
-    not flatten the others; a model that leaves the plot (or diverges) says where.
+    ``references`` ({label: errors per horizon}) are drawn dashed in grey, for scale (e.g.
+    the model-free baselines). The y axis stops at 100x the largest one-step error, so that
+    one exploding rollout does not flatten the others; a model that leaves the plot (or
+    diverges) says where.
     """
     fig, ax = _figure()
     ax = ax[0, 0]
@@ -144,6 +147,8 @@ def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
         ok = np.isfinite(m)
         ax.plot(h[ok], m[ok], marker="o", ms=3, label=label)
         ax.fill_between(h[ok], np.maximum(m[ok] - s[ok], m[ok] * 0.5), m[ok] + s[ok], alpha=0.15)
+    for (label, errors), style in zip((references or {}).items(), ("--", ":", "-."), strict=False):
+        ax.plot(np.arange(1, len(errors) + 1), errors, style, color="0.4", label=label)
     ax.set(xlabel="prediction horizon (pushes)", ylabel="image MSE (normalised pixels)",
            title="open-loop prediction error on test trajectories", yscale="log")
     if np.isfinite(top):

@@ -48,9 +48,10 @@ import torch
 from latent_sindy.control.closed_loop import ControlSettings
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import read_trajectories
+from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.experiments import figures
-from latent_sindy.experiments.evaluation import Stat, aggregate
+from latent_sindy.experiments.evaluation import BASELINES, Stat, aggregate, baseline_errors
 from latent_sindy.experiments.jobs import (
     EvalJob,
     Inline,
@@ -268,6 +269,8 @@ class Study:
     per_seed: dict[int, dict[str, dict[str, float | None]]] = field(default_factory=dict)
     stats: dict[str, dict[str, Stat]] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
+    baselines: dict[str, list[float]] = field(default_factory=dict)
+    """Prediction error against horizon of the model-free predictors (evaluation.BASELINES)."""
     timings: dict[str, float] = field(default_factory=dict)
     train_status: dict[str, str] = field(default_factory=dict)
 
@@ -400,7 +403,12 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
                           key=lambda k: int(k[10:]))
             st = [study.stats[m][k] for k in keys]
             curves[m] = ([s.mean for s in st], [s.std for s in st])
-    files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png")
+    trajectories = read_trajectories(data)
+    study.baselines = baseline_errors(trajectories.split("train"), held_out(trajectories),
+                                      Normalizer.from_trajectories(trajectories))
+    references = {BASELINES[k]: v for k, v in study.baselines.items()}
+    files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png",
+                                            references)
 
     single, multi = "sindy2", study.specs[-1].name
     if single in ok and multi in ok:
@@ -485,6 +493,7 @@ def _summary(study: Study, data: Path) -> dict[str, Any]:
         "timings_s": study.timings,
         "train_status": study.train_status,
         "failures": study.failures,
+        "baselines": {"labels": BASELINES, "pred_err": study.baselines},
         "aggregate": {m: {k: _stat_dict(s) for k, s in st.items()}
                       for m, st in study.stats.items()},
         "per_seed": {str(s): v for s, v in study.per_seed.items()},

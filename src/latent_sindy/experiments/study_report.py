@@ -179,7 +179,14 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
         r.image(files["rollouts"], "Fig. 8: a test trajectory (top) and open-loop rollouts "
                 "of the single-step and the multi-step SINDy-2 from its first image and actions")
     r.image(files["horizon"], "Open-loop prediction error against horizon on the test "
-            "trajectories (mean ± std over seeds)")
+            "trajectories (mean ± std over seeds); dashed: predictors that learn nothing")
+    if study.baselines:
+        still, mean = study.baselines["still"], study.baselines["mean_image"]
+        r.paragraph(
+            "For scale, on the same test trajectories: predicting that nothing moves scores "
+            f"{still[0]:.4f} one push ahead and {still[-1]:.4f} at the longest horizon; the "
+            f"mean training image scores {mean[0]:.4f} (so about {2 * mean[0]:.2f} on the "
+            "objective's reconstruction plus image prediction).")
     for m, p in files["coefficients"].items():
         r.image(p, f"Fig. 9/10: active coefficients of {study.labels[m]} (rows latent states, "
                 "columns candidate terms; grey: pruned)")
