@@ -1,25 +1,27 @@
 """A SINDy step for control: one fused CPU kernel over the active library terms.
 
-MPPI calls the dynamics H times per command on K samples at once. A pruned SINDy model's
+MPPI rolls K samples through the dynamics over H steps per command. A pruned SINDy model's
 step ``z + Θ_S(z, u) C_S`` touches |S| active terms but only nnz(C_S) nonzero coefficients
 (a term is often active in one or two latent states). In torch every term costs a gather and
 a multiply over all K samples and the coefficients a dense (K, |S|) @ (|S|, nz) product; here
-one numba kernel does it in a single pass over cache-sized blocks of samples:
+one numba kernel (:mod:`latent_sindy.control._sindy_kernel`) does it in a single pass over
+cache-sized blocks of samples, for one step or a whole horizon:
 
     out_i = z_i + b_i + Σ_{(s, i, c) ∈ nnz(C_S)} c · θ_s,   θ_s = Π_k F[term_s[k]]
 
-with F = [z, u, sin z, cos z] for the block (only the sines and cosines some term uses; torch
-computes those, since its vectorised sine is ~7× faster than the kernel's scalar one) and b
-the constant term's coefficients. Terms are sorted lexicographically so a term reuses its
-predecessor's partial product over their common prefix (x0 x1 x2 after x0 x1: one multiply).
-Everything runs feature-major (nz, K): the step returns a transposed view, so the next step's
-input is contiguous again. Results equal the model's own step to float rounding (checked on a
-probe batch when the step is built).
+with F = [z, u, sin z, cos z] for the block (only the sines and cosines some term uses,
+from the kernel's own vectorisable sine) and b the constant term's coefficients. Terms are
+sorted lexicographically so a term reuses its predecessor's partial product over their
+common prefix (x0 x1 x2 after x0 x1: one multiply). Everything runs feature-major (nz, K):
+``step`` returns a transposed view, so the next step's input is contiguous again, and
+``rollout`` a permuted one. Results equal the model's own step to float rounding (checked on
+a probe batch when the step is built; tested for orders 1-4).
 
 On devices other than the CPU the model's sparse torch step runs instead.
 
     >>> step = SparseSindyStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
     >>> z_next = step(z, u)  # z (K, nz), u (K, nu) -> (K, nz)
+    >>> zs = step.rollout(z0, actions)  # (K, nz), (K, H, nu) -> (K, H+1, nz)
 """
 
 from __future__ import annotations
