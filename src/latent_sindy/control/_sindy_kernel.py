@@ -1,8 +1,9 @@
 """The numba kernel behind :class:`latent_sindy.control.sindy_step.SparseSindyStep`.
 
 Imported only when a SINDy step first runs on the CPU (importing numba takes a moment).
-Every loop over samples is innermost and contiguous, so LLVM vectorises it; ``fastmath``
-lets it reorder the sums.
+Every loop over samples is innermost and contiguous, so LLVM vectorises it. Of the fast-math
+flags only ``contract`` (fused multiply-add) is on: NaN and inf must propagate, since MPPI
+discards diverging samples by them.
 """
 
 import numba

@@ -103,14 +103,14 @@ class SparseSindyStep:
         self.n_coefficients = len(rows)
         self._n_features = one + len(trig_rows)
         self._order = width
-        # Kernel arguments after (z0t, ut, out): those in float64 are cast per dtype.
-        self._args64 = (
-            trig_var, trig_shift, bias.numpy(),
+        # Kernel arguments: integer tables as they are, floats kept in float64 and cast per dtype.
+        self._trig_var = trig_var
+        self._tables = (
             np.array([p + (0,) * (width - len(p)) for p in terms],
                      dtype=np.int64).reshape(-1, width),
             np.array([len(p) for p in terms], dtype=np.int64), np.array(start, dtype=np.int64),
-            np.array(ptr, dtype=np.int64), np.array(rows, dtype=np.int64),
-            np.array(coefs, dtype=np.float64))
+            np.array(ptr, dtype=np.int64), np.array(rows, dtype=np.int64))
+        self._floats64 = (trig_shift, bias.numpy(), np.array(coefs, dtype=np.float64))
         self._args: dict[torch.dtype, tuple[np.ndarray, ...]] = {}
         self._check()
 
@@ -119,11 +119,11 @@ class SparseSindyStep:
         args = self._args.get(dtype)
         if args is None:
             np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
-            floats = {1, 2, 8}  # trig_shift, bias, coefs
-            args = tuple(a.astype(np_dtype) if i in floats else a
-                         for i, a in enumerate(self._args64))
+            trig_shift, bias, coefs = (a.astype(np_dtype) for a in self._floats64)
+            terms, degree, start, ptr, rows = self._tables
             args = self._args[dtype] = (
-                *args, np.empty((self._n_features, BLOCK), np_dtype),
+                self._trig_var, trig_shift, bias, terms, degree, start, ptr, rows, coefs,
+                np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args
 

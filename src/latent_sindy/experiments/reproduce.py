@@ -47,7 +47,7 @@ import torch
 
 from latent_sindy.control.closed_loop import ControlSettings
 from latent_sindy.data.collect import CollectionPlan, collect
-from latent_sindy.data.store import read_trajectories
+from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.experiments import figures
@@ -404,7 +404,8 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
             st = [study.stats[m][k] for k in keys]
             curves[m] = ([s.mean for s in st], [s.std for s in st])
     trajectories = read_trajectories(data)
-    study.baselines = baseline_errors(trajectories.split("train"), held_out(trajectories),
+    test = held_out(trajectories)
+    study.baselines = baseline_errors(trajectories.split("train"), test,
                                       Normalizer.from_trajectories(trajectories))
     references = {BASELINES[k]: v for k, v in study.baselines.items()}
     files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png",
@@ -412,7 +413,7 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
 
     single, multi = "sindy2", study.specs[-1].name
     if single in ok and multi in ok:
-        files["rollouts"] = _rollout_figure(runs[single], runs[multi], data, study,
+        files["rollouts"] = _rollout_figure(runs[single], runs[multi], test, study,
                                             fig_dir / "rollouts.png")
     for spec in study.specs:
         if spec.model.kind == "sindy" and spec.name in ok:
@@ -460,10 +461,9 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
 
 
 @torch.no_grad()
-def _rollout_figure(single: Path, multi: Path, data_path: Path, study: Study,
+def _rollout_figure(single: Path, multi: Path, test: Trajectories, study: Study,
                     path: Path) -> Path:
     """Fig. 8: a test trajectory, and both models' open-loop rollouts from its first image."""
-    test = held_out(read_trajectories(data_path))
     rows = [("ground truth", test.images[0].astype(float))]
     for run_dir, spec in ((single, study.specs[1]), (multi, study.specs[-1])):
         run = load_run(run_dir)
