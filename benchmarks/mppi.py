@@ -28,7 +28,6 @@ import functools
 import math
 import os
 import time
-import types
 from collections.abc import Callable
 from importlib.metadata import version
 from pathlib import Path
@@ -37,11 +36,12 @@ import pytorch_mppi
 import torch
 
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig, latent_step
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW
+from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.models import LatentDynamics, SindyDynamics, make_dynamics
 from latent_sindy.training import load_run
 
-NZ, NU = 16, 3
+ENV = PushEnvConfig()
+NZ, NU = 16, ENV.action_dim
 SETTINGS = ((1000, 15), (100, 10))
 MODELS = ("sindy1", "sindy2", "sindy3", "sindy4", "linear", "mlp")
 
@@ -65,7 +65,7 @@ def build(name: str, keep: float, runs: Path | None) -> LatentDynamics:
 
 
 def ours(step: Callable, cfg: MPPIConfig, goal: torch.Tensor) -> MPPI:
-    return MPPI(step, LatentCost(goal), cfg)
+    return MPPI(step, LatentCost(goal), cfg, ENV.action_low, ENV.action_high)
 
 
 def theirs(step: Callable, cfg: MPPIConfig, goal: torch.Tensor) -> pytorch_mppi.MPPI:
@@ -73,8 +73,8 @@ def theirs(step: Callable, cfg: MPPIConfig, goal: torch.Tensor) -> pytorch_mppi.
     cost = LatentCost(goal)
     like = ours(step, cfg, goal)
     return pytorch_mppi.MPPI(
-        step, lambda z, u: cost(z), NZ, torch.diag(cfg.tensor("sigma")), num_samples=cfg.K,
-        horizon=cfg.H, lambda_=cfg.lambda_, u_min=cfg.tensor("low"), u_max=cfg.tensor("high"),
+        step, lambda z, u: cost(z), NZ, torch.diag(like.sigma), num_samples=cfg.samples,
+        horizon=cfg.horizon, lambda_=cfg.lambda_, u_min=like.low, u_max=like.high,
         u_init=like.u_init, U_init=like.nominal, device="cpu")
 
 
@@ -86,16 +86,14 @@ def no_grad_command(ctl: pytorch_mppi.MPPI, z: torch.Tensor) -> Callable[[], obj
     return run
 
 
-def with_grad_mode(ctl: MPPI, mode: Callable[[], object]) -> MPPI:
-    """Run our planner under ``mode()`` (enable_grad, no_grad) instead of inference_mode."""
-    plan = MPPI._plan.__wrapped__  # the undecorated method
-
-    def _plan(self: MPPI, z: torch.Tensor, noise: torch.Tensor | None):
+def in_grad_mode(ctl: MPPI, mode: Callable[[], object], z: torch.Tensor
+                 ) -> Callable[[], object]:
+    """Our planner's update under ``mode()`` (enable_grad, no_grad) instead of inference_mode."""
+    def run() -> object:
         with mode():
-            return plan(self, z, noise)
+            return ctl.update(z)
 
-    ctl._plan = types.MethodType(_plan, ctl)
-    return ctl
+    return run
 
 
 def time_cases(cases: dict[str, Callable[[], object]], rounds: int, min_time: float
@@ -153,8 +151,7 @@ def make_cases(models: dict[str, LatentDynamics], cfg: MPPIConfig, z: torch.Tens
     assert isinstance(m, SindyDynamics)
     cases["pm-dense-grad sindy2"] = functools.partial(theirs(m.step, cfg, goal).command, z)
     for key, mode in (("ours-dense-grad", torch.enable_grad), ("ours-dense-nograd", torch.no_grad)):
-        cases[f"{key} sindy2"] = functools.partial(
-            with_grad_mode(ours(m.step, cfg, goal), mode).command, z)
+        cases[f"{key} sindy2"] = in_grad_mode(ours(m.step, cfg, goal), mode, z)
     cases["ours-dense sindy2"] = functools.partial(ours(m.step, cfg, goal).command, z)
     cases["ours-lib-sparse sindy2"] = functools.partial(
         ours(m.compile_sparse().step, cfg, goal).command, z)
@@ -196,8 +193,7 @@ def main() -> None:
     goal = torch.zeros(NZ)
     results = {}
     for K, H in SETTINGS:
-        cfg = MPPIConfig(nu=NU, K=K, H=H, sigma=0.1, lambda_=0.01, Q=1.0, low=ACTION_LOW,
-                         high=ACTION_HIGH)
+        cfg = MPPIConfig(samples=K, horizon=H, sigma=0.1, lambda_=0.01, Q=1.0)
         cases = make_cases(models, cfg, z, goal)
         results[(K, H)] = time_cases(cases, args.rounds, args.min_time)
         print(f"  K={K} H={H} timed, load average {os.getloadavg()[0]:.2f}")

@@ -42,13 +42,13 @@ def measure(case: str, horizon: int, batch: int, repeats: int, threads: int, var
     """Time training steps of one model in this process; returns the figures as a dict."""
     import torch
 
-    from latent_sindy.models import LatentModel, ModelConfig
+    from latent_sindy.models import DYNAMICS_KINDS, LatentModel, ModelConfig, SindyConfig
 
     torch.set_num_threads(threads)
     torch.manual_seed(0)
-    kind = "sindy" if case.startswith("sindy") else case
-    order = int(case[5]) if kind == "sindy" else 2
-    model = LatentModel(ModelConfig(kind=kind, order=order, channels=1, image_size=32))
+    dynamics = (SindyConfig(order=int(case[5])) if case.startswith("sindy")
+                else DYNAMICS_KINDS[case]())
+    model = LatentModel(ModelConfig(dynamics=dynamics).resolve(1, 32, 3))
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
     x = torch.randn(batch, horizon + 1, 1, 32, 32)  # (B, H+1, C, S, S)
     u = torch.rand(batch, horizon, 3)  # (B, H, nu)
@@ -76,7 +76,7 @@ def measure(case: str, horizon: int, batch: int, repeats: int, threads: int, var
         times.append(time.perf_counter() - t0)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB -> MB on Linux
     med = statistics.median(times)
-    terms = model.dynamics.library.n_terms if kind == "sindy" else None
+    terms = model.dynamics.library.n_terms if hasattr(model.dynamics, "library") else None
     return {
         "case": case,
         "H": horizon,

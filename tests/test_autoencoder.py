@@ -8,14 +8,18 @@ import json
 import pytest
 import torch
 
+from latent_sindy.configs import from_json, to_json
 from latent_sindy.errors import UserError
 from latent_sindy.models import (
+    DYNAMICS_KINDS,
     LOSS_TERMS,
     Autoencoder,
     AutoencoderConfig,
     LatentModel,
     LossWeights,
+    MlpConfig,
     ModelConfig,
+    SindyConfig,
 )
 
 KINDS = ("sindy", "linear", "mlp")
@@ -26,15 +30,14 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 def tiny(kind: str, **kw) -> LatentModel:
     torch.manual_seed(0)
+    if kind == "mlp":  # an MLP has no coefficient scale
+        kw.pop("init_scale", None)
+    dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw
     cfg = ModelConfig(
-        kind=kind,
-        latent_dim=4,
-        channels=1,
-        image_size=32,
-        encoder_hidden=16,
-        decoder_hidden=(32,),
-        mlp_hidden=16,
-        **kw,
+        autoencoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
+                                      encoder_hidden=16, decoder_hidden=(32,)),
+        dynamics=DYNAMICS_KINDS[kind](**dyn),
+        action_dim=3,
     )
     return LatentModel(cfg)
 
@@ -70,28 +73,20 @@ def test_conv_decoder_shapes_and_batching(channels: int, size: int) -> None:
 
 
 def test_conv_decoder_rejects_sizes_it_cannot_draw() -> None:
-    with pytest.raises(ValueError, match="divisible by 4"):
+    with pytest.raises(UserError, match="divisible by 4"):
         AutoencoderConfig(image_size=30, decoder="conv")
-    with pytest.raises(ValueError, match="unknown"):
+    with pytest.raises(UserError, match="unknown"):
         AutoencoderConfig(decoder="deconv")
     with pytest.raises(UserError, match="divisible by 4"):
-        ModelConfig(decoder="conv", channels=1, image_size=30).autoencoder_config()
-
-
-def test_model_config_without_decoder_field_is_the_fully_connected_one() -> None:
-    # Runs saved before the conv decoder existed have no "decoder" in their config.json.
-    d = ModelConfig(kind="linear").to_dict()
-    del d["decoder"]
-    assert ModelConfig.from_dict(d).decoder == "fc"
-    assert ModelConfig.from_dict(ModelConfig(decoder="conv").to_dict()).decoder == "conv"
+        ModelConfig(autoencoder=AutoencoderConfig(decoder="conv")).resolve(1, 30, 3)
 
 
 def test_course_encoder_sizes() -> None:
-    cfg = AutoencoderConfig()
+    cfg = AutoencoderConfig(channels=1, image_size=32)
     assert cfg.conv_size() == 5  # 32 -> 28 -> 14 -> 10 -> 5: 4 maps x 5 x 5 = 100 features
     fc = Autoencoder(cfg).encoder.net[7]
     assert (fc.in_features, fc.out_features) == (100, 100)
-    with pytest.raises(ValueError, match="too small"):
+    with pytest.raises(UserError, match="too small"):
         AutoencoderConfig(image_size=12)
 
 
@@ -100,7 +95,7 @@ def test_loss_matches_equations(kind: str) -> None:
     """Each term recomputed by hand from encode / rollout / decode, and the weighted sums."""
     model = tiny(kind)
     x, u = batch(h=3)
-    w = LossWeights(pred_x=0.7, pred_z=0.3, l1=0.05)
+    w = LossWeights(lambda_pred_x=0.7, lambda_pred_z=0.3, lambda_l1=0.05)
     terms = model.loss(x, u, w)
     assert set(terms) == set(LOSS_TERMS)
     assert all(torch.isfinite(v) and v.ndim == 0 for v in terms.values())
@@ -154,22 +149,38 @@ def test_loss_rejects_bad_shapes() -> None:
 
 
 def test_model_config_round_trip_and_resolve() -> None:
-    cfg = ModelConfig(kind="mlp", decoder_hidden=(64, 32), mlp_layers=3)
-    back = ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
-    assert back == cfg
-    resolved = cfg.resolve(3, 32)
-    assert (resolved.channels, resolved.image_size) == (3, 32) and cfg.channels is None
-    assert dataclasses.replace(resolved) == resolved.resolve(3, 32)
+    cfg = ModelConfig(autoencoder=AutoencoderConfig(decoder_hidden=(64, 32)),
+                      dynamics=MlpConfig(layers=3))
+    back = from_json(ModelConfig, json.loads(json.dumps(to_json(cfg))), "model")
+    assert back == cfg and isinstance(back.dynamics, MlpConfig)
+    resolved = cfg.resolve(3, 32, 3)
+    assert (resolved.autoencoder.channels, resolved.autoencoder.image_size) == (3, 32)
+    assert cfg.autoencoder.channels is None and resolved.action_dim == 3
+    assert dataclasses.replace(resolved) == resolved.resolve(3, 32, 3)
     with pytest.raises(UserError, match=r"channels is 1 but data\.h5 has channels 3"):
-        ModelConfig(channels=1).resolve(3, 32, "data.h5")
+        ModelConfig(autoencoder=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
+    with pytest.raises(UserError, match=r"action_dim is 5 but data\.h5 has actions of size 3"):
+        ModelConfig(action_dim=5).resolve(1, 32, 3, "data.h5")
     with pytest.raises(ValueError, match="resolve"):
         LatentModel(cfg)
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "message"),
-    [({"kind": "gru"}, "unknown"), ({"order": 5}, "order 5"), ({"latent_dim": 0}, "latent_dim")],
+    ("build", "message"),
+    [(lambda: SindyConfig(order=5), "order 5"),
+     (lambda: AutoencoderConfig(latent_dim=0), "latent_dim"),
+     (lambda: MlpConfig(hidden=0), "hidden"),
+     (lambda: SindyConfig(init_scale=float("nan")), "init_scale"),
+     (lambda: LossWeights(lambda_l1=float("inf")), "lambda-l1"),
+     (lambda: ModelConfig(action_dim=0), "action_dim")],
 )
-def test_model_config_rejects(kwargs: dict, message: str) -> None:
+def test_model_config_rejects(build, message: str) -> None:
     with pytest.raises(UserError, match=message):
-        ModelConfig(**kwargs)
+        build()
+
+
+def test_unknown_dynamics_kind_is_one_clear_error() -> None:
+    d = to_json(ModelConfig())
+    d["dynamics"]["kind"] = "transformer"
+    with pytest.raises(UserError, match=r"model\.dynamics: kind 'transformer' is unknown"):
+        from_json(ModelConfig, d, "model")

@@ -91,7 +91,7 @@ def test_train_equations_control_smoke(tmp_path):
     data = tmp_path / "d.h5"
     write_trajectories(data, make_trajectories(n=6, steps=3))
     run_dir = tmp_path / "run"
-    r = run("train", "--data", str(data), "--model", "sindy", "--order", "1", "--epochs", "2",
+    r = run("train", "sindy", "--data", str(data), "--order", "1", "--epochs", "2",
             "--threshold-every", "1", "--out", str(run_dir), "--no-progress")
     assert r.returncode == 0, r.stderr
     for name in ("config.json", "model.pt", "metrics.csv", "loss.png"):
@@ -106,7 +106,7 @@ def test_train_equations_control_smoke(tmp_path):
     r = run("control", str(run_dir), "--max-steps", "2", "--samples", "8", "--horizon", "2",
             "--no-progress")
     assert r.returncode == 0, r.stderr
-    out = run_dir / "control-paper"
+    out = run_dir / "control-paper-latent"
     assert (out / "results.json").is_file() and (out / "episode_000.gif").is_file()
     assert "success (course)" in r.stdout
 
@@ -115,7 +115,7 @@ def test_train_equations_control_smoke(tmp_path):
     ("args", "needle"),
     [
         (["train", "--epochs", "0"], "--epochs 0"),
-        (["train", "--order", "5"], "order 5"),
+        (["train", "sindy", "--order", "5"], "order 5"),
         (["train", "--data", "nowhere.h5"], "does not exist"),
         (["equations", "no-run"], "no-run"),
         (["control", "no-run"], "no-run"),

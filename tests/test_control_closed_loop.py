@@ -11,7 +11,6 @@ import pytest
 import torch
 
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW
 from latent_sindy.envs.panda_push import PandaPushEnv
 from latent_sindy.envs.world import PushWorld
 
@@ -39,9 +38,9 @@ def test_simulator_model_pushes_block_to_goal(start, goal) -> None:
         assert 0.13 < info["distance"] < 0.15 and not info["is_success"]
         cost = LatentCost(torch.tensor(goal), Q=(1.0, 1.0, 0.0))  # position: the course criterion
         # H = 1: "repeat" carries the last plan over as the next nominal (warm start).
-        cfg = MPPIConfig(nu=3, K=12, H=1, sigma=(0.1, 0.3, 0.1), lambda_=0.001, low=ACTION_LOW,
-                         high=ACTION_HIGH, u_init=(0.0, 0.0, 0.5), shift="repeat", seed=0)
-        mppi = MPPI(simulate, cost, cfg)
+        cfg = MPPIConfig(samples=12, horizon=1, sigma=(0.1, 0.3, 0.1), lambda_=0.001,
+                         u_init=(0.0, 0.0, 0.5), shift="repeat")
+        mppi = MPPI(simulate, cost, cfg, env.config.action_low, env.config.action_high, seed=0)
         distances = [info["distance"]]
         for _ in range(4):
             u, plan = mppi.command(torch.tensor(info["pose"]))

@@ -251,7 +251,7 @@ def test_sparse_fast_path_is_a_snapshot_and_handles_all_pruned() -> None:
     torch.testing.assert_close(empty.step(z, u), z)
 
 
-def test_equations_and_coefficient_table() -> None:
+def test_equations_and_coefficient_rows() -> None:
     model = SindyDynamics(2, 1, order=2)
     names = model.names
     with torch.no_grad():
@@ -266,7 +266,7 @@ def test_equations_and_coefficient_table() -> None:
         "z1[t+1] = z1 + 1.5 - 2e-05 sin(z0)",
     ]
     assert model.equations(precision=5)[0] == "z0[t+1] = z0 + 0.51234 u0 - 0.031249 z0 z1"
-    table = model.coefficient_table()
+    table = model.coefficient_rows()
     assert [(s, t) for s, t, _ in table] == [
         ("z0", "u0"), ("z0", "z0 z1"), ("z1", "1"), ("z1", "sin(z0)"),
     ]  # fmt: skip
@@ -326,7 +326,7 @@ def known_data() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
 
 
 def _recovered(model: SindyDynamics) -> dict[tuple[str, str], float]:
-    return {(state, term): value for state, term, value in model.coefficient_table()}
+    return {(state, term): value for state, term, value in model.coefficient_rows()}
 
 
 def _worst_relative_error(model: SindyDynamics) -> float:

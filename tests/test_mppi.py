@@ -29,9 +29,19 @@ def integrator(z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
     return z + u @ B.T.to(z.dtype)
 
 
-def config(**overrides) -> MPPIConfig:
+def config(**overrides) -> dict:
     kw = {"nu": 2, "K": 256, "H": 5, "sigma": 0.1, "lambda_": 0.05, "low": -1.0, "high": 1.0}
-    return MPPIConfig(**{**kw, **overrides})
+    return {**kw, **overrides}
+
+
+def mppi_of(step, cost, nu: int, K: int = 100, H: int = 10, low=-math.inf, high=math.inf,
+            seed: int = 0, dtype: torch.dtype = torch.float32, **settings) -> MPPI:
+    """An MPPI from the test's flat settings: the planner's config, the action box, the rest."""
+    def vec(v):
+        return (float(v),) * nu if isinstance(v, int | float) else tuple(v)
+
+    return MPPI(step, cost, MPPIConfig(samples=K, horizon=H, **settings), vec(low), vec(high),
+                seed=seed, dtype=dtype)
 
 
 def closed_loop(mppi: MPPI, step, z: torch.Tensor, steps: int) -> list[torch.Tensor]:
@@ -48,7 +58,7 @@ def closed_loop(mppi: MPPI, step, z: torch.Tensor, steps: int) -> list[torch.Ten
 
 def test_drives_integrator_to_goal_and_cost_falls() -> None:
     goal = torch.tensor([2.0, -1.5])
-    mppi = MPPI(integrator, goal, config())
+    mppi = mppi_of(integrator, goal, **config())
     z, dist = torch.zeros(2), []
     for _ in range(15):
         u, info = mppi.command(z)
@@ -68,9 +78,9 @@ def test_drives_double_integrator_to_rest_at_goal() -> None:
         return torch.cat((p + dt * v, v + dt * u), dim=1)
 
     goal = torch.tensor([1.0, 0.0])
-    cfg = MPPIConfig(nu=1, K=512, H=15, sigma=0.5, lambda_=0.1, Q=(1.0, 0.1), low=-1.0,
+    cfg = dict(nu=1, K=512, H=15, sigma=0.5, lambda_=0.1, Q=(1.0, 0.1), low=-1.0,
                      high=1.0, terminal_weight=5.0, shift="repeat")
-    mppi = MPPI(double_integrator, goal, cfg)
+    mppi = mppi_of(double_integrator, goal, **cfg)
     z, costs = torch.zeros(2), []
     for _ in range(40):
         u, _ = mppi.command(z)
@@ -81,7 +91,7 @@ def test_drives_double_integrator_to_rest_at_goal() -> None:
 
 
 def test_weights_are_the_softmax_of_the_costs() -> None:
-    mppi = MPPI(integrator, torch.tensor([1.0, 1.0]), config(lambda_=0.5))
+    mppi = mppi_of(integrator, torch.tensor([1.0, 1.0]), **config(lambda_=0.5))
     mppi.command(torch.zeros(2))
     w, c = mppi.weights, mppi.costs
     assert w.shape == c.shape == (256,) and (w >= 0).all()
@@ -92,7 +102,7 @@ def test_weights_are_the_softmax_of_the_costs() -> None:
 
 def test_same_seed_same_actions_different_seed_different() -> None:
     def run(seed: int) -> torch.Tensor:
-        mppi = MPPI(integrator, torch.tensor([1.0, -1.0]), config(seed=seed))
+        mppi = mppi_of(integrator, torch.tensor([1.0, -1.0]), **config(seed=seed))
         return torch.stack(closed_loop(mppi, integrator, torch.zeros(2), 3))
 
     a, b, c = run(0), run(0), run(1)
@@ -101,7 +111,7 @@ def test_same_seed_same_actions_different_seed_different() -> None:
 
 
 def test_reset_restores_nominal_and_reseeds() -> None:
-    mppi = MPPI(integrator, torch.tensor([1.0, -1.0]), config(u_init=(0.1, -0.2), seed=3))
+    mppi = mppi_of(integrator, torch.tensor([1.0, -1.0]), **config(u_init=(0.1, -0.2), seed=3))
     first, _ = mppi.command(torch.zeros(2))
     mppi.command(torch.ones(2))
     assert not torch.equal(mppi.nominal, torch.tensor([[0.1, -0.2]] * 5))
@@ -114,9 +124,9 @@ def test_reset_restores_nominal_and_reseeds() -> None:
 
 @pytest.mark.parametrize("sigma", [0.1, 1e6])
 def test_actions_stay_in_bounds(sigma: float) -> None:
-    cfg = MPPIConfig(nu=3, K=200, H=4, sigma=sigma, lambda_=0.01, low=PUSH_LOW, high=PUSH_HIGH)
+    cfg = dict(nu=3, K=200, H=4, sigma=sigma, lambda_=0.01, low=PUSH_LOW, high=PUSH_HIGH)
     step = latent_step(make_dynamics("linear", 3, 3, init_scale=0.3, seed=0))
-    mppi = MPPI(step, torch.tensor([1.0, -2.0, 0.5]), cfg)
+    mppi = mppi_of(step, torch.tensor([1.0, -2.0, 0.5]), **cfg)
     low, high = torch.tensor(PUSH_LOW), torch.tensor(PUSH_HIGH)
     z = torch.zeros(3)
     for _ in range(4):
@@ -138,10 +148,10 @@ def test_one_update_equals_the_formula(shift: str) -> None:
     q, goal, z0 = np.array([1.0, 3.0]), np.array([0.7, -0.4]), np.array([0.1, 0.2])
     u_init, low, high = np.array([0.2, -0.1]), np.array([-0.5, -0.6]), np.array([0.5, 0.4])
     eps = np.random.default_rng(0).normal(0.0, 0.6, (K, H, nu))  # some leave the box
-    cfg = MPPIConfig(nu=nu, K=K, H=H, sigma=sigma, lambda_=lam, Q=tuple(q), terminal_weight=wT,
+    cfg = dict(nu=nu, K=K, H=H, sigma=sigma, lambda_=lam, Q=tuple(q), terminal_weight=wT,
                      low=tuple(low), high=tuple(high), u_init=tuple(u_init), shift=shift,
                      dtype=torch.float64)
-    mppi = MPPI(integrator, torch.tensor(goal), cfg)
+    mppi = mppi_of(integrator, torch.tensor(goal), **cfg)
     action, info = mppi.command(torch.tensor(z0), noise=torch.tensor(eps))
 
     U = np.tile(u_init, (H, 1))
@@ -168,7 +178,7 @@ def test_one_update_equals_the_formula(shift: str) -> None:
 
 
 def test_injected_noise_must_have_the_right_shape() -> None:
-    mppi = MPPI(integrator, torch.zeros(2), config())
+    mppi = mppi_of(integrator, torch.zeros(2), **config())
     with pytest.raises(ValueError, match=r"\(K, H, nu\)"):
         mppi.command(torch.zeros(2), noise=torch.zeros(5, 256, 2))
 
@@ -183,7 +193,7 @@ def test_diverging_samples_get_zero_weight(failure: str) -> None:
         blown = z * 1e30 if failure == "overflow" else torch.full_like(z, math.nan)
         return torch.where(bad, blown, integrator(z, u))
 
-    mppi = MPPI(unstable, torch.tensor([3.0, 3.0]), config(K=128))
+    mppi = mppi_of(unstable, torch.tensor([3.0, 3.0]), **config(K=128))
     z, total = torch.ones(2), 0
     for _ in range(3):
         u, info = mppi.command(z)
@@ -201,7 +211,7 @@ def test_diverging_samples_get_zero_weight(failure: str) -> None:
 
 
 def test_all_samples_diverging_keeps_the_nominal() -> None:
-    mppi = MPPI(integrator, torch.tensor([1.0, 1.0]), config(shift="repeat"))
+    mppi = mppi_of(integrator, torch.tensor([1.0, 1.0]), **config(shift="repeat"))
     mppi.command(torch.zeros(2))  # a non-trivial nominal to keep
     before = mppi.nominal
     mppi.step = lambda z, u: z * math.nan
@@ -235,8 +245,8 @@ def build(case: str):
 @pytest.mark.parametrize("case", KINDS)
 def test_every_model_runs_finite_and_in_bounds(case: str) -> None:
     model = build(case)
-    cfg = MPPIConfig(nu=NU, K=64, H=5, low=PUSH_LOW, high=PUSH_HIGH, seed=1)
-    mppi = MPPI(latent_step(model), torch.full((NZ,), 0.5), cfg)
+    cfg = dict(nu=NU, K=64, H=5, low=PUSH_LOW, high=PUSH_HIGH, seed=1, u_init=(0.0,) * NU)
+    mppi = mppi_of(latent_step(model), torch.full((NZ,), 0.5), **cfg)
     low, high = torch.tensor(PUSH_LOW), torch.tensor(PUSH_HIGH)
     z = torch.zeros(NZ)
     with torch.no_grad():
@@ -258,11 +268,11 @@ def test_sparse_active_terms_give_the_dense_actions(order: int) -> None:
     fast = latent_step(model)
     assert isinstance(fast, SparseSindyStep)
     assert fast.n_terms == sparse.library.n_terms < model.library.n_terms
-    cfg = MPPIConfig(nu=NU, K=128, H=6, low=PUSH_LOW, high=PUSH_HIGH, seed=2)
+    cfg = dict(nu=NU, K=128, H=6, low=PUSH_LOW, high=PUSH_HIGH, seed=2, u_init=(0.0,) * NU)
     runs = []
     with torch.no_grad():
         for step in (model.step, sparse.step, fast):
-            mppi = MPPI(step, torch.full((NZ,), 0.5), cfg)
+            mppi = mppi_of(step, torch.full((NZ,), 0.5), **cfg)
             runs.append(torch.stack(closed_loop(mppi, model.step, torch.zeros(NZ), 4)))
     torch.testing.assert_close(runs[1], runs[0], rtol=0, atol=1e-5)
     torch.testing.assert_close(runs[2], runs[0], rtol=0, atol=1e-5)
@@ -339,8 +349,8 @@ def test_diverging_sindy_samples_are_discarded_by_mppi() -> None:
         model.psi.zero_()
         model.psi[names.index("z0^2"), 0] = 1.0
         model.psi[names.index("u0"), 0] = 1.0
-    mppi = MPPI(latent_step(model), torch.zeros(2), MPPIConfig(
-        nu=1, K=256, H=10, sigma=0.5, low=-1.0, high=1.0, seed=0))
+    mppi = mppi_of(latent_step(model), torch.zeros(2), nu=1, K=256, H=10, sigma=0.5, low=-1.0,
+                   high=1.0, seed=0)
     u, info = mppi.command(torch.zeros(2))
     assert 0 < info.discarded < 256
     assert torch.isinf(mppi.costs).sum() == info.discarded
@@ -365,8 +375,8 @@ def test_sparse_sindy_step_rejects_other_models() -> None:
 
 def test_goal_vector_means_latent_cost_with_config_q() -> None:
     goal = torch.tensor([1.0, -1.0])
-    a = MPPI(integrator, goal, config(Q=(2.0, 0.5)))
-    b = MPPI(integrator, LatentCost(goal, (2.0, 0.5)), config())
+    a = mppi_of(integrator, goal, **config(Q=(2.0, 0.5)))
+    b = mppi_of(integrator, LatentCost(goal, (2.0, 0.5)), **config())
     torch.testing.assert_close(a.command(torch.zeros(2))[0], b.command(torch.zeros(2))[0])
 
 
@@ -404,12 +414,12 @@ def test_image_cost_decodes_each_sample() -> None:
 @pytest.mark.parametrize(
     ("overrides", "field"),
     [
-        ({"K": 0}, "K"),
-        ({"H": 2.5}, "H"),
+        ({"K": 0}, "samples"),
+        ({"H": 2.5}, "horizon"),
         ({"sigma": -0.1}, "sigma"),
         ({"sigma": (0.1, 0.2, 0.3)}, "sigma"),
         ({"sigma": 1e80}, "sigma"),
-        ({"lambda_": 0.0}, "lambda_"),
+        ({"lambda_": 0.0}, "lambda"),
         ({"Q": -1.0}, "Q"),
         ({"terminal_weight": math.nan}, "terminal_weight"),
         ({"low": (0.5, 0.0), "high": (0.0, 1.0)}, "low <= high"),
@@ -421,12 +431,12 @@ def test_image_cost_decodes_each_sample() -> None:
 )
 def test_config_rejects_bad_values(overrides: dict, field: str) -> None:
     with pytest.raises(UserError, match=field):
-        config(**overrides)
+        mppi_of(integrator, torch.zeros(2), **config(**overrides))
 
 
 def test_unbounded_config_and_float64() -> None:
-    cfg = MPPIConfig(nu=2, K=32, H=3, sigma=(0.1, 0.2), dtype=torch.float64)
-    mppi = MPPI(integrator, torch.tensor([5.0, 5.0], dtype=torch.float64), cfg)
+    cfg = dict(nu=2, K=32, H=3, sigma=(0.1, 0.2), dtype=torch.float64)
+    mppi = mppi_of(integrator, torch.tensor([5.0, 5.0], dtype=torch.float64), **cfg)
     u, _ = mppi.command(torch.zeros(2, dtype=torch.float64))
     assert u.dtype == torch.float64 and torch.isfinite(u).all()
 
@@ -437,7 +447,7 @@ def test_sparse_sindy_step_serves_mppi_and_plain_calls() -> None:
     model = SindyDynamics(NZ, NU, order=2, seed=0, init_scale=0.05)
     model.threshold(0.04)
     step = latent_step(model)
-    MPPI(step, torch.zeros(NZ), MPPIConfig(nu=NU, K=8, H=2)).command(torch.ones(NZ))
+    mppi_of(step, torch.zeros(NZ), nu=NU, K=8, H=2).command(torch.ones(NZ))
     z, u = torch.randn(8, NZ), torch.randn(8, NU)
     with torch.no_grad():
         torch.testing.assert_close(step(z, u), model.step(z, u))

@@ -16,9 +16,10 @@ from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.evaluation import Stat, aggregate, baseline_errors, mean_std
 from latent_sindy.experiments.jobs import ensure_trained
-from latent_sindy.experiments.reproduce import SCALES, ReproduceConfig, model_specs, reproduce
+from latent_sindy.experiments.reproduce import reproduce
+from latent_sindy.experiments.study import SCALES, ReproduceConfig, model_specs
 from latent_sindy.experiments.table import PAPER, ROWS, format_stat
-from latent_sindy.training import TrainConfig
+from latent_sindy.training import RunDir
 from test_report import CHECK, _chromium, _render_title
 
 MODELS = [s.name for s in model_specs(SCALES["tiny"])]
@@ -132,9 +133,7 @@ def test_report_renders_every_table_and_image(study, tmp_path):
 
 
 def test_a_finished_run_with_other_settings_is_refused(study):
-    run = study["out"] / "runs" / "seed0" / "sindy1"
-    cfg = json.loads((run / "config.json").read_text())["train"]
-    same = TrainConfig.from_dict(cfg)
+    same = RunDir(study["out"] / "runs" / "seed0" / "sindy1").train_config()
     assert ensure_trained(same) == "reused"
     with pytest.raises(UserError, match="epochs"):
         ensure_trained(replace(same, epochs=same.epochs + 1))

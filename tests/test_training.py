@@ -20,11 +20,12 @@ import torch
 
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import read_trajectories, write_trajectories
-from latent_sindy.equations import CSV_FILE, JSON_FILE, coefficient_rows, equations_report
+from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
-from latent_sindy.models import LatentModel, ModelConfig
+from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LatentModel, ModelConfig
 from latent_sindy.training import (
     METRIC_COLUMNS,
+    RunDir,
     TrainConfig,
     TrainingDiverged,
     load_run,
@@ -33,7 +34,8 @@ from latent_sindy.training import (
 )
 
 KINDS = ("sindy", "linear", "mlp")
-TINY = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,), "mlp_hidden": 16}
+TINY_AE = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,)}
+CSV_FILE, JSON_FILE = RunDir.COEFFICIENTS_CSV, RunDir.COEFFICIENTS_JSON
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -47,7 +49,10 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def config(data: Path, out: Path, kind: str = "sindy", **kw) -> TrainConfig:
-    model = ModelConfig(kind=kind, **{**TINY, **kw.pop("model", {})})
+    """A tiny model; ``autoencoder={...}`` and ``dynamics={...}`` override its parts."""
+    dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw.pop("dynamics", {})
+    auto = AutoencoderConfig(**{**TINY_AE, **kw.pop("autoencoder", {})})
+    model = ModelConfig(autoencoder=auto, dynamics=DYNAMICS_KINDS[kind](**dyn))
     kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "threshold_every": 0, **kw}
     return TrainConfig(data=data, out=out, model=model, **kw)
 
@@ -122,7 +127,7 @@ def test_end_to_end_learns_recognisable_images(data: Path, tmp_path: Path) -> No
 @pytest.mark.parametrize("kind", KINDS)
 def test_every_kind_trains_and_logs(data: Path, tmp_path: Path, kind: str) -> None:
     progress = Recorder()
-    cfg = config(data, tmp_path / kind, kind, epochs=6, horizon=2)
+    cfg = config(data, tmp_path / kind, kind, epochs=6, window=2)
     run = train(cfg, progress)
     rows = read_metrics(run)
     with (run / "metrics.csv").open() as f:
@@ -131,7 +136,8 @@ def test_every_kind_trains_and_logs(data: Path, tmp_path: Path, kind: str) -> No
     assert rows[-1]["val/objective"] is not None
     for r in rows:
         assert math.isclose(
-            r["train/total"] - r["train/objective"], cfg.lambda_l1 * r["train/l1"], abs_tol=1e-6
+            r["train/total"] - r["train/objective"], cfg.loss.lambda_l1 * r["train/l1"],
+            abs_tol=1e-6
         )
         assert (r["train/l1"] > 0) == (kind == "sindy")
         assert (r["sindy/active"] is not None) == (kind == "sindy")
@@ -158,7 +164,7 @@ def pruned_run(data: Path, tmp_path_factory: pytest.TempPathFactory):
         threshold=3e-3,
         threshold_every=2,
         checkpoint_every=1,
-        model={"init_scale": 3e-3},
+        dynamics={"init_scale": 3e-3},
     )
     return train(cfg, Recorder(grab)), masks
 
@@ -202,7 +208,7 @@ def test_equations_report_lists_the_active_terms(pruned_run) -> None:
         parts = re.split(r" [+-] ", rhs)[1:]  # the first part is the residual z_j
         terms = {p.split(" ", 1)[1] if " " in p else "1" for p in parts}
         assert terms == {dyn.names[i] for i in dyn.mask[:, j].nonzero().flatten().tolist()}
-    expected = coefficient_rows(dyn)
+    expected = dyn.coefficient_rows()
     with (run / CSV_FILE).open() as f:
         got = [(r["state"], r["term"], float(r["value"])) for r in csv.DictReader(f)]
     assert got == expected
@@ -230,7 +236,8 @@ def test_equations_of_linear_and_mlp_runs(data: Path, tmp_path: Path) -> None:
 @pytest.mark.parametrize("kind", KINDS)
 def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str) -> None:
     """N epochs, then resume to 2N == 2N straight (pruning at epochs 2 and 4 included)."""
-    kw = {"threshold": 3e-3, "threshold_every": 2, "model": {"init_scale": 3e-3}}
+    scale = {} if kind == "mlp" else {"init_scale": 3e-3}  # an MLP has no coefficient scale
+    kw = {"threshold": 3e-3, "threshold_every": 2, "dynamics": scale}
     straight = train(config(data, tmp_path / "straight", kind, epochs=6, **kw))
     part = config(data, tmp_path / "resumed", kind, epochs=3, checkpoint_every=1, **kw)
     train(part)
@@ -247,7 +254,7 @@ def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str) -> N
 
 def test_resume_after_a_kill_mid_run(data: Path, tmp_path: Path) -> None:
     """Killed in epoch 5 with checkpoints every 2: resume restarts after epoch 4."""
-    kw = {"threshold_every": 3, "threshold": 3e-3, "model": {"init_scale": 3e-3}}
+    kw = {"threshold_every": 3, "threshold": 3e-3, "dynamics": {"init_scale": 3e-3}}
     straight = train(config(data, tmp_path / "straight", epochs=6, **kw))
     cfg = config(data, tmp_path / "killed", epochs=6, checkpoint_every=2, **kw)
 
@@ -273,9 +280,10 @@ def test_resume_with_other_settings_names_them(data: Path, tmp_path: Path) -> No
     cfg = config(data, tmp_path / "run", epochs=2)
     train(cfg)
     changed = dataclasses.replace(
-        cfg, resume=True, epochs=4, lr=1e-2, model=dataclasses.replace(cfg.model, order=3)
-    )
-    with pytest.raises(UserError, match=r"lr \(run 0\.003, now 0\.01\); model\.order"):
+        cfg, resume=True, epochs=4, lr=1e-2,
+        model=dataclasses.replace(cfg.model, dynamics=dataclasses.replace(cfg.model.dynamics,
+                                                                          order=3)))
+    with pytest.raises(UserError, match=r"lr \(run 0\.003, now 0\.01\); model\.dynamics\.order"):
         train(changed)
     with pytest.raises(UserError, match="past --epochs"):
         train(dataclasses.replace(cfg, resume=True, epochs=1))
@@ -322,7 +330,9 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
     [
         ({"epochs": 0}, "--epochs 0"),
         ({"batch_size": 0}, "--batch-size 0"),
-        ({"horizon": 0}, "--horizon 0"),
+        ({"window": 0}, "--window 0"),
+        ({"lr": math.nan}, "--lr"),
+        ({"weight_decay": math.inf}, "--weight-decay"),
         ({"lr": -1.0}, "--lr"),
         ({"threshold_every": -1}, "--threshold-every"),
         ({"resume": True, "overwrite": True}, "contradict"),
@@ -334,12 +344,12 @@ def test_bad_settings(tmp_path: Path, kwargs: dict, message: str) -> None:
 
 
 def test_bad_inputs(data: Path, tmp_path: Path) -> None:
-    with pytest.raises(UserError, match="--horizon 4 is longer"):
-        train(config(data, tmp_path / "a", horizon=4))
+    with pytest.raises(UserError, match="--window 4 is longer"):
+        train(config(data, tmp_path / "a", window=4))
     with pytest.raises(UserError, match="does not exist"):
         train(config(tmp_path / "missing.h5", tmp_path / "b"))
     with pytest.raises(UserError, match="channels is 3 but"):
-        train(config(data, tmp_path / "c", model={"channels": 3}))
+        train(config(data, tmp_path / "c", autoencoder={"channels": 3}))
     (tmp_path / "file").write_text("x")
     with pytest.raises(UserError, match="is a file"):
         train(config(data, tmp_path / "file"))

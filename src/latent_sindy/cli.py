@@ -3,7 +3,8 @@
     latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
     latent-sindy info data/push.h5
     latent-sindy preview data/push.h5 --out data/push.png
-    latent-sindy train --data data/push.h5 --model sindy --order 2 --horizon 1 --out runs/sindy2
+    latent-sindy train sindy --order 2 --window 1 --data data/push.h5 --out runs/sindy2
+    latent-sindy train linear --data data/push.h5 --out runs/linear
     latent-sindy equations runs/sindy2
     latent-sindy control runs/sindy2 --task paper --episodes 1
     latent-sindy reproduce --scale demo --out results/demo
@@ -19,22 +20,23 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import tyro
 
+from latent_sindy.control.closed_loop import ControlConfig
+from latent_sindy.data.collect import CollectionPlan
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.reproduce import ReproduceConfig
-from latent_sindy.training import TrainConfig
+from latent_sindy.experiments.study import ReproduceConfig
+from latent_sindy.progress import bar
+from latent_sindy.training.config import TrainConfig
+
+Flat = tyro.conf.OmitArgPrefixes
 
 
-def _progress(desc: str):
-    """A tqdm wrapper matching collect()'s progress(iterable, total, initial) hook."""
-    from tqdm import tqdm
-
-    def wrap(iterable, total: int, initial: int):
-        return tqdm(iterable, total=total, initial=initial, desc=desc, unit="traj",
-                    dynamic_ncols=True, file=sys.stderr)
+def _bar(desc: str, unit: str):
+    def wrap(iterable, total: int, initial: int = 0):
+        return bar(iterable, total, initial, desc=desc, unit=unit)
 
     return wrap
 
@@ -45,35 +47,21 @@ class Collect:
 
     out: Path = Path("data/push.h5")
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
-    trajectories: int = 200
-    """Number of trajectories in all splits (paper: 200 = 100 train / 50 val / 50 test)."""
-    steps: int = 10
-    """Pushes per trajectory (each trajectory holds steps + 1 images)."""
+    plan: Annotated[CollectionPlan, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=CollectionPlan)
     workers: int = 2
     """Worker processes simulating in parallel (1 runs in this process)."""
-    seed: int = 0
-    """Seed of every random choice; the same seed gives the same file."""
-    val_fraction: float = 0.25
-    """Fraction of trajectories for the validation split."""
-    test_fraction: float = 0.25
-    """Fraction of trajectories for the test split."""
-    channels: Annotated[int, tyro.conf.arg(help="1: grayscale images, 3: RGB.")] = 1
-    image_size: int = 32
-    """Side of the square camera image in pixels."""
     progress: bool = True
     """Show a progress bar."""
 
     def run(self) -> None:
-        from latent_sindy.data.collect import CollectionPlan, collect
-        from latent_sindy.envs.config import PushEnvConfig
+        from latent_sindy.data.collect import collect
 
-        plan = CollectionPlan(self.trajectories, self.steps, self.seed, self.val_fraction,
-                              self.test_fraction,
-                              PushEnvConfig(image_size=self.image_size, channels=self.channels))
+        plan = self.plan
         existed = self.out.exists()
         t0 = time.perf_counter()
         path = collect(self.out, plan, self.workers,
-                       _progress("collect") if self.progress else None)
+                       _bar("collect", "traj") if self.progress else None)
         if existed:
             print(f"{path} is already complete with these settings; nothing to do")
         else:
@@ -133,7 +121,7 @@ class Train:
     An interrupted run continues with --resume to the same final model.
     """
 
-    config: Annotated[TrainConfig, tyro.conf.arg(name=""), tyro.conf.OmitArgPrefixes] = field(
+    config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
         default_factory=TrainConfig)
     threads: int = 1
     """torch CPU threads (1 is fastest when other jobs share the cores)."""
@@ -143,7 +131,8 @@ class Train:
     def run(self) -> None:
         import torch
 
-        from latent_sindy.training import TqdmProgress, train
+        from latent_sindy.progress import TqdmProgress
+        from latent_sindy.training import train
 
         if self.threads < 1:
             raise UserError(f"--threads {self.threads}: use 1 or more")
@@ -175,37 +164,16 @@ class Equations:
 class Control:
     """Push the block to a goal with MPPI in a trained run's latent space (closed loop).
 
-    Writes RUN/control-TASK[-image]/results.json, results.csv and episode GIFs, and prints
-    a summary: success rates (course and strict criteria), steps to goal, planning time.
+    Writes RUN/control-TASK-SPACE/results.json, results.csv and episode GIFs, and prints a
+    summary: success rates (course and strict criteria), steps to goal, planning time.
     """
 
     run_dir: tyro.conf.Positional[Path]
     """Run folder written by `latent-sindy train`."""
-    task: Literal["paper", "random"] = "paper"
-    """paper: start (0.4, 0, 0.2 pi), goal (0.7, 0, 0); random: start and goal from the seed."""
-    episodes: int = 1
-    """Number of episodes."""
-    seed: int = 0
-    """Seeds the random tasks and the controller's noise."""
-    image_space: bool = False
-    """Plan with the cost in image space (decode each predicted latent, compare with the goal
-    image) instead of latent space."""
-    max_steps: int = 20
-    """Pushes allowed per episode (course: 20 latent, 30 image space)."""
-    until: Literal["course", "strict"] = "course"
-    """Stop an episode when this success criterion is met."""
-    samples: int = 100
-    """MPPI samples K (course: 100)."""
-    horizon: int = 10
-    """MPPI horizon H (course: 10)."""
-    sigma: float = 0.1
-    """MPPI noise variance per action dimension (course: 0.1)."""
-    lambda_: Annotated[float, tyro.conf.arg(name="lambda")] = 0.01
-    """MPPI temperature (course: 0.01)."""
-    gif_episodes: int = 1
-    """Save a GIF of the first this many episodes."""
+    settings: Annotated[ControlConfig, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=ControlConfig)
     out: Path | None = None
-    """Output folder (default: RUN/control-TASK, with -image for image space)."""
+    """Output folder (default: RUN/control-TASK-SPACE)."""
     threads: int = 1
     """torch CPU threads."""
     progress: bool = True
@@ -214,32 +182,22 @@ class Control:
     def run(self) -> None:
         import torch
 
-        from latent_sindy.control.closed_loop import ControlSettings, format_summary, run_control
-        from latent_sindy.training import load_run
+        from latent_sindy.control.closed_loop import format_summary, run_control
+        from latent_sindy.training import RunDir
 
-        settings = ControlSettings(
-            task=self.task, episodes=self.episodes, seed=self.seed,
-            image_space=self.image_space, max_steps=self.max_steps, until=self.until,
-            samples=self.samples, horizon=self.horizon, sigma=self.sigma,
-            lambda_=self.lambda_, gif_episodes=self.gif_episodes)
-        torch.set_num_threads(max(1, self.threads))
-        run = load_run(self.run_dir)
-        out = self.out or self.run_dir / (
-            f"control-{self.task}" + ("-image" if self.image_space else ""))
-        progress = None
-        if self.progress:
-            from tqdm import tqdm
-
-            def progress(it, total):
-                return tqdm(it, total=total, desc="episodes", unit="ep", file=sys.stderr)
-
-        _, summary = run_control(run.model, run.normalizer, run.env_config, settings, out,
-                                 progress)
-        space = "image" if self.image_space else "latent"
+        s = self.settings
+        if self.threads < 1:
+            raise UserError(f"--threads {self.threads}: use 1 or more")
+        torch.set_num_threads(self.threads)
+        run_dir = RunDir(self.run_dir)
+        run = run_dir.load()
+        out = self.out or run_dir.control_dir(s.task, s.space)
+        _, summary = run_control(run.model, run.normalizer, run.env_config, s, out,
+                                 _bar("episodes", "ep") if self.progress else None)
         print(format_summary(summary, f"{self.run_dir} ({run.config.model.kind}), "
-                                      f"{self.task} task, {space}-space MPPI:"))
+                                      f"{s.task} task, {s.space}-space MPPI:"))
         print(f"wrote {out}/results.json, results.csv"
-              + (", episode GIFs" if self.gif_episodes else ""))
+              + (", episode GIFs" if s.gif_episodes else ""))
 
 
 @dataclass
@@ -253,8 +211,8 @@ class Reproduce:
     A re-run reuses finished pieces.
     """
 
-    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), tyro.conf.OmitArgPrefixes] = (
-        field(default_factory=ReproduceConfig))
+    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=ReproduceConfig)
 
     def run(self) -> None:
         from latent_sindy.experiments.reproduce import reproduce
@@ -272,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
         # settings are validated while tyro builds them, so parsing is inside the try
         cmd = tyro.extras.subcommand_cli_from_dict(
             COMMANDS, prog="latent-sindy", args=argv,
-            description="Sparse latent dynamics (SINDy) from images, for planar pushing.")
+            description="Sparse latent dynamics (SINDy) from images, for planar pushing.",
+            config=(tyro.conf.OmitSubcommandPrefixes, tyro.conf.CascadeSubcommandArgs))
         cmd.run()
     except UserError as e:
         if os.environ.get("LATENT_SINDY_DEBUG"):

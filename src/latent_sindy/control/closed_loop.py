@@ -7,7 +7,7 @@ executes it in the PyBullet world and looks again, until the block is at the goa
 limit is reached.
 
     latent-sindy control runs/sindy2 --task paper --episodes 1
-    latent-sindy control runs/sindy2 --task random --episodes 20 --image-space --max-steps 30
+    latent-sindy control runs/sindy2 --task random --episodes 20 --space image --max-steps 30
 """
 
 from __future__ import annotations
@@ -23,49 +23,53 @@ from typing import Literal
 
 import numpy as np
 import torch
+import tyro
 
 from latent_sindy.atomic import atomic_path, write_atomic
+from latent_sindy.configs import to_json
 from latent_sindy.control.costs import ImageCost, LatentCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 
 
 @dataclass(frozen=True)
-class ControlSettings:
-    """How episodes are posed and planned (MPPI defaults: the course's K, H, Σ, λ)."""
+class ControlConfig:
+    """How episodes are posed and planned; the planner's own settings are nested."""
 
     task: Literal["paper", "random"] = "paper"
+    """paper: start (0.4, 0, 0.2π), goal (0.7, 0, 0); random: start and goal from the seed."""
     episodes: int = 1
+    """Number of episodes."""
     seed: int = 0
-    image_space: bool = False
+    """Seeds the random tasks and the controller's noise."""
+    space: Literal["latent", "image"] = "latent"
+    """Where MPPI's cost is computed: "latent" (distance to the encoded goal image) or
+    "image" (decode each predicted latent, compare with the goal image: the paper's variant)."""
     max_steps: int = 20
+    """Pushes allowed per episode (the course: 20 latent, 30 image space)."""
     until: Literal["course", "strict"] = "course"
-    samples: int = 100
-    horizon: int = 10
-    sigma: float = 0.1
-    lambda_: float = 0.01
-    u_init: tuple[float, float, float] = (0.0, 0.0, 0.5)
+    """Stop an episode when this success criterion is met."""
     gif_episodes: int = 1
+    """Save a GIF of the first this many episodes."""
+    mppi: tyro.conf.OmitArgPrefixes[MPPIConfig] = field(default_factory=MPPIConfig)
+    """The planner (K, H, Σ, λ)."""
 
     def __post_init__(self) -> None:
         if self.task not in ("paper", "random"):
             raise UserError(f"--task {self.task}: use paper or random")
+        if self.space not in ("latent", "image"):
+            raise UserError(f"--space {self.space}: use latent or image")
         if self.until not in ("course", "strict"):
             raise UserError(f"--until {self.until}: use course or strict")
-        for name in ("episodes", "max_steps", "samples", "horizon"):
+        for name in ("episodes", "max_steps"):
             if getattr(self, name) < 1:
                 raise UserError(f"--{name.replace('_', '-')} {getattr(self, name)}: use 1 or more")
         if self.gif_episodes < 0:
             raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
-        if not (self.sigma > 0 and self.lambda_ > 0):
-            raise UserError(f"--sigma {self.sigma} and --lambda {self.lambda_} must be positive")
-
-    def mppi_config(self, seed: int) -> MPPIConfig:
-        return MPPIConfig(nu=3, K=self.samples, H=self.horizon, sigma=self.sigma,
-                          lambda_=self.lambda_, low=ACTION_LOW, high=ACTION_HIGH,
-                          u_init=self.u_init, seed=seed)
+        if self.seed < 0:
+            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
 
 
 @dataclass
@@ -96,10 +100,12 @@ class EpisodeResult:
 class Controller:
     """A trained model with its MPPI, ready to push: `act(obs) -> action`."""
 
-    def __init__(self, model, normalizer: Normalizer, settings: ControlSettings) -> None:
+    def __init__(self, model, normalizer: Normalizer, settings: ControlConfig,
+                 env_config: PushEnvConfig) -> None:
         self.model = model.eval()
         self.normalizer = normalizer
         self.settings = settings
+        self.box = (env_config.action_low, env_config.action_high)
         self.step = latent_step(model.dynamics)  # active SINDy terms only
 
     @torch.no_grad()
@@ -109,19 +115,19 @@ class Controller:
 
     @torch.no_grad()
     def start(self, goal_obs: np.ndarray, seed: int) -> None:
-        if self.settings.image_space:
+        if self.settings.space == "image":
             goal = self.normalizer.normalize(goal_obs)
             cost = ImageCost(self.model.decode, goal)
         else:
             cost = LatentCost(self.encode(goal_obs), 1.0)
-        self.mppi = MPPI(self.step, cost, self.settings.mppi_config(seed))
+        self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
 
     def act(self, obs: np.ndarray):
         action, info = self.mppi.command(self.encode(obs))
         return action.numpy(), info
 
 
-def _episode_options(env, settings: ControlSettings, seed: int) -> tuple[int, dict]:
+def _episode_options(env, settings: ControlConfig, seed: int) -> tuple[int, dict]:
     """The reset seed and options of an episode; random tasks never start at the goal."""
     if settings.task == "paper":
         return seed, {"task": "paper"}
@@ -133,7 +139,7 @@ def _episode_options(env, settings: ControlSettings, seed: int) -> tuple[int, di
     raise RuntimeError("could not draw a random task whose start is away from the goal")
 
 
-def run_episode(env, controller: Controller, episode: int, settings: ControlSettings,
+def run_episode(env, controller: Controller, episode: int, settings: ControlConfig,
                 frames: list | None = None) -> EpisodeResult:
     """One closed-loop episode in `env` (a PandaPushEnv); appends rendered frames if asked."""
     seed = int(np.random.default_rng([settings.seed, episode]).integers(2**31))
@@ -211,7 +217,7 @@ def format_summary(summary: dict[str, float], title: str) -> str:
 
 
 def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
-                settings: ControlSettings, out: str | os.PathLike,
+                settings: ControlConfig, out: str | os.PathLike,
                 progress: Callable[[Iterable, int], Iterable] | None = None,
                 ) -> tuple[list[EpisodeResult], dict]:
     """Run every episode, write results.json, results.csv and episode GIFs into `out`."""
@@ -220,7 +226,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     env = PandaPushEnv(env_config, render_mode="rgb_array")
-    controller = Controller(model, normalizer, settings)
+    controller = Controller(model, normalizer, settings, env_config)
     results = []
     episodes: Iterable[int] = range(settings.episodes)
     if progress is not None:
@@ -234,7 +240,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
     finally:
         env.close()
     summary = summarize(results)
-    record = {"settings": asdict(settings), "summary": summary,
+    record = {"settings": to_json(settings), "summary": summary,
               "episodes": [asdict(r) for r in results]}
     write_atomic(out / "results.json", lambda f: f.write(json.dumps(record, indent=1)), False)
     rows = [{k: v for k, v in asdict(r).items() if k != "actions"} for r in results]

@@ -1,4 +1,4 @@
-"""Model predictive path integral control (MPPI) on batched latent dynamics (DESIGN §4).
+"""Model predictive path integral control (MPPI) on batched latent dynamics.
 
 Every command samples K perturbations of the nominal action sequence, rolls all K candidates
 out through the model in one batched loop over the horizon H, weights them by their cost and
@@ -10,11 +10,11 @@ moves the nominal sequence towards the good ones (Williams et al., the paper's �
 Dimensions: K samples, H horizon, nz latent size, nu action size.
 
     >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
-    >>> from latent_sindy.models import make_dynamics
-    >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
-    >>> cfg = MPPIConfig(nu=3, K=100, H=10, sigma=0.1, lambda_=0.01,
-    ...                  low=(-1, -1.57, 0), high=(1, 1.57, 1))
-    >>> mppi = MPPI(latent_step(model), torch.zeros(16), cfg)  # goal vector: quadratic cost
+    >>> from latent_sindy.models import SindyConfig
+    >>> model = SindyConfig(order=2).build(nz=16, nu=3)
+    >>> cfg = MPPIConfig(samples=100, horizon=10, sigma=0.1, lambda_=0.01)
+    >>> mppi = MPPI(latent_step(model), torch.zeros(16), cfg,  # goal vector: quadratic cost
+    ...             low=(-1, -1.57, 0), high=(1, 1.57, 1), seed=0)
     >>> action, info = mppi.command(torch.ones(16))  # (3,), MPPIInfo(discarded=0, ...)
 """
 
@@ -24,9 +24,10 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import torch
+import tyro
 from torch import Tensor
 
 from latent_sindy.control.costs import LatentCost, StateCost
@@ -39,111 +40,80 @@ __all__ = ["MPPI", "DynamicsStep", "MPPIConfig", "MPPIInfo", "latent_step"]
 #: ``step(z (K, nz), u (K, nu)) -> z_next (K, nz)``: any latent model's ``step`` fits.
 DynamicsStep = Callable[[Tensor, Tensor], Tensor]
 
-Vector = float | Sequence[float]
-
-
 @dataclass(frozen=True)
 class MPPIConfig:
-    """Settings of one MPPI controller; validated on construction (raises :class:`UserError`).
+    """The planner's settings, the one place their defaults live; validated on construction
+    (raises :class:`UserError`). The action box is the environment's and comes separately.
 
     Scalars stand for the same value in every action (or latent) dimension. The defaults are
     the course's settings: K = 100, H = 10, Σ = 0.1·I, λ = 0.01, Q = I.
     """
 
-    nu: int
-    """Action size."""
-    K: int = 100
-    """Number of sampled action sequences per command."""
-    H: int = 10
-    """Planning horizon (model steps)."""
-    sigma: Vector = 0.1
+    samples: int = 100
+    """K: sampled action sequences per command (the course: 100)."""
+    horizon: int = 10
+    """H: planning horizon in model steps (the course: 10)."""
+    sigma: float | tuple[float, ...] = 0.1
     """Diagonal of the noise covariance Σ (a variance, not a standard deviation): the paper's
-    Σ = 0.1·I is ``sigma=0.1``. Scalar or one value per action dimension."""
-    lambda_: float = 0.01
-    """Temperature λ: smaller trusts the best samples more."""
-    Q: Vector = 1.0
+    Σ = 0.1·I is 0.1. One value, or one per action dimension."""
+    lambda_: Annotated[float, tyro.conf.arg(name="lambda")] = 0.01
+    """Temperature λ: smaller trusts the best samples more (the course: 0.01)."""
+    Q: tyro.conf.Suppress[float | tuple[float, ...]] = 1.0
     """State weight of the quadratic latent cost built when MPPI is given a goal vector
     (scalar or the diagonal); unused when it is given a cost callable."""
-    terminal_weight: float = 0.0
+    terminal_weight: tyro.conf.Suppress[float] = 0.0
     """Extra weight w_T on the cost of the last predicted state (0: running cost only)."""
-    low: Vector | None = None
-    """Lower bounds of the action box (None: unbounded)."""
-    high: Vector | None = None
-    """Upper bounds of the action box (None: unbounded)."""
-    u_init: Vector | None = None
+    u_init: tuple[float, ...] | None = None
     """Default action: fills the nominal sequence at reset (and after shifts with
-    ``shift="init"``). None: zero, clamped into the box."""
+    shift "init"). None: the centre of the action box (0 where a side is unbounded)."""
     shift: Literal["init", "repeat"] = "init"
     """Warm start: after each command the nominal sequence moves one step forward; its new
-    last step is ``u_init`` ("init") or a repeat of the previous last step ("repeat")."""
-    seed: int = 0
-    """Seed of the controller's own noise generator."""
-    dtype: torch.dtype = torch.float32
-    device: str = "cpu"
+    last step is u_init ("init") or a repeat of the previous last step ("repeat")."""
 
     def __post_init__(self) -> None:
-        def positive_int(name: str) -> None:
+        for name in ("samples", "horizon"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"MPPIConfig.{name}={v!r}: must be a positive integer")
-
-        for name in ("nu", "K", "H"):
-            positive_int(name)
-        if not self.dtype.is_floating_point:
-            raise UserError(f"MPPIConfig.dtype={self.dtype}: use a floating dtype (float32)")
-        big = torch.finfo(self.dtype).max
-        sigma = self._vector("sigma", self.sigma, self.nu)
-        if not all(0 < s and math.sqrt(s) * 10 < big for s in sigma):
-            raise UserError(
-                f"MPPIConfig.sigma={self.sigma!r}: noise variances must be positive and finite "
-                f"in {self.dtype}"
-            )
+                raise UserError(f"MPPI {name} {v!r}: must be a positive integer")
+        sigma = _floats("sigma", self.sigma)
+        if not all(0 < s < math.inf for s in sigma):
+            raise UserError(f"MPPI sigma {self.sigma!r}: noise variances must be positive and "
+                            "finite")
         if not (0 < self.lambda_ < math.inf):
-            raise UserError(f"MPPIConfig.lambda_={self.lambda_!r}: must be a positive number")
-        q = self.Q if isinstance(self.Q, int | float) else tuple(self.Q)
-        if not all(0 <= v < math.inf for v in ([q] if isinstance(q, int | float) else q)):
-            raise UserError(f"MPPIConfig.Q={self.Q!r}: weights must be finite and >= 0")
+            raise UserError(f"MPPI lambda {self.lambda_!r}: must be a finite positive number")
+        if not all(0 <= v < math.inf for v in _floats("Q", self.Q)):
+            raise UserError(f"MPPI Q {self.Q!r}: weights must be finite and >= 0")
         if not (0 <= self.terminal_weight < math.inf):
             raise UserError(
-                f"MPPIConfig.terminal_weight={self.terminal_weight!r}: must be finite and >= 0"
-            )
-        low = self._vector("low", -math.inf if self.low is None else self.low, self.nu)
-        high = self._vector("high", math.inf if self.high is None else self.high, self.nu)
-        pairs = zip(low, high, strict=True)
-        if not all(lo <= hi and lo < math.inf and hi > -math.inf for lo, hi in pairs):
-            raise UserError(
-                f"MPPIConfig: action bounds low={self.low!r}, high={self.high!r} must satisfy "
-                "low <= high in every dimension"
-            )
-        if self.u_init is not None:
-            u0 = self._vector("u_init", self.u_init, self.nu)
-            if not all(lo <= u <= hi for u, lo, hi in zip(u0, low, high, strict=True)):
-                raise UserError(
-                    f"MPPIConfig.u_init={self.u_init!r} lies outside the action box "
-                    f"[{self.low!r}, {self.high!r}]"
-                )
+                f"MPPI terminal_weight {self.terminal_weight!r}: must be finite and >= 0")
+        if self.u_init is not None and not all(math.isfinite(v) for v in self.u_init):
+            raise UserError(f"MPPI u_init {self.u_init!r} must be finite")
         if self.shift not in ("init", "repeat"):
-            raise UserError(f"MPPIConfig.shift={self.shift!r}: use 'init' or 'repeat'")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise UserError(f"MPPIConfig.seed={self.seed!r}: must be an integer")
+            raise UserError(f"MPPI shift {self.shift!r}: use 'init' or 'repeat'")
 
-    @staticmethod
-    def _vector(name: str, value: Vector, n: int) -> tuple[float, ...]:
-        """``value`` as n floats (a scalar is repeated); NaN and wrong lengths are errors."""
-        vals = (value,) * n if isinstance(value, int | float) else tuple(value)
-        if len(vals) != n:
-            raise UserError(f"MPPIConfig.{name}={value!r}: needs 1 or {n} values (nu={n})")
-        out = tuple(float(v) for v in vals)
-        if any(math.isnan(v) for v in out):
-            raise UserError(f"MPPIConfig.{name}={value!r} contains NaN")
-        return out
+    def memory_bytes(self, nu: int, nz: int, itemsize: int = 4) -> int:
+        """A lower bound on the memory one command holds: actions, noise and predicted
+        states of every sample (a planner that cannot fit is refused up front)."""
+        return self.samples * self.horizon * (3 * nu + 2 * nz) * itemsize
 
-    def tensor(self, name: Literal["sigma", "low", "high"]) -> Tensor:
-        """Field ``name`` as a (nu,) tensor of the controller's dtype (bounds: ±inf if None)."""
-        default = {"low": -math.inf, "high": math.inf}.get(name)
-        value = getattr(self, name)
-        vals = self._vector(name, default if value is None else value, self.nu)
-        return torch.tensor(vals, dtype=self.dtype, device=self.device)
+
+def _floats(name: str, value: float | Sequence[float]) -> tuple[float, ...]:
+    vals = (value,) if isinstance(value, int | float) else tuple(value)
+    if not vals or any(isinstance(v, bool) or not isinstance(v, int | float) for v in vals):
+        raise UserError(f"MPPI {name} {value!r}: give a number or a list of numbers")
+    if any(math.isnan(v) for v in vals):
+        raise UserError(f"MPPI {name} {value!r} contains NaN")
+    return tuple(float(v) for v in vals)
+
+
+def _vector(name: str, value: float | Sequence[float], n: int) -> tuple[float, ...]:
+    """``value`` as n floats (a scalar is repeated); NaN and wrong lengths are errors."""
+    vals = _floats(name, value)
+    if len(vals) == 1:
+        vals = vals * n
+    if len(vals) != n:
+        raise UserError(f"MPPI {name} {value!r}: needs 1 or {n} values (nu={n})")
+    return vals
 
 
 @dataclass(frozen=True)
@@ -198,28 +168,53 @@ class MPPI:
     """
 
     def __init__(self, dynamics_step: DynamicsStep, cost: StateCost | Tensor,
-                 config: MPPIConfig) -> None:
+                 config: MPPIConfig, low: Sequence[float], high: Sequence[float], *,
+                 seed: int = 0, dtype: torch.dtype = torch.float32,
+                 device: str = "cpu") -> None:
         cfg = config
         self.config = cfg
         self.step = dynamics_step
-        kw = {"dtype": cfg.dtype, "device": cfg.device}
+        self.nu = nu = len(low)
+        if nu < 1 or len(high) != nu:
+            raise UserError(f"MPPI action box low={tuple(low)}, high={tuple(high)}: give one "
+                            "bound per action dimension on each side")
+        lo, hi = _vector("low", low, nu), _vector("high", high, nu)
+        if not all(a <= b and a < math.inf and b > -math.inf for a, b in zip(lo, hi, strict=True)):
+            raise UserError(f"MPPI action box low={lo}, high={hi} must satisfy low <= high")
+        if not dtype.is_floating_point:
+            raise UserError(f"MPPI dtype {dtype}: use a floating dtype (float32)")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise UserError(f"MPPI seed {seed!r}: must be an integer")
+        kw = {"dtype": dtype, "device": device}
+        self.dtype, self.device = dtype, device
         self.cost: StateCost = (
             LatentCost(torch.as_tensor(cost, **kw), cfg.Q) if isinstance(cost, Tensor) else cost
         )
         if not callable(self.cost):
             raise UserError(f"MPPI cost must be a callable or a goal tensor, got {type(cost)}")
-        self.low = cfg.tensor("low")  # (nu,)
-        self.high = cfg.tensor("high")  # (nu,)
-        self._std = cfg.tensor("sigma").sqrt()  # (nu,)
-        self._lam_sigma_inv = cfg.lambda_ / cfg.tensor("sigma")  # (nu,) λ Σ⁻¹ (diagonal)
+        self._big = big = torch.finfo(dtype).max
+        sigma = torch.tensor(_vector("sigma", cfg.sigma, nu), **kw)  # (nu,)
+        if not bool(torch.isfinite(sigma.sqrt() * 10).all()):
+            raise UserError(f"MPPI sigma {cfg.sigma!r} overflows {dtype}")
+        self.sigma = sigma  # (nu,) noise variances
+        self.low = torch.tensor(lo, **kw)  # (nu,)
+        self.high = torch.tensor(hi, **kw)  # (nu,)
+        self._std = sigma.sqrt()  # (nu,)
+        self._lam_sigma_inv = cfg.lambda_ / sigma  # (nu,) λ Σ⁻¹ (diagonal)
         self._inv_lambda = 1.0 / cfg.lambda_
-        self._big = torch.finfo(cfg.dtype).max
-        self._lo, self._hi = self.low.clamp(min=-self._big), self.high.clamp(max=self._big)
-        u0 = torch.zeros(cfg.nu, **kw) if cfg.u_init is None else torch.tensor(cfg.u_init, **kw)
+        self._lo, self._hi = self.low.clamp(min=-big), self.high.clamp(max=big)
+        if cfg.u_init is None:  # the box's centre; 0 on an unbounded side
+            finite = torch.isfinite(self.low) & torch.isfinite(self.high)
+            u0 = torch.where(finite, (self._lo + self._hi) / 2, torch.zeros(nu, **kw))
+        else:
+            u0 = torch.tensor(_vector("u_init", cfg.u_init, nu), **kw)
+            if not bool(((u0 >= self.low) & (u0 <= self.high)).all()):
+                raise UserError(f"MPPI u_init {cfg.u_init!r} lies outside the action box "
+                                f"[{lo}, {hi}]")
         self.u_init = u0.clamp(self.low, self.high)  # (nu,)
         self._repeat_last = cfg.shift == "repeat"
-        self._gen = torch.Generator(device=cfg.device)
-        self.reset(cfg.seed)
+        self._gen = torch.Generator(device=device)
+        self.reset(seed)
 
     # ------------------------------------------------------------------ state
     def reset(self, seed: int | None = None) -> None:
@@ -227,7 +222,7 @@ class MPPI:
 
         ``seed`` reseeds the noise generator; None continues its stream.
         """
-        self._U = self.u_init.expand(self.config.H, -1).clone()  # (H, nu)
+        self._U = self.u_init.expand(self.config.horizon, -1).clone()  # (H, nu)
         self.discarded_total = 0
         if seed is not None:
             self._gen.manual_seed(seed)
@@ -248,20 +243,20 @@ class MPPI:
         autograd), while ``actions``, ``noise``, ``costs`` and ``weights`` are inference tensors.
         """
         t0 = time.perf_counter()
-        action, discarded, min_cost, mean_cost = self._plan(z, noise)
+        with torch.inference_mode():
+            action, discarded, min_cost, mean_cost = self.update(z, noise)
         self.discarded_total += discarded
         info = MPPIInfo(discarded, self.discarded_total, min_cost, mean_cost,
                         time.perf_counter() - t0)
         return action.clone(), info
 
-    @torch.inference_mode()
-    def _plan(self, z: Tensor, noise: Tensor | None) -> tuple[Tensor, int, float, float]:
-        """One MPPI update; returns the first action and the diagnostics' numbers."""
-        cfg = self.config
-        K, H, nu = cfg.K, cfg.H, cfg.nu
+    def update(self, z: Tensor, noise: Tensor | None = None) -> tuple[Tensor, int, float, float]:
+        """One MPPI update in the caller's autograd mode (``command`` runs it in inference
+        mode): returns the first action, the discarded count, the min and mean cost."""
+        K, H, nu = self.config.samples, self.config.horizon, self.nu
         U = self._U  # (H, nu)
         if noise is None:
-            eps = torch.randn(K, H, nu, generator=self._gen, dtype=cfg.dtype, device=cfg.device)
+            eps = torch.randn(K, H, nu, generator=self._gen, dtype=self.dtype, device=self.device)
             eps.mul_(self._std)  # (K, H, nu)
         elif noise.shape != (K, H, nu):
             raise ValueError(f"noise must have shape (K, H, nu)={(K, H, nu)}, "

@@ -21,12 +21,14 @@ import os
 import shutil
 import zipfile
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tyro
 
 from latent_sindy.atomic import atomic_path, write_atomic
+from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
 from latent_sindy.errors import UserError
@@ -39,11 +41,17 @@ class CollectionPlan:
     """What to collect; two runs with equal plans produce identical files."""
 
     trajectories: int = 200
+    """Number of trajectories in all splits (the paper: 200 = 100 train / 50 val / 50 test)."""
     steps: int = 10
+    """Pushes per trajectory (each trajectory holds steps + 1 images)."""
     seed: int = 0
+    """Seed of every random choice; the same seed gives the same file."""
     val_fraction: float = 0.25
+    """Fraction of trajectories for the validation split."""
     test_fraction: float = 0.25
-    env: PushEnvConfig = field(default_factory=PushEnvConfig)
+    """Fraction of trajectories for the test split."""
+    env: tyro.conf.OmitArgPrefixes[PushEnvConfig] = field(default_factory=PushEnvConfig)
+    """The pushing world and its camera."""
 
     def __post_init__(self) -> None:
         if self.trajectories < 1:
@@ -69,9 +77,6 @@ class CollectionPlan:
         """Contiguous blocks: train, then validation, then test (trajectories are i.i.d.)."""
         c = self.split_counts()
         return np.repeat(np.arange(len(SPLITS), dtype=np.uint8), [c[s] for s in SPLITS])
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 # --------------------------------------------------------------------------- one trajectory
@@ -104,7 +109,7 @@ def _worker_init(env_config: dict) -> None:
     global _worker_env
     from latent_sindy.envs.panda_push import PandaPushEnv
 
-    _worker_env = PandaPushEnv(PushEnvConfig.from_dict(env_config))
+    _worker_env = PandaPushEnv(from_json(PushEnvConfig, env_config, "environment"))
 
 
 def _worker_run(job: tuple[int, CollectionPlan]) -> tuple[int, dict]:
@@ -149,12 +154,12 @@ def _open_journal(out: Path, plan: CollectionPlan) -> Path:
             previous = json.loads(manifest.read_text())
         except (OSError, ValueError):
             previous = None
-        if previous is not None and previous != json.loads(json.dumps(plan.to_dict())):
+        if previous is not None and previous != json.loads(json.dumps(to_json(plan))):
             raise UserError(
                 f"{partial} holds an interrupted collection with other settings; re-run it "
                 f"with the same settings to finish it, or delete {partial} to start over")
     partial.mkdir(parents=True, exist_ok=True)
-    write_atomic(manifest, lambda f: f.write(json.dumps(plan.to_dict(), indent=1)), False)
+    write_atomic(manifest, lambda f: f.write(json.dumps(to_json(plan), indent=1)), False)
     return partial
 
 
@@ -175,7 +180,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
         except UserError as e:
             raise UserError(f"--out {out} exists and is not a usable trajectory file ({e}); "
                             "delete it or choose another --out") from e
-        if existing.collection.get("plan") == json.loads(json.dumps(plan.to_dict())):
+        if existing.collection.get("plan") == json.loads(json.dumps(to_json(plan))):
             return out  # already complete
         raise UserError(f"{out} already exists with other collection settings; choose another "
                         "--out or delete the file")
@@ -200,7 +205,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
         split_ids=plan.split_ids(),
         env_config=plan.env,
         seed=plan.seed,
-        collection={"plan": plan.to_dict(),
+        collection={"plan": to_json(plan),
                     "attempts": [int(done[i]["attempts"]) for i in order]},
         source=str(out),
     )
@@ -225,5 +230,5 @@ def _run(todo: list[int], plan: CollectionPlan, workers: int):
         return
     ctx = mp.get_context("spawn")  # fresh interpreters: no inherited PyBullet or torch state
     with ctx.Pool(min(workers, len(todo)), initializer=_worker_init,
-                  initargs=(plan.env.to_dict(),)) as pool:
+                  initargs=(to_json(plan.env),)) as pool:
         yield from pool.imap_unordered(_worker_run, [(i, plan) for i in todo])

@@ -29,6 +29,7 @@ import h5py
 import numpy as np
 
 from latent_sindy.atomic import atomic_path
+from latent_sindy.configs import from_json, to_json
 from latent_sindy.envs import config as C
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
@@ -76,6 +77,17 @@ class Trajectories:
 
     def split_counts(self) -> dict[str, int]:
         return {s: int(np.sum(self.split_ids == i)) for i, s in enumerate(SPLITS)}
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the arrays (images, actions, poses, splits): equal data, equal print."""
+        import hashlib
+
+        h = hashlib.sha256()
+        for arr in (self.images, self.actions, self.poses, self.split_ids):
+            a = np.ascontiguousarray(arr)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        return h.hexdigest()
 
     def pixel_stats(self) -> tuple[float, float]:
         """Scalar mean and std of the training split's pixels (the course normalised so)."""
@@ -144,7 +156,7 @@ def write_trajectories(path: str | os.PathLike, data: Trajectories) -> None:
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
             "seed": -1 if data.seed is None else int(data.seed),
             "steps": t1 - 1,
-            "env_config": json.dumps(data.env_config.to_dict()),
+            "env_config": json.dumps(to_json(data.env_config)),
             "collection": json.dumps(data.collection),
             "pixel_mean": mean,
             "pixel_std": std,
@@ -176,7 +188,8 @@ def read_trajectories(path: str | os.PathLike) -> Trajectories:
             if missing:
                 raise UserError(f"{path} lacks dataset(s) {', '.join(missing)}; re-collect it")
             arrays = {k: f[k][()] for k in ("images", "actions", "poses", "split")}
-            env_config = PushEnvConfig.from_dict(json.loads(f.attrs["env_config"]))
+            env_config = from_json(PushEnvConfig, json.loads(f.attrs["env_config"]),
+                                   f"{path}: env_config")
             seed = int(f.attrs.get("seed", -1))
             collection = json.loads(f.attrs.get("collection", "{}"))
     except UserError:

@@ -5,17 +5,16 @@ Everything that changes what the camera sees or how the block moves lives in
 same world from that record alone.
 
     >>> cfg = PushEnvConfig(channels=3)
-    >>> cfg.to_dict()["channels"]
+    >>> cfg.action_dim
     3
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from latent_sindy.errors import UserError, reject_unknown_fields
+from latent_sindy.errors import UserError
 
 #: The paper's task: start and goal block poses (x, y, theta).
 PAPER_START = (0.4, 0.0, 0.2 * math.pi)
@@ -99,15 +98,26 @@ class PushEnvConfig:
         if self.success_distance <= 0 or self.strict_distance <= 0:
             raise UserError("success distances must be positive")
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+    @property
+    def action_low(self) -> tuple[float, ...]:
+        """Lower corner of the action box."""
+        return ACTION_LOW
 
-    @classmethod
-    def from_dict(cls, d: dict) -> PushEnvConfig:
-        """Rebuild from :meth:`to_dict` output (e.g. read back from a data file's attributes)."""
-        d = dict(d)
-        reject_unknown_fields(cls, d, "environment")
-        cam = CameraConfig(**{k: tuple(v) if isinstance(v, list) else v
-                              for k, v in d.pop("camera", {}).items()})
-        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        return cls(camera=cam, **d)
+    @property
+    def action_high(self) -> tuple[float, ...]:
+        """Upper corner of the action box."""
+        return ACTION_HIGH
+
+    @property
+    def action_dim(self) -> int:
+        """Action size nu."""
+        return len(ACTION_LOW)
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        return ("p", "phi", "ell")
+
+    @property
+    def angle_period(self) -> float:
+        """The block's visible rotational symmetry (a uniform square: π/2)."""
+        return math.pi / 2

@@ -1,6 +1,6 @@
 """`PandaPushEnv`: the planar pushing task as a gymnasium environment.
 
-One `step` is one whole push u = [p, phi, ell] (DESIGN §2); the observation is the 32x32
+One `step` is one whole push u = [p, phi, ell] (docs/design.md); the observation is the 32x32
 overhead camera image, uint8, channels first. `info` carries the block's true pose and the
 errors to the goal.
 
@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
+from latent_sindy.configs import from_json, to_json
 from latent_sindy.envs import config as C
 from latent_sindy.envs.config import PAPER_GOAL, PAPER_START, PushEnvConfig
 from latent_sindy.envs.world import PushWorld, wrap_angle
@@ -41,7 +42,7 @@ class PandaPushEnv(gym.Env):
                  **overrides: Any) -> None:
         cfg = config or PushEnvConfig()
         if overrides:
-            cfg = PushEnvConfig.from_dict({**cfg.to_dict(), **overrides})
+            cfg = from_json(PushEnvConfig, {**to_json(cfg), **overrides}, "environment")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}: use None or 'rgb_array'")
         self.config = cfg

@@ -28,7 +28,6 @@ import torch
 
 from latent_sindy.data.store import SPLITS, Trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
-from latent_sindy.models.dynamics import LinearDynamics, SindyDynamics
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.training import evaluate
 
@@ -93,20 +92,10 @@ def baseline_errors(train: Trajectories, held_out: Trajectories,
 
 
 def model_stats(model: LatentModel) -> dict[str, float | None]:
-    """Coefficient counts and sparsity; None where a model has no such notion."""
-    dyn = model.dynamics
-    n_dyn_params = sum(p.numel() for p in dyn.parameters())
-    stats: dict[str, float | None] = {"params/dynamics": n_dyn_params,
-                                      "params/total": sum(p.numel() for p in model.parameters())}
-    if isinstance(dyn, SindyDynamics):
-        stats.update({"sindy/active": dyn.n_active(), "sindy/coefficients": dyn.mask.numel(),
-                      "sindy/terms_used": int(dyn.mask.any(dim=1).sum()),
-                      "sindy/sparsity": dyn.sparsity()})
-    else:
-        n = n_dyn_params if isinstance(dyn, LinearDynamics) else None
-        stats.update({"sindy/active": n, "sindy/coefficients": n, "sindy/terms_used": None,
-                      "sindy/sparsity": None})
-    return stats
+    """Coefficient counts and sparsity (the dynamics model's own ``stats``; None where a model
+    has no such notion) and the parameter count of the whole model."""
+    return {**model.dynamics.stats(),
+            "params/total": sum(p.numel() for p in model.parameters())}
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from latent_sindy.models.dynamics import SindyDynamics
+from latent_sindy.plots import loss_histories
 
 __all__ = ["coefficient_map", "control_bars", "horizon_plot", "loss_histories", "rollout_strip"]
 
@@ -39,26 +40,6 @@ def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     return path
-
-
-def loss_histories(histories: Mapping[str, list[dict]], labels: Mapping[str, str],
-                   path: Path) -> Path:
-    """Train (left) and validation (right) objective per epoch; one line per model."""
-    fig, axes = _figure(1, 2, figsize=(11, 4), sharey=True)
-    axes = axes[0]
-    for ax, split in zip(axes, ("train", "val"), strict=True):
-        for name, rows in histories.items():
-            pts = [(r["epoch"], r[f"{split}/objective"]) for r in rows
-                   if r.get(f"{split}/objective") is not None]
-            if pts:
-                ax.plot(*zip(*pts, strict=True), label=labels[name], lw=1.2)
-        ax.set(title=f"{'training' if split == 'train' else 'validation'} loss (Fig. "
-                     f"{6 if split == 'train' else 7})", xlabel="epoch", yscale="log")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("objective (recon + pred_x + pred_z)")
-    axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    return _save(fig, path)
 
 
 def rollout_strip(rows: Sequence[tuple[str, np.ndarray]], path: Path) -> Path:

@@ -11,7 +11,8 @@ an interrupted training run resumes from its checkpoint.
     latent-sindy reproduce --scale demo --out results
     latent-sindy reproduce --scale paper --out results-paper --seeds 0 1 2
 
-    from latent_sindy.experiments.reproduce import ReproduceConfig, reproduce
+    from latent_sindy.experiments.study import ReproduceConfig
+    from latent_sindy.experiments.reproduce import reproduce
     report = reproduce(ReproduceConfig(scale="demo", out=Path("results")))
 
 OUT holds::
@@ -19,6 +20,10 @@ OUT holds::
     data.h5                      trajectories (collected if missing)
     runs/seed<S>/<model>/        training run folders, with evaluation.json and
                                  control-<task>-<latent|image>/ (results.json, GIFs)
+
+The pipeline reads as stages, each a function of what the earlier ones returned:
+data (collect) -> train + evaluate + control (a process pool) -> baselines -> outputs
+(figures, equations, tables) -> summary.json and report.html.
     table1.md, table1.csv        the paper's Table I beside ours
     figures/                     loss histories, rollouts, coefficient maps, prediction error,
                                  control, gifs/
@@ -35,17 +40,15 @@ import os
 import platform
 import shutil
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import torch
 
-from latent_sindy.control.closed_loop import ControlSettings
+from latent_sindy.configs import to_json
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
@@ -59,167 +62,21 @@ from latent_sindy.experiments.jobs import (
     TrainJob,
     eval_job,
     executor,
-    flat_metrics,
     held_out,
-    say_stderr,
     train_job,
 )
+from latent_sindy.experiments.study import ReproduceConfig, Study, model_specs
 from latent_sindy.experiments.study_report import write_report
 from latent_sindy.experiments.table import write_table1
-from latent_sindy.models.latent_model import ModelConfig
-from latent_sindy.training import TrainConfig, load_run, read_metrics
+from latent_sindy.progress import bar, say_stderr
+from latent_sindy.training import RunDir, TrainConfig, load_run, read_metrics
 
-__all__ = ["SCALES", "ModelSpec", "ReproduceConfig", "Scale", "model_specs", "reproduce"]
+__all__ = ["reproduce", "versions"]
 
-
-# ----------------------------------------------------------------------------- settings
-@dataclass(frozen=True)
-class Scale:
-    """How big a study is: data, training schedule and control episodes."""
-
-    trajectories: int
-    """Trajectories in all splits (1/2 train, 1/4 validation, 1/4 test)."""
-    steps: int
-    """Pushes per trajectory."""
-    epochs: int
-    batch_size: int
-    threshold_every: int
-    """SINDy: prune |Ψ| < threshold every this many epochs."""
-    multistep_horizon: int
-    """Training horizon H of the multi-step SINDy model."""
-    paper_episodes: int
-    """Latent MPPI episodes on the paper's task (each with its own MPPI noise)."""
-    random_episodes: int
-    """Latent MPPI episodes on random tasks."""
-    image_paper_episodes: int
-    image_random_episodes: int
-    max_steps: int = 20
-    """Pushes per latent MPPI episode (the course: 20)."""
-    image_max_steps: int = 30
-    """Pushes per image-space MPPI episode (the course: 30)."""
-    samples: int = 100
-    """MPPI samples K (the course: 100)."""
-    mppi_horizon: int = 10
-    """MPPI horizon H (the course: 10)."""
-    until: Literal["course", "strict"] = "strict"
-    """Run episodes until the strict criterion (so both criteria are measured) or the course's."""
-    threshold: float = 1e-3
+Say = Callable[[str], None]
 
 
-SCALES: dict[str, Scale] = {
-    # The paper's settings: 100/50/50 trajectories x 10 pushes, 3000 epochs, batch 500,
-    # thresholding every 300 epochs at 1e-3; 10 paper-task runs (as its image-space test)
-    # and 20 random tasks per model and planner.
-    "paper": Scale(200, 10, 3000, 500, 300, 4, paper_episodes=10, random_episodes=20,
-                   image_paper_episodes=10, image_random_episodes=20),
-    # The paper's data (100/50/50 trajectories) and a short schedule, sized for <= ~12
-    # minutes on 2 cores (measured; see RESULTS.md): 60 epochs of batch 64 are 960 updates,
-    # pruning every 6 epochs (10 times, as the paper's 3000/300). On 30 training
-    # trajectories every model overfitted (validation loss 3-5x the training loss).
-    "demo": Scale(200, 10, 60, 64, 6, 4, paper_episodes=1, random_episodes=10,
-                  image_paper_episodes=1, image_random_episodes=4),
-    # Seconds: only checks that the pipeline runs end to end (tests).
-    "tiny": Scale(6, 3, 2, 500, 1, 2, paper_episodes=1, random_episodes=1,
-                  image_paper_episodes=1, image_random_episodes=1, max_steps=2,
-                  image_max_steps=2, samples=8, mppi_horizon=2),
-}
-
-
-@dataclass(frozen=True)
-class ReproduceConfig:
-    """Settings of `latent-sindy reproduce`."""
-
-    scale: Literal["demo", "paper", "tiny"] = "demo"
-    """demo: the whole study in about 12 minutes on 2 cores; paper: the paper's sizes (many
-    hours on a CPU); tiny: seconds, for tests."""
-    out: Path = Path("results")
-    """Folder for everything (data, runs, tables, figures, report.html); re-runs reuse it."""
-    seeds: tuple[int, ...] = (0,)
-    """Training and control seeds; several give mean ± std."""
-    data: Path | None = None
-    """Trajectory file to use (default OUT/data.h5, collected for the scale if missing)."""
-    data_seed: int = 0
-    """Seed of the data collection (the same data serve every training seed)."""
-    decoder: Literal["conv", "fc"] = "conv"
-    """Decoder of every model: "conv" (transposed convolutions; generalises better) or "fc"
-    (the course's fully connected one)."""
-    workers: int = 2
-    """Processes for collection, training and control (1: everything in this process)."""
-    threads: int = 1
-    """torch CPU threads per process."""
-    verbose: bool = True
-    """Print stage lines and training milestones to stderr."""
-
-    def __post_init__(self) -> None:
-        if self.scale not in SCALES:
-            raise UserError(f"--scale {self.scale}: use one of {', '.join(SCALES)}")
-        if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
-            raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
-        if self.workers < 1 or self.threads < 1:
-            raise UserError(f"--workers {self.workers} and --threads {self.threads}: use 1 or "
-                            "more")
-        if self.data_seed < 0:
-            raise UserError(f"--data-seed {self.data_seed}: seeds are non-negative integers")
-
-    @property
-    def preset(self) -> Scale:
-        return SCALES[self.scale]
-
-    @property
-    def data_path(self) -> Path:
-        return self.data if self.data is not None else self.out / "data.h5"
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d.update(out=str(self.out), data=str(self.data_path), seeds=list(self.seeds))
-        return d
-
-
-@dataclass(frozen=True)
-class ModelSpec:
-    """One model of the study: its name (folder, table column), label and training recipe."""
-
-    name: str
-    label: str
-    model: ModelConfig
-    horizon: int = 1
-    cost: float = 1.0
-    """Relative training time, to start the longest jobs first."""
-
-
-def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
-                ) -> tuple[ModelSpec, ...]:
-    """SINDy orders 1-4, linear (E2C), MLP, and SINDy order 2 trained on H-step windows, all
-    with the same autoencoder architecture."""
-    h = scale.multistep_horizon
-
-    def model(kind: Literal["sindy", "linear", "mlp"], order: int = 2) -> ModelConfig:
-        return ModelConfig(kind=kind, order=order, decoder=decoder)
-
-    return (
-        *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model("sindy", k),
-                    cost=(1.0, 1.1, 1.2, 1.6)[k - 1]) for k in (1, 2, 3, 4)),
-        ModelSpec("linear", "linear (E2C)", model("linear"), cost=0.8),
-        ModelSpec("mlp", "MLP", model("mlp"), cost=0.9),
-        ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", model("sindy"),
-                  horizon=h, cost=1.1 * (h + 1) / 2),
-    )
-
-
-def control_plan(scale: Scale, seed: int) -> dict[str, ControlSettings]:
-    """Folder name -> settings of every closed-loop condition (episodes > 0 only)."""
-    common = {"seed": seed, "until": scale.until, "samples": scale.samples,
-              "horizon": scale.mppi_horizon, "gif_episodes": 1}
-    conditions = (("paper", False, scale.paper_episodes, scale.max_steps),
-                  ("random", False, scale.random_episodes, scale.max_steps),
-                  ("paper", True, scale.image_paper_episodes, scale.image_max_steps),
-                  ("random", True, scale.image_random_episodes, scale.image_max_steps))
-    return {f"control-{task}-{'image' if image else 'latent'}":
-            ControlSettings(task=task, episodes=n, image_space=image, max_steps=steps, **common)
-            for task, image, n, steps in conditions if n > 0}
-
-
-# ----------------------------------------------------------------------------- outputs
+# ----------------------------------------------------------------------------- helpers
 def _stat_dict(s: Stat) -> dict[str, Any]:
     return {"mean": s.mean, "std": s.std, "n": s.n}
 
@@ -257,33 +114,9 @@ def versions() -> dict[str, str | None]:
     return out
 
 
-# ----------------------------------------------------------------------------- the study
-@dataclass
-class Study:
-    """What the pipeline produced, handed to the outputs (tables, figures, report)."""
-
-    config: ReproduceConfig
-    specs: tuple[ModelSpec, ...]
-    runs: dict[int, dict[str, Path]]
-    results: dict[int, dict[str, dict[str, Any]]] = field(default_factory=dict)
-    per_seed: dict[int, dict[str, dict[str, float | None]]] = field(default_factory=dict)
-    stats: dict[str, dict[str, Stat]] = field(default_factory=dict)
-    failures: list[str] = field(default_factory=list)
-    baselines: dict[str, list[float]] = field(default_factory=dict)
-    """Prediction error against horizon of the model-free predictors (evaluation.BASELINES)."""
-    timings: dict[str, float] = field(default_factory=dict)
-    train_status: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def models(self) -> list[str]:
-        return [s.name for s in self.specs]
-
-    @property
-    def labels(self) -> dict[str, str]:
-        return {s.name: s.label for s in self.specs}
-
-
-def _collect(cfg: ReproduceConfig, say: Callable[[str], None]) -> Path:
+# ----------------------------------------------------------------------------- stage 1: data
+def collect_stage(cfg: ReproduceConfig, say: Say) -> Path:
+    """The trajectory file of the study: as given, reused, or collected for the scale."""
     path, scale = cfg.data_path, cfg.preset
     if cfg.data is not None and path.exists():
         say(f"[1/4] data: using {path} as given")
@@ -294,36 +127,34 @@ def _collect(cfg: ReproduceConfig, say: Callable[[str], None]) -> Path:
     else:
         say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
             f"into {path} ({cfg.workers} worker(s))")
-    bar = None
-    if cfg.verbose:
-        from tqdm import tqdm
 
-        def bar(it, total, initial):
-            return tqdm(it, total=total, initial=initial, desc="collect", unit="traj",
-                        file=sys.stderr, dynamic_ncols=True, leave=False)
+    def progress(it, total, initial):
+        return bar(it, total, initial, desc="collect", unit="traj", leave=False)
 
-    return collect(path, plan, cfg.workers, bar)
+    return collect(path, plan, cfg.workers, progress if cfg.verbose else None)
 
 
-def _train_and_evaluate(study: Study, data: Path, say: Callable[[str], None]) -> None:
-    """Every (seed, model): train (or reuse), then evaluate and control, on a process pool."""
-    cfg, scale = study.config, study.config.preset
+# ----------------------------------------------------------------------------- stage 2: runs
+def run_stage(study: Study, data: Path, say: Say) -> None:
+    """Every (seed, model): train (or reuse), then evaluate and control, on a process pool.
+
+    Fills ``study.results``, ``per_seed``, ``stats``, ``failures`` and ``train_status``.
+    """
+    cfg, scale = study.config, study.scale
     jobs = []
     for seed in cfg.seeds:
         for spec in study.specs:
-            run = study.runs[seed][spec.name]
-            tc = TrainConfig(data=data, out=run, model=spec.model, horizon=spec.horizon,
-                             epochs=scale.epochs, batch_size=scale.batch_size,
-                             threshold=scale.threshold, threshold_every=scale.threshold_every,
-                             seed=seed)
+            tc = TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
+                             window=spec.window, epochs=scale.epochs,
+                             batch_size=scale.batch_size, threshold=scale.threshold,
+                             threshold_every=scale.threshold_every, seed=seed)
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
-    n = len(jobs)
-    episodes = sum(s.episodes for s in control_plan(scale, 0).values())
+    episodes = sum(c.episodes for c in scale.conditions())
     say(f"[2/4] training and evaluating {len(study.specs)} models x {len(cfg.seeds)} seed(s) "
         f"({scale.epochs} epochs; {episodes} control episodes per model) on "
-        f"{min(cfg.workers, n)} process(es)")
-    with executor(cfg.workers, n) as pool:
+        f"{min(cfg.workers, len(jobs))} process(es)")
+    with executor(cfg.workers, len(jobs)) as pool:
         try:
             _drain(pool, jobs, study, data, say)
         except BaseException:
@@ -335,9 +166,10 @@ def _train_and_evaluate(study: Study, data: Path, say: Callable[[str], None]) ->
 
 
 def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
-           say: Callable[[str], None]) -> None:
+           say: Say) -> None:
     """Run the training jobs; each finished one queues its evaluation; until all are done."""
-    scale, threads, n = study.config.preset, study.config.threads, len(jobs)
+    scale, threads, n = study.scale, study.config.threads, len(jobs)
+    conditions = scale.conditions()
     t0 = time.perf_counter()
     done_eval = 0
     pending: dict[Future, tuple[str, Any]] = {
@@ -356,16 +188,16 @@ def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
                     continue
                 say(f"  [{elapsed:5.0f} s] {result['status']} {job.name} (seed {job.seed})"
                     f" in {result['seconds']:.0f} s")
-                ev = EvalJob(job.config.out, data, job.name, job.seed,
-                              control_plan(scale, job.seed), threads)
+                controls = tuple((c, scale.control_config(c, job.seed)) for c in conditions)
+                ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
                 pending[pool.submit(eval_job, ev)] = ("eval", ev)
             else:
                 done_eval += 1
                 study.results.setdefault(job.seed, {})[job.name] = result
-                m = flat_metrics(result)
+                m = result.metrics(conditions)
                 study.per_seed.setdefault(job.seed, {})[job.name] = m
                 say(f"  [{elapsed:5.0f} s] evaluated {job.name} (seed {job.seed}) in "
-                    f"{result['seconds']:.0f} s: test loss {_num(m['loss/test'])}, "
+                    f"{result.seconds:.0f} s: test loss {_num(m['loss/test'])}, "
                     f"random-task success {_pct(m.get('control/random/latent/success_rate'))}"
                     f" ({done_eval}/{n})")
 
@@ -378,8 +210,16 @@ def _num(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.4g}"
 
 
-def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict[str, Any]:
-    """Figures, equations, tables and summary.json; returns what the report shows."""
+# ----------------------------------------------------------------------------- stage 3
+def baseline_stage(data: Trajectories) -> dict[str, list[float]]:
+    """Prediction error against horizon of the predictors that learn nothing."""
+    return baseline_errors(data.split("train"), held_out(data),
+                           Normalizer.from_trajectories(data))
+
+
+# ----------------------------------------------------------------------------- stage 4
+def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
+    """Figures, equations and tables of a finished study; returns what the report shows."""
     from latent_sindy.equations import equations_report
 
     out, cfg = study.config.out, study.config
@@ -391,7 +231,7 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
     files: dict[str, Any] = {"coefficients": {}, "gifs": [], "equations": {}}
 
     histories = {m: read_metrics(runs[m]) for m in ok}
-    loss_labels = {s.name: s.label + ("" if s.horizon == 1 else f" (its H={s.horizon} objective)")
+    loss_labels = {s.name: s.label + ("" if s.window == 1 else f" (its H={s.window} objective)")
                    for s in study.specs}
     files["loss"] = figures.loss_histories(histories, loss_labels, fig_dir / "loss_histories.png")
 
@@ -403,30 +243,28 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
                           key=lambda k: int(k[10:]))
             st = [study.stats[m][k] for k in keys]
             curves[m] = ([s.mean for s in st], [s.std for s in st])
-    trajectories = read_trajectories(data)
-    test = held_out(trajectories)
-    study.baselines = baseline_errors(trajectories.split("train"), test,
-                                      Normalizer.from_trajectories(trajectories))
     references = {BASELINES[k]: v for k, v in study.baselines.items()}
     files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png",
                                             references)
 
-    single, multi = "sindy2", study.specs[-1].name
-    if single in ok and multi in ok:
-        files["rollouts"] = _rollout_figure(runs[single], runs[multi], test, study,
-                                            fig_dir / "rollouts.png")
+    single, multi = study.single_step, study.multistep
+    if single and multi and single.name in ok and multi.name in ok:
+        files["rollouts"] = _rollout_figure(
+            [(runs[single.name], single), (runs[multi.name], multi)], held_out(data),
+            fig_dir / "rollouts.png")
     for spec in study.specs:
-        if spec.model.kind == "sindy" and spec.name in ok:
+        if spec.name in ok:
             dyn = load_run(runs[spec.name]).model.dynamics
-            files["coefficients"][spec.name] = figures.coefficient_map(
-                dyn, spec.label, fig_dir / f"coefficients_{spec.name}.png")
+            if hasattr(dyn, "mask"):  # a sparse model: its coefficient map
+                files["coefficients"][spec.name] = figures.coefficient_map(
+                    dyn, spec.label, fig_dir / f"coefficients_{spec.name}.png")
 
+    conditions = study.scale.conditions()
     bars, plan_ms = {}, {}
-    for cond in ("paper/latent", "random/latent", "paper/image", "random/image"):
-        key = f"control/{cond}/success_rate"
+    for cond in conditions:
+        key = f"control/{cond.name}/success_rate"
         if any(key in study.stats[m] for m in ok):
-            bars[cond.replace("/", ", ")] = {m: study.stats[m][key].mean for m in ok
-                                             if key in study.stats[m]}
+            bars[cond.label] = {m: study.stats[m][key].mean for m in ok if key in study.stats[m]}
     for m in ok:
         plan_ms[m] = study.stats[m]["control/latent/plan_ms_mean"].mean
     files["control"] = figures.control_bars(ok, study.labels, bars, plan_ms,
@@ -435,20 +273,21 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
     gif_dir = fig_dir / "gifs"
     gif_dir.mkdir(exist_ok=True)
     for m in ok:
-        for folder in study.results[first][m]["control"]:
-            src = runs[m] / folder / "episode_000.gif"
+        run = RunDir(runs[m])
+        for cond in conditions:
+            src = run.control_dir(cond.task, cond.space) / "episode_000.gif"
             if src.exists():
-                dst = gif_dir / f"{m}_{folder.removeprefix('control-')}.gif"
+                dst = gif_dir / f"{m}_{cond.task}-{cond.space}.gif"
                 shutil.copyfile(src, dst)
-                files["gifs"].append((m, folder, dst))
+                files["gifs"].append((m, cond, dst))
 
     for m in study.models:
         parts = []
         for s in cfg.seeds:
-            run = study.runs[s][m]
+            run = RunDir(study.runs[s][m])
             if m in study.results.get(s, {}):
-                export = not (run / "coefficients.csv").exists()
-                parts.append(f"# seed {s}\n{equations_report(run, export=export)}")
+                export = not (run / run.COEFFICIENTS_CSV).exists()
+                parts.append(f"# seed {s}\n{equations_report(run.path, export=export)}")
         if parts:
             path = out / f"equations_{m}.txt"
             path.write_text("\n\n".join(parts) + "\n")
@@ -461,32 +300,33 @@ def _write_outputs(study: Study, data: Path, say: Callable[[str], None]) -> dict
 
 
 @torch.no_grad()
-def _rollout_figure(single: Path, multi: Path, test: Trajectories, study: Study,
-                    path: Path) -> Path:
-    """Fig. 8: a test trajectory, and both models' open-loop rollouts from its first image."""
+def _rollout_figure(models: list[tuple[Path, Any]], test: Trajectories, path: Path) -> Path:
+    """Fig. 8: a test trajectory, and each model's open-loop rollout from its first image."""
     rows = [("ground truth", test.images[0].astype(float))]
-    for run_dir, spec in ((single, study.specs[1]), (multi, study.specs[-1])):
+    for run_dir, spec in models:
         run = load_run(run_dir)
         x = run.normalizer.normalize(test.images[:1])  # (1, T+1, C, S, S)
-        u = torch.as_tensor(test.actions[:1], dtype=torch.float32)  # (1, T, 3)
+        u = torch.as_tensor(test.actions[:1], dtype=torch.float32)  # (1, T, nu)
         pred = run.model.predict(x[:, 0], u)[0]  # (T+1, C, S, S)
-        kind = "single-step" if spec.horizon == 1 else "multi-step"
-        rows.append((f"{kind} SINDy-2\n(trained on H={spec.horizon})",
+        kind = "single-step" if spec.window == 1 else "multi-step"
+        rows.append((f"{kind} {spec.label}\n(trained on H={spec.window})",
                      run.normalizer.denormalize(pred).numpy()))
     return figures.rollout_strip(rows, path)
 
 
-def _summary(study: Study, data: Path) -> dict[str, Any]:
-    d = read_trajectories(data)
+def summary_record(study: Study, data: Trajectories, data_path: Path) -> dict[str, Any]:
+    """Everything summary.json holds: every number, the config, versions, seeds, timings."""
+    scale = study.scale
     return _json_safe({
-        "config": study.config.to_dict(),
-        "scale": asdict(study.config.preset),
+        "config": {**to_json(study.config), "data": str(data_path)},
+        "scale": to_json(scale),
         "seeds": list(study.config.seeds),
-        "models": {s.name: {"label": s.label, "model": s.model.to_dict(), "horizon": s.horizon}
+        "models": {s.name: {"label": s.label, "model": to_json(s.model), "window": s.window}
                    for s in study.specs},
-        "data": {"path": str(data), "trajectories": d.n, "steps": d.steps,
-                 "splits": d.split_counts(), "seed": d.seed},
-        "control": {k: asdict(v) for k, v in control_plan(study.config.preset, 0).items()},
+        "data": {"path": str(data_path), "trajectories": data.n, "steps": data.steps,
+                 "splits": data.split_counts(), "seed": data.seed,
+                 "fingerprint": data.fingerprint()},
+        "control": {c.name: to_json(scale.control_config(c, 0)) for c in scale.conditions()},
         "versions": versions(),
         "machine": {"cpus": os.cpu_count(), "load_average": list(os.getloadavg()),
                     "platform": platform.platform()},
@@ -497,12 +337,13 @@ def _summary(study: Study, data: Path) -> dict[str, Any]:
         "aggregate": {m: {k: _stat_dict(s) for k, s in st.items()}
                       for m, st in study.stats.items()},
         "per_seed": {str(s): v for s, v in study.per_seed.items()},
-        "losses_per_seed": {str(s): {m: r["losses"] for m, r in v.items()}
+        "losses_per_seed": {str(s): {m: r.losses for m, r in v.items()}
                             for s, v in study.results.items()},
     })
 
 
-def reproduce(config: ReproduceConfig, progress: Callable[[str], None] | None = None) -> Path:
+# ----------------------------------------------------------------------------- the pipeline
+def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     """Run (or complete) the whole study in ``config.out``; returns the path of report.html.
 
     ``progress`` receives one line per stage and per finished job; None prints them to
@@ -518,19 +359,21 @@ def reproduce(config: ReproduceConfig, progress: Callable[[str], None] | None = 
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)  # for the in-process work; restored below
     try:
-        data = _collect(config, say)
+        data_path = collect_stage(config, say)
         study.timings["collect"] = time.perf_counter() - t_start
         t = time.perf_counter()
-        _train_and_evaluate(study, data, say)
+        run_stage(study, data_path, say)
         study.timings["train_evaluate_control"] = time.perf_counter() - t
         if not study.results.get(config.seeds[0]):
             raise UserError(f"no model of seed {config.seeds[0]} finished training: "
                             + "; ".join(study.failures))
         t = time.perf_counter()
-        files = _write_outputs(study, data, say)
+        data = read_trajectories(data_path)
+        study.baselines = baseline_stage(data)
+        files = output_stage(study, data, say)
         study.timings["outputs"] = time.perf_counter() - t
         study.timings["total"] = time.perf_counter() - t_start
-        summary = _summary(study, data)
+        summary = summary_record(study, data, data_path)
         (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False))
         report = write_report(study, files, summary, out / "report.html")
     finally:

@@ -12,14 +12,12 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.experiments.report import Report
+from latent_sindy.experiments.study import Study
 from latent_sindy.experiments.table import format_stat, table1_rows
-
-if TYPE_CHECKING:
-    from latent_sindy.experiments.reproduce import Study
 
 __all__ = ["findings", "write_report"]
 
@@ -43,9 +41,9 @@ def _mean(study: Study, model: str, key: str) -> float:
 def findings(study: Study) -> list[str]:
     """The comparisons beyond the paper, as sentences with the measured numbers."""
     out = []
-    multi = study.specs[-1]
-    if "sindy2" in study.stats and multi.name in study.stats:
-        a, b = multi.name, "sindy2"
+    multi, single = study.multistep, study.single_step
+    if multi and single and single.name in study.stats and multi.name in study.stats:
+        a, b = multi.name, single.name
         ea, eb = _mean(study, a, "pred_err/hmax"), _mean(study, b, "pred_err/hmax")
         rnd, pap = "control/random/latent/success_rate", "control/paper/latent/success_rate"
         if math.isfinite(ea) and ea < eb:
@@ -54,7 +52,7 @@ def findings(study: Study) -> list[str]:
         else:
             verdict = "not more accurate: its error is not lower"
         out.append(
-            f"Multi-step vs single-step SINDy: trained on H={multi.horizon} windows, "
+            f"Multi-step vs single-step SINDy: trained on H={multi.window} windows, "
             f"{multi.label}'s open-loop prediction error on test trajectories is "
             f"{_fmt(study, a, 'pred_err/h1', 'loss')} after 1 push and "
             f"{_fmt(study, a, 'pred_err/hmax', 'loss')} at the longest horizon, against "
@@ -99,8 +97,8 @@ def _control_rows(study: Study) -> list[list[str]]:
     rows = []
     n = len(study.config.seeds)
     for m in study.models:
-        for cond in ("paper/latent", "random/latent", "paper/image", "random/image"):
-            key = f"control/{cond}"
+        for cond in study.scale.conditions():
+            key = f"control/{cond.name}"
             if _get(study, m, f"{key}/episodes") is None:
                 continue
 
@@ -111,8 +109,7 @@ def _control_rows(study: Study) -> list[list[str]]:
             cm = format_stat(None if dist is None else Stat(
                 None if dist.mean is None else 100 * dist.mean,
                 None if dist.std is None else 100 * dist.std, dist.n), "num", n)
-            task, space = cond.split("/")
-            rows.append([study.labels[m], task, space, f("episodes", "int"),
+            rows.append([study.labels[m], cond.task, cond.space, f("episodes", "int"),
                          f("success_rate", "pct"), f("strict_success_rate", "pct"),
                          f("steps_to_goal_mean", "num"), cm, f("plan_ms_mean", "num"),
                          f("discarded_total", "int"), f("left_workspace", "int")])
@@ -133,7 +130,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                     f"{scale.random_episodes} random-task episodes with latent MPPI (at most "
                     f"{scale.max_steps} pushes), {scale.image_paper_episodes} + "
                     f"{scale.image_random_episodes} with image-space MPPI (at most "
-                    f"{scale.image_max_steps}); MPPI K={scale.samples}, H={scale.mppi_horizon}")
+                    f"{scale.image_max_steps}); MPPI K={scale.mppi.samples}, "
+                    f"H={scale.mppi.horizon}")
     r.paragraph(
         f"Data: {data['trajectories']} trajectories of {data['steps']} pushes (splits "
         f"{data['splits']}). Every model trained {scale.epochs} epochs, batch "
@@ -193,9 +191,9 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
 
     if files["gifs"]:
         r.heading(f"Closed-loop episodes (seed {cfg.seeds[0]}, first episode of each condition)")
-        for cond in ("paper-latent", "random-latent", "paper-image", "random-image"):
-            items = [(p, f"{study.labels[m]}, {cond.replace('-', ', ')}")
-                     for m, folder, p in files["gifs"] if folder.endswith(cond)]
+        for cond in study.scale.conditions():
+            items = [(p, f"{study.labels[m]}, {cond.label}")
+                     for m, c, p in files["gifs"] if c == cond]
             if items:
                 r.gallery(items)
 

@@ -1,17 +1,22 @@
 """Learned models: latent dynamics (SINDy, linear, MLP) behind one ``step``/``rollout`` interface,
 the image autoencoder, and the latent model joining them with the training loss.
 
->>> from latent_sindy.models import make_dynamics
->>> make_dynamics("linear", nz=16, nu=3).step(torch.zeros(8, 16), torch.zeros(8, 3)).shape
+>>> from latent_sindy.models import LinearConfig
+>>> LinearConfig().build(nz=16, nu=3).step(torch.zeros(8, 16), torch.zeros(8, 3)).shape
 torch.Size([8, 16])
 """
 
 from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
 from latent_sindy.models.dynamics import (
+    DYNAMICS_CONFIGS,
     DYNAMICS_KINDS,
+    DynamicsConfig,
     LatentDynamics,
+    LinearConfig,
     LinearDynamics,
+    MlpConfig,
     MlpDynamics,
+    SindyConfig,
     SindyDynamics,
     SparseSindyDynamics,
     make_dynamics,
@@ -19,16 +24,21 @@ from latent_sindy.models.dynamics import (
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 
 __all__ = [
+    "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
     "LOSS_TERMS",
     "Autoencoder",
     "AutoencoderConfig",
+    "DynamicsConfig",
     "LatentDynamics",
     "LatentModel",
+    "LinearConfig",
     "LinearDynamics",
     "LossWeights",
+    "MlpConfig",
     "MlpDynamics",
     "ModelConfig",
+    "SindyConfig",
     "SindyDynamics",
     "SparseSindyDynamics",
     "make_dynamics",

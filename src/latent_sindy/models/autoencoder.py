@@ -13,6 +13,7 @@ Both work on normalised images (see :class:`latent_sindy.data.windows.Normalizer
 decoder's output is unbounded. Dimensions: B batch, C channels, S image side, nz latent size.
 
     >>> ae = Autoencoder(AutoencoderConfig(channels=1, image_size=32, latent_dim=16))
+    >>> AutoencoderConfig().resolve(channels=1, image_size=32)  # the shape taken from data
     >>> z = ae.encode(torch.zeros(8, 1, 32, 32))  # (8, 16)
     >>> ae.decode(z).shape
     torch.Size([8, 1, 32, 32])
@@ -20,11 +21,14 @@ decoder's output is unbounded. Dimensions: B batch, C channels, S image side, nz
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
 import torch
 from torch import nn
+
+from latent_sindy.errors import UserError
 
 __all__ = ["Autoencoder", "AutoencoderConfig", "Decoder", "Encoder"]
 
@@ -33,14 +37,18 @@ _KERNEL = 5
 
 @dataclass(frozen=True)
 class AutoencoderConfig:
-    """Sizes of the encoder and decoder; equal configs build identical architectures."""
+    """Sizes of the encoder and decoder; equal resolved configs build identical architectures.
 
-    channels: int = 1
-    """Image channels C (1 grayscale, 3 RGB)."""
-    image_size: int = 32
-    """Image side S in pixels."""
+    ``channels`` and ``image_size`` left as None are taken from the training data
+    (:meth:`resolve`); an autoencoder is built only from a resolved config.
+    """
+
+    channels: int | None = None
+    """Image channels C (1 grayscale, 3 RGB); None: from the data file."""
+    image_size: int | None = None
+    """Image side S in pixels; None: from the data file."""
     latent_dim: int = 16
-    """Latent size nz."""
+    """Latent size nz (the paper: 16)."""
     conv_channels: tuple[int, int] = (4, 4)
     """Feature maps of the two 5×5 convolution stages (the course used 4 and 4)."""
     encoder_hidden: int = 100
@@ -53,27 +61,46 @@ class AutoencoderConfig:
     """conv decoder: feature maps of its convolutions."""
 
     def __post_init__(self) -> None:
-        if self.channels < 1 or self.latent_dim < 1:
-            raise ValueError(f"need channels >= 1 and latent_dim >= 1, got {self}")
-        if self.conv_size() < 1:
-            raise ValueError(
+        if self.latent_dim < 1 or (self.channels is not None and self.channels < 1):
+            raise UserError(f"latent_dim {self.latent_dim} and channels {self.channels}: use 1 "
+                            "or more")
+        if self.image_size is not None and self.conv_size() < 1:
+            raise UserError(
                 f"image_size {self.image_size} is too small for two 5x5 conv + 2x2 pool "
                 "stages: use at least 16"
             )
         if len(self.conv_channels) != 2 or min(self.conv_channels) < 1:
-            raise ValueError(f"conv_channels must be two positive ints, got {self.conv_channels}")
+            raise UserError(f"conv_channels must be two positive ints, got {self.conv_channels}")
         if self.encoder_hidden < 1 or not self.decoder_hidden or min(self.decoder_hidden) < 1:
-            raise ValueError(
+            raise UserError(
                 f"hidden sizes must be positive (and the decoder needs at least one layer), "
                 f"got encoder_hidden={self.encoder_hidden}, decoder_hidden={self.decoder_hidden}"
             )
         if self.decoder not in ("fc", "conv"):
-            raise ValueError(f"decoder {self.decoder!r} is unknown: use 'fc' or 'conv'")
-        if self.decoder == "conv" and (self.image_size % 4 or self.decoder_channels < 1):
-            raise ValueError(
-                f"the conv decoder needs an image side divisible by 4 (got {self.image_size}) "
-                f"and decoder_channels >= 1 (got {self.decoder_channels})"
+            raise UserError(f"decoder {self.decoder!r} is unknown: use 'fc' or 'conv'")
+        if self.decoder_channels < 1:
+            raise UserError(f"decoder_channels {self.decoder_channels}: use 1 or more")
+        if self.decoder == "conv" and self.image_size is not None and self.image_size % 4:
+            raise UserError(
+                f"the conv decoder needs an image side divisible by 4 (got {self.image_size}): "
+                "use --decoder fc or another image size"
             )
+
+    @property
+    def resolved(self) -> bool:
+        return self.channels is not None and self.image_size is not None
+
+    def resolve(self, channels: int, image_size: int, source: str = "the data"
+                ) -> AutoencoderConfig:
+        """This config with the data's image shape filled in; UserError if it contradicts it."""
+        for name, value in (("channels", channels), ("image_size", image_size)):
+            mine = getattr(self, name)
+            if mine is not None and mine != value:
+                raise UserError(
+                    f"model {name} is {mine} but {source} has {name} {value}: "
+                    f"leave model {name} unset to use the data's"
+                )
+        return dataclasses.replace(self, channels=channels, image_size=image_size)
 
     def conv_size(self) -> int:
         """Side of the feature maps after both conv + pool stages (5 for 32×32 images)."""
@@ -147,6 +174,8 @@ class Autoencoder(nn.Module):
 
     def __init__(self, cfg: AutoencoderConfig) -> None:
         super().__init__()
+        if not cfg.resolved:
+            raise ValueError("AutoencoderConfig needs channels and image_size: resolve() first")
         self.config = cfg
         self.encoder = Encoder(cfg)
         self.decoder = Decoder(cfg)

@@ -1,10 +1,14 @@
 """Latent dynamics models behind one interface: SINDy, globally linear (E2C-like) and MLP.
 
 Every model is a ``torch.nn.Module`` with ``step(z, u) -> z_next`` on batched tensors and a
-shared ``rollout``, so MPPI, evaluation and figures never ask which model they hold.
+shared ``rollout``, so MPPI, evaluation and figures never ask which model they hold; a model
+also describes itself (``summary``, ``coefficient_rows``, ``equations``, ``stats``), so the
+equations report and the study never ask either. Each kind has one config dataclass (its
+settings, its ``kind`` tag and ``build``) registered in :data:`DYNAMICS_CONFIGS`: a new kind
+is one model class, one config class and one entry there.
 Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p library terms.
 
-    >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
+    >>> model = SindyConfig(order=2).build(nz=16, nu=3)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
     >>> fast = model.compile_sparse()  # same step, only the active library terms
 """
@@ -12,22 +16,34 @@ Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p libr
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Annotated, Any, ClassVar, Union
 
 import torch
+import tyro
 from torch import nn
 
-from latent_sindy.sindy.library import CandidateLibrary, LibrarySubset
+from latent_sindy.errors import UserError
+from latent_sindy.sindy.library import VALID_ORDERS, CandidateLibrary, LibrarySubset
 
 __all__ = [
+    "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
+    "DynamicsConfig",
     "LatentDynamics",
+    "LinearConfig",
     "LinearDynamics",
+    "MlpConfig",
     "MlpDynamics",
+    "SindyConfig",
     "SindyDynamics",
     "SparseSindyDynamics",
+    "format_equations",
     "make_dynamics",
 ]
+
+#: One coefficient of a model's equations: (state, term, value), e.g. ("z3", "z0 u2", 0.05).
+Row = tuple[str, str, float]
 
 
 class LatentDynamics(nn.Module):
@@ -70,10 +86,51 @@ class LatentDynamics(nn.Module):
         """Constructor keyword arguments (nz and nu included) that rebuild this model."""
         return {"nz": self.nz, "nu": self.nu}
 
+    # ---------------------------------------------------------------- self-description
+    def summary(self) -> list[str]:
+        """One or two lines saying what the model is (the equations report's heading)."""
+        return [f"{type(self).__name__} latent dynamics"]
 
-def _format_coefficient(value: float, precision: int) -> str:
-    """``value`` to ``precision`` significant digits (``g`` format: 0.0312, 1.5, 2e-05)."""
-    return f"{value:.{precision}g}"
+    def coefficient_rows(self) -> list[Row] | None:
+        """Every coefficient of its equations as (state, term, value); None: it has none."""
+        return None
+
+    def equations(self, precision: int = 3) -> list[str]:
+        """One readable update rule per latent state (empty if it has no equations)."""
+        return []
+
+    def export_info(self) -> dict[str, Any]:
+        """What the coefficient files record besides the coefficients."""
+        return {}
+
+    def stats(self) -> dict[str, float | None]:
+        """Counts the study reports for every model: parameters, active coefficients and
+        sparsity (None where the model has no such notion)."""
+        n = sum(p.numel() for p in self.parameters())
+        return {"params/dynamics": n, "sindy/active": None, "sindy/coefficients": None,
+                "sindy/terms_used": None, "sindy/sparsity": None}
+
+
+def format_equations(rows: list[Row], nz: int, precision: int, residual: bool) -> list[str]:
+    """``z0[t+1] = [z0 +] 0.512 u0 - 0.0312 z1 z2 ...`` per state from coefficient rows.
+
+    ``residual`` writes the identity part of a residual model (``z_{t+1} = z_t + ...``);
+    coefficients are rounded to ``precision`` significant digits.
+    """
+    parts: dict[str, list[str]] = {f"z{j}": [] for j in range(nz)}
+    for state, term, value in rows:
+        mag = f"{abs(value):.{precision}g}"
+        sign = "-" if value < 0 else "+"
+        parts[state].append(f"{sign} {mag}" if term == "1" else f"{sign} {mag} {term}")
+    lines = []
+    for state, terms in parts.items():
+        if residual:
+            rhs = " ".join([state, *terms])
+        else:
+            rhs = " ".join(terms)
+            rhs = rhs[2:] if rhs.startswith("+ ") else "-" + rhs[2:] if rhs else "0"
+        lines.append(f"{state}[t+1] = {rhs}")
+    return lines
 
 
 class SindyDynamics(LatentDynamics):
@@ -165,7 +222,7 @@ class SindyDynamics(LatentDynamics):
         return self.mask.any(dim=1).nonzero().flatten()
 
     @torch.no_grad()
-    def coefficient_table(self) -> list[tuple[str, str, float]]:
+    def coefficient_rows(self) -> list[Row]:
         """Active coefficients as ``(state, term, value)`` rows, by state then library order."""
         coef = self.coefficients().detach().cpu()
         names = self.names
@@ -182,12 +239,30 @@ class SindyDynamics(LatentDynamics):
         digits, e.g. ``z0[t+1] = z0 + 0.512 u0 - 0.0312 z1 z2``. The leading ``z0`` is the
         residual (identity) part of the model and is always there.
         """
-        per_state: dict[str, list[str]] = {f"z{j}": [] for j in range(self.nz)}
-        for state, term, value in self.coefficient_table():
-            sign = "-" if value < 0 else "+"
-            mag = _format_coefficient(abs(value), precision)
-            per_state[state].append(f"{sign} {mag}" if term == "1" else f"{sign} {mag} {term}")
-        return [" ".join([f"{state}[t+1] = {state}", *parts]) for state, parts in per_state.items()]
+        return format_equations(self.coefficient_rows(), self.nz, precision, residual=True)
+
+    def summary(self) -> list[str]:
+        p, nz = self.mask.shape
+        lib = self.library
+        trig = " with sin(z)" if lib.include_sine else ""
+        trig += " and cos(z)" if lib.include_cosine else ""
+        return [f"SINDy latent dynamics, library order {lib.order}{trig} ({p} candidate terms "
+                f"x {nz} states), z[t+1] = z + Θ(z, u) (M ⊙ Ψ)",
+                f"active coefficients: {self.n_active()} of {p * nz} (sparsity "
+                f"{100 * self.sparsity():.1f}%); terms used by some state: "
+                f"{int(self.mask.any(dim=1).sum())} of {p}"]
+
+    def export_info(self) -> dict[str, Any]:
+        return {"order": self.library.order, "include_sine": self.library.include_sine,
+                "include_cosine": self.library.include_cosine, "n_active": self.n_active(),
+                "n_coefficients": self.mask.numel(), "sparsity": self.sparsity(),
+                "terms": self.names}
+
+    def stats(self) -> dict[str, float | None]:
+        return {**super().stats(), "sindy/active": self.n_active(),
+                "sindy/coefficients": self.mask.numel(),
+                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
+                "sindy/sparsity": self.sparsity()}
 
     def compile_sparse(self) -> SparseSindyDynamics:
         """A frozen copy of the current model that evaluates only the active library terms.
@@ -246,6 +321,31 @@ class LinearDynamics(LatentDynamics):
 
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return z @ self.A.T + u @ self.B.T + self.c  # (K, nz)
+
+    @torch.no_grad()
+    def coefficient_rows(self) -> list[Row]:
+        """Every entry of A, B and c, by state: (z_j, z_k | u_k | 1, value)."""
+        A, B, c = (p.detach().cpu() for p in (self.A, self.B, self.c))
+        rows: list[Row] = []
+        for j in range(self.nz):
+            rows += [(f"z{j}", f"z{k}", float(A[j, k])) for k in range(self.nz)]
+            rows += [(f"z{j}", f"u{k}", float(B[j, k])) for k in range(self.nu)]
+            rows.append((f"z{j}", "1", float(c[j])))
+        return rows
+
+    def equations(self, precision: int = 3) -> list[str]:
+        return format_equations(self.coefficient_rows(), self.nz, precision, residual=False)
+
+    def summary(self) -> list[str]:
+        return [f"linear latent dynamics z[t+1] = A z + B u + c (A {self.nz}x{self.nz}, "
+                f"B {self.nz}x{self.nu}, c {self.nz}), every coefficient active"]
+
+    def export_info(self) -> dict[str, Any]:
+        return {"n_coefficients": self.nz * (self.nz + self.nu + 1)}
+
+    def stats(self) -> dict[str, float | None]:
+        n = self.nz * (self.nz + self.nu + 1)
+        return {**super().stats(), "sindy/active": n, "sindy/coefficients": n}
 
     @torch.no_grad()
     def fit_least_squares(
@@ -311,19 +411,94 @@ class MlpDynamics(LatentDynamics):
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return z + self.net(torch.cat([z, u], dim=-1))  # (K, nz)
 
+    def summary(self) -> list[str]:
+        return [f"MLP latent dynamics z[t+1] = z + MLP([z, u]) ({self._init['layers']} hidden "
+                f"layers of {self._init['hidden']}): a neural network has no readable equations"]
 
-DYNAMICS_KINDS: dict[str, type[LatentDynamics]] = {
-    cls.kind: cls for cls in (SindyDynamics, LinearDynamics, MlpDynamics)
-}
+
+# ----------------------------------------------------------------------------- configs
+def _check_scale(kind: str, init_scale: float) -> None:
+    if not (math.isfinite(init_scale) and init_scale >= 0):
+        raise UserError(f"{kind} init_scale {init_scale}: use a finite number >= 0")
+
+
+@dataclass(frozen=True)
+class SindyConfig:
+    """SINDy: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library of [z, u]."""
+
+    kind: ClassVar[str] = "sindy"
+    model_class: ClassVar[type[LatentDynamics]] = SindyDynamics
+    order: int = 2
+    """Polynomial order of the candidate library (1-4)."""
+    include_sine: bool = True
+    """Add sin(z_i) candidates."""
+    include_cosine: bool = False
+    """Add cos(z_i) candidates."""
+    init_scale: float = 1e-3
+    """Standard deviation of the initial coefficients Ψ."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
+            raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
+        _check_scale("SINDy", self.init_scale)
+
+    def build(self, nz: int, nu: int) -> SindyDynamics:
+        return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
+                             include_cosine=self.include_cosine, init_scale=self.init_scale)
+
+
+@dataclass(frozen=True)
+class LinearConfig:
+    """Globally linear (the E2C baseline): z[t+1] = A z + B u + c."""
+
+    kind: ClassVar[str] = "linear"
+    model_class: ClassVar[type[LatentDynamics]] = LinearDynamics
+    init_scale: float = 1e-3
+    """Standard deviation of A − I and B at initialisation."""
+
+    def __post_init__(self) -> None:
+        _check_scale("linear", self.init_scale)
+
+    def build(self, nz: int, nu: int) -> LinearDynamics:
+        return LinearDynamics(nz, nu, init_scale=self.init_scale)
+
+
+@dataclass(frozen=True)
+class MlpConfig:
+    """Neural reference: z[t+1] = z + MLP([z, u])."""
+
+    kind: ClassVar[str] = "mlp"
+    model_class: ClassVar[type[LatentDynamics]] = MlpDynamics
+    hidden: int = 128
+    """Width of the hidden layers."""
+    layers: int = 2
+    """Number of hidden layers."""
+
+    def __post_init__(self) -> None:
+        if self.hidden < 1 or self.layers < 1:
+            raise UserError(f"MLP hidden {self.hidden} and layers {self.layers}: use 1 or more")
+
+    def build(self, nz: int, nu: int) -> MlpDynamics:
+        return MlpDynamics(nz, nu, hidden=self.hidden, layers=self.layers)
+
+
+#: The registry: every latent dynamics kind's config class (its ``kind`` names it).
+DYNAMICS_CONFIGS: tuple[type, ...] = (SindyConfig, LinearConfig, MlpConfig)
+DYNAMICS_KINDS: dict[str, type] = {c.kind: c for c in DYNAMICS_CONFIGS}
+
+#: A tagged union of the registered configs; on the command line each is a subcommand
+#: (``latent-sindy train sindy --order 3``, ``... train linear``).
+DynamicsConfig = Union[tuple(  # noqa: UP007  (built from the registry at import time)
+    Annotated[c, tyro.conf.subcommand(c.kind)] for c in DYNAMICS_CONFIGS)]
 
 
 def make_dynamics(kind: str, nz: int, nu: int, **kwargs: Any) -> LatentDynamics:
-    """Build a latent dynamics model by name: one of ``"sindy"``, ``"linear"``, ``"mlp"``.
+    """Build a latent dynamics model by kind name (``"sindy"``, ``"linear"``, ``"mlp"``).
 
-    Extra keyword arguments go to the model's constructor (e.g. ``order=3`` for SINDy).
+    Extra keyword arguments go to the model's constructor (e.g. ``order=3``, ``seed=0``).
     """
     try:
-        cls = DYNAMICS_KINDS[kind]
+        cls = DYNAMICS_KINDS[kind].model_class
     except KeyError:
         raise ValueError(
             f"unknown dynamics kind {kind!r}; valid kinds: {', '.join(sorted(DYNAMICS_KINDS))}"

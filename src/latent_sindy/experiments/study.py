@@ -1,0 +1,296 @@
+"""The study as typed objects: its settings, scales, models, control conditions and results.
+
+Nothing here runs anything; :mod:`latent_sindy.experiments.reproduce` runs the stages and
+:mod:`latent_sindy.experiments.study_report` reads a finished :class:`Study`. Models and
+conditions are looked up by name, never by position, and a condition is an object, not a
+string to split.
+
+    >>> SCALES["paper"].epochs, SCALES["demo"].epochs
+    (3000, 60)
+    >>> [c.name for c in SCALES["demo"].conditions()]
+    ['paper/latent', 'random/latent', 'paper/image', 'random/image']
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import tyro
+
+from latent_sindy.control.closed_loop import ControlConfig
+from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.errors import UserError
+from latent_sindy.experiments.evaluation import Stat
+from latent_sindy.models.autoencoder import AutoencoderConfig
+from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
+from latent_sindy.models.latent_model import ModelConfig
+
+__all__ = ["SCALES", "Condition", "ModelSpec", "ReproduceConfig", "RunResult", "Scale", "Study",
+           "model_specs"]
+
+Task = Literal["paper", "random"]
+Space = Literal["latent", "image"]
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One closed-loop condition of the study: a task, a planning space, its episodes."""
+
+    task: Task
+    space: Space
+    episodes: int
+    max_steps: int
+
+    @property
+    def name(self) -> str:
+        """The metric prefix, e.g. ``paper/latent`` (metrics ``control/paper/latent/...``)."""
+        return f"{self.task}/{self.space}"
+
+    @property
+    def label(self) -> str:
+        return f"{self.task}, {self.space}"
+
+
+@dataclass(frozen=True)
+class Scale:
+    """How big a study is: data, training schedule and control episodes.
+
+    The defaults are the demo scale; the other scales are named overrides of it
+    (:data:`SCALES`).
+    """
+
+    trajectories: int = 200
+    """Trajectories in all splits (1/2 train, 1/4 validation, 1/4 test)."""
+    steps: int = 10
+    """Pushes per trajectory."""
+    # 60 epochs of batch 64 are 960 updates, pruning every 6 epochs (10 times, as the paper's
+    # 3000/300). On 30 training trajectories every model overfitted (validation loss 3-5x
+    # the training loss), hence the paper's 100 training trajectories even in the demo.
+    epochs: int = 60
+    batch_size: int = 64
+    threshold: float = 1e-3
+    """SINDy: prune |Ψ| below this ..."""
+    threshold_every: int = 6
+    """... every this many epochs."""
+    multistep_window: int = 4
+    """Training window H of the multi-step SINDy model."""
+    paper_episodes: int = 1
+    """Latent MPPI episodes on the paper's task (each with its own MPPI noise)."""
+    random_episodes: int = 10
+    """Latent MPPI episodes on random tasks."""
+    image_paper_episodes: int = 1
+    image_random_episodes: int = 4
+    max_steps: int = 20
+    """Pushes per latent MPPI episode (the course: 20)."""
+    image_max_steps: int = 30
+    """Pushes per image-space MPPI episode (the course: 30)."""
+    until: Literal["course", "strict"] = "strict"
+    """Run episodes until the strict criterion (so both criteria are measured) or the course's."""
+    mppi: MPPIConfig = field(default_factory=MPPIConfig)
+    """The planner of every condition (the course's K = 100, H = 10)."""
+
+    def conditions(self) -> tuple[Condition, ...]:
+        """The closed-loop conditions with at least one episode, in report order."""
+        all_ = (Condition("paper", "latent", self.paper_episodes, self.max_steps),
+                Condition("random", "latent", self.random_episodes, self.max_steps),
+                Condition("paper", "image", self.image_paper_episodes, self.image_max_steps),
+                Condition("random", "image", self.image_random_episodes, self.image_max_steps))
+        return tuple(c for c in all_ if c.episodes > 0)
+
+    def control_config(self, condition: Condition, seed: int) -> ControlConfig:
+        return ControlConfig(task=condition.task, space=condition.space,
+                             episodes=condition.episodes, max_steps=condition.max_steps,
+                             seed=seed, until=self.until, gif_episodes=1, mppi=self.mppi)
+
+
+_DEMO = Scale()
+SCALES: dict[str, Scale] = {
+    # The paper's data (100/50/50 trajectories) and a short schedule, sized for the demo's
+    # budget on 2 cores (measured; see RESULTS.md).
+    "demo": _DEMO,
+    # The paper's settings: 3000 epochs, batch 500, thresholding every 300 epochs; 10
+    # paper-task runs (as its image-space test) and 20 random tasks per model and planner.
+    "paper": dataclasses.replace(_DEMO, epochs=3000, batch_size=500, threshold_every=300,
+                                 paper_episodes=10, random_episodes=20,
+                                 image_paper_episodes=10, image_random_episodes=20),
+    # Seconds: only checks that the pipeline runs end to end (tests).
+    "tiny": dataclasses.replace(_DEMO, trajectories=6, steps=3, epochs=2, batch_size=500,
+                                threshold_every=1, multistep_window=2, random_episodes=1,
+                                image_random_episodes=1, max_steps=2, image_max_steps=2,
+                                mppi=MPPIConfig(samples=8, horizon=2)),
+}
+
+
+@dataclass(frozen=True)
+class ReproduceConfig:
+    """Settings of `latent-sindy reproduce`."""
+
+    scale: Literal["demo", "paper", "tiny"] = "demo"
+    """demo: the whole study in minutes on 2 cores; paper: the paper's sizes (many hours on a
+    CPU); tiny: seconds, for tests."""
+    out: Path = Path("results")
+    """Folder for everything (data, runs, tables, figures, report.html); re-runs reuse it."""
+    seeds: tuple[int, ...] = (0,)
+    """Training and control seeds; several give mean ± std."""
+    data: Path | None = None
+    """Trajectory file to use (default OUT/data.h5, collected for the scale if missing)."""
+    data_seed: int = 0
+    """Seed of the data collection (the same data serve every training seed)."""
+    decoder: Literal["conv", "fc"] = "conv"
+    """Decoder of every model: "conv" (transposed convolutions; generalises better) or "fc"
+    (the course's fully connected one)."""
+    workers: int = 2
+    """Processes for collection, training and control (1: everything in this process)."""
+    threads: int = 1
+    """torch CPU threads per process."""
+    verbose: tyro.conf.Suppress[bool] = True
+    """Print stage lines and training milestones to stderr."""
+
+    def __post_init__(self) -> None:
+        if self.scale not in SCALES:
+            raise UserError(f"--scale {self.scale}: use one of {', '.join(SCALES)}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
+            raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
+        if self.workers < 1 or self.threads < 1:
+            raise UserError(f"--workers {self.workers} and --threads {self.threads}: use 1 or "
+                            "more")
+        if self.data_seed < 0:
+            raise UserError(f"--data-seed {self.data_seed}: seeds are non-negative integers")
+
+    @property
+    def preset(self) -> Scale:
+        return SCALES[self.scale]
+
+    @property
+    def data_path(self) -> Path:
+        return self.data if self.data is not None else self.out / "data.h5"
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One model of the study: its name (folder, table column), label and training recipe."""
+
+    name: str
+    label: str
+    model: ModelConfig
+    window: int = 1
+    """Training window H (1: single-step)."""
+    cost: float = 1.0
+    """Relative training time, to start the longest jobs first."""
+
+
+#: The name of the single-step model the multi-step one is compared with.
+SINGLE_STEP = "sindy2"
+
+
+def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
+                ) -> tuple[ModelSpec, ...]:
+    """SINDy orders 1-4, linear (E2C), MLP, and SINDy order 2 trained on H-step windows, all
+    with the same autoencoder architecture."""
+    h = scale.multistep_window
+    auto = AutoencoderConfig(decoder=decoder)
+
+    def model(dynamics: Any) -> ModelConfig:
+        return ModelConfig(autoencoder=auto, dynamics=dynamics)
+
+    return (
+        *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model(SindyConfig(order=k)),
+                    cost=(1.0, 1.1, 1.2, 1.6)[k - 1]) for k in (1, 2, 3, 4)),
+        ModelSpec("linear", "linear (E2C)", model(LinearConfig()), cost=0.8),
+        ModelSpec("mlp", "MLP", model(MlpConfig()), cost=0.9),
+        ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", model(SindyConfig(order=2)),
+                  window=h, cost=1.1 * (h + 1) / 2),
+    )
+
+
+@dataclass
+class RunResult:
+    """What the study measured of one trained (model, seed)."""
+
+    losses: dict[str, dict[str, float]]
+    """Split -> loss terms on single-step windows."""
+    horizon: list[float]
+    """Open-loop image MSE at horizon 1..T on held-out trajectories."""
+    stats: dict[str, float | None]
+    """Parameter and coefficient counts, sparsity."""
+    control: dict[str, dict[str, Any]]
+    """Condition name -> closed-loop summary (``nonfinite_actions`` included)."""
+    train_seconds: float
+    seconds: float
+
+    def metrics(self, conditions: tuple[Condition, ...]) -> dict[str, float | None]:
+        """One flat {metric: value} dictionary (the keys of table.ROWS and more)."""
+        m: dict[str, float | None] = {}
+        for split in ("train", "val", "test"):
+            m[f"loss/{split}"] = self.losses.get(split, {}).get("objective")
+        m.update(self.stats)
+        m.update({f"pred_err/h{h}": v for h, v in enumerate(self.horizon, start=1)})
+        m["pred_err/hmax"] = self.horizon[-1]
+        plan_ms: dict[str, list[float]] = {"latent": [], "image": []}
+        discarded = nonfinite = 0
+        for cond in conditions:
+            s = self.control.get(cond.name)
+            if s is None:
+                continue
+            for k in ("success_rate", "strict_success_rate", "steps_to_goal_mean",
+                      "steps_to_strict_mean", "final_distance_mean", "plan_ms_mean",
+                      "discarded_total", "left_workspace", "episodes"):
+                m[f"control/{cond.name}/{k}"] = s[k]
+            if math.isfinite(s["plan_ms_mean"]):
+                plan_ms[cond.space].append(s["plan_ms_mean"])
+            discarded += s["discarded_total"]
+            nonfinite += s["nonfinite_actions"]
+        for space, values in plan_ms.items():
+            m[f"control/{space}/plan_ms_mean"] = (sum(values) / len(values) if values
+                                                  else math.nan)
+        m["control/discarded_total"] = discarded
+        m["train/seconds"] = self.train_seconds
+        m["control/nonfinite_actions"] = nonfinite
+        return m
+
+
+@dataclass
+class Study:
+    """What the pipeline produced, handed to the outputs (tables, figures, report)."""
+
+    config: ReproduceConfig
+    specs: tuple[ModelSpec, ...]
+    runs: dict[int, dict[str, Path]]
+    """Seed -> model name -> run folder."""
+    results: dict[int, dict[str, RunResult]] = field(default_factory=dict)
+    per_seed: dict[int, dict[str, dict[str, float | None]]] = field(default_factory=dict)
+    stats: dict[str, dict[str, Stat]] = field(default_factory=dict)
+    failures: list[str] = field(default_factory=list)
+    baselines: dict[str, list[float]] = field(default_factory=dict)
+    """Prediction error against horizon of the model-free predictors (evaluation.BASELINES)."""
+    timings: dict[str, float] = field(default_factory=dict)
+    train_status: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def scale(self) -> Scale:
+        return self.config.preset
+
+    @property
+    def models(self) -> list[str]:
+        return [s.name for s in self.specs]
+
+    @property
+    def labels(self) -> dict[str, str]:
+        return {s.name: s.label for s in self.specs}
+
+    def spec(self, name: str) -> ModelSpec | None:
+        return next((s for s in self.specs if s.name == name), None)
+
+    @property
+    def single_step(self) -> ModelSpec | None:
+        """The single-step SINDy-2 the multi-step model is compared with."""
+        return self.spec(SINGLE_STEP)
+
+    @property
+    def multistep(self) -> ModelSpec | None:
+        """The SINDy model trained on multi-step windows."""
+        return next((s for s in self.specs if s.window > 1), None)

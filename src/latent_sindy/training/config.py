@@ -1,0 +1,92 @@
+"""Settings of one training run (the paper's recipe is the default but for the epochs).
+
+With the data file they determine the final model, bit for bit on a CPU. The model's own
+settings are nested (:class:`~latent_sindy.models.latent_model.ModelConfig`), as are the loss
+weights; on the command line every field is a flag named like the field.
+
+    latent-sindy train sindy --order 2 --data data/push.h5 --out runs/sindy2 --epochs 300
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import tyro
+
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LossWeights, ModelConfig
+
+__all__ = ["RESUMABLE", "TrainConfig"]
+
+#: Settings that may change when resuming; everything else must match the run's record. The
+#: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
+RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "out", "data"})
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Settings of one training run; with the data file they determine the final model."""
+
+    data: Path = Path("data/push.h5")
+    """Trajectory file (.h5) from `latent-sindy collect`."""
+    out: Path = Path("runs/sindy")
+    """Run folder to create (config, weights, checkpoint, metrics, loss plot)."""
+    model: tyro.conf.OmitArgPrefixes[ModelConfig] = field(default_factory=ModelConfig)
+    """Architecture of the latent model."""
+    loss: tyro.conf.OmitArgPrefixes[LossWeights] = field(default_factory=LossWeights)
+    """Weights of the loss terms."""
+    window: int = 1
+    """Pushes per training window H (1: the paper's single-step model)."""
+    epochs: int = 300
+    """Passes over the training windows (the paper: 3000; 300 trains in minutes on a CPU)."""
+    batch_size: int = 500
+    """Windows per mini-batch (the paper: 500)."""
+    lr: float = 1e-3
+    """AdamW learning rate (the paper: 1e-3)."""
+    betas: tuple[float, float] = (0.9, 0.999)
+    """AdamW betas (the paper: 0.9, 0.999)."""
+    weight_decay: float = 0.01
+    """AdamW decoupled weight decay (PyTorch's default, which the paper kept)."""
+    threshold: float = 1e-3
+    """SINDy: prune coefficients with |Ψ| below this (the paper: 1e-3)."""
+    threshold_every: int = 30
+    """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
+    checkpoint_every: int = 10
+    """Write checkpoint.pt every this many epochs (and always at the end)."""
+    seed: int = 0
+    """Seeds the initial weights and the mini-batch order."""
+    resume: bool = False
+    """Continue the run in `out` from its checkpoint (settings must match; epochs may grow)."""
+    overwrite: bool = False
+    """Replace a finished or interrupted run in `out` (all of it) instead of refusing."""
+
+    def __post_init__(self) -> None:
+        def finite(v: float) -> bool:
+            return math.isfinite(v)
+
+        checks = (
+            (self.epochs >= 1, f"--epochs {self.epochs}: train for at least 1 epoch"),
+            (self.window >= 1, f"--window {self.window}: windows need at least 1 push"),
+            (self.batch_size >= 1, f"--batch-size {self.batch_size}: use 1 or more"),
+            (self.lr > 0 and finite(self.lr), f"--lr {self.lr}: use a finite positive number"),
+            (len(self.betas) == 2 and all(0 <= b < 1 for b in self.betas),
+             f"--betas {self.betas}: use two numbers in [0, 1)"),
+            (self.weight_decay >= 0 and finite(self.weight_decay),
+             f"--weight-decay {self.weight_decay}: use a finite number >= 0"),
+            (self.threshold >= 0 and finite(self.threshold),
+             f"--threshold {self.threshold}: use a finite number >= 0"),
+            (self.threshold_every >= 0,
+             f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
+            (self.checkpoint_every >= 1,
+             f"--checkpoint-every {self.checkpoint_every}: use 1 or more"),
+            (self.seed >= 0, f"--seed {self.seed}: seeds are non-negative integers"),
+            (not (self.resume and self.overwrite),
+             "--resume and --overwrite contradict each other: choose one"),
+        )
+        for ok, message in checks:
+            if not ok:
+                raise UserError(message)
+        if not isinstance(self.model, ModelConfig):
+            raise TypeError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")

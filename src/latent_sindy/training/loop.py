@@ -1,0 +1,290 @@
+"""The training loop: a latent model (autoencoder + SINDy, linear or MLP dynamics) on a
+trajectory file, written into a run folder (:mod:`latent_sindy.training.runs`).
+
+The paper's recipe (docs/design.md): AdamW on the loss of
+:meth:`~latent_sindy.models.latent_model.LatentModel.loss` over windows of ``window`` pushes,
+mini-batches shuffled by a generator seeded from ``seed``, and every ``threshold_every`` epochs
+SINDy coefficients with ``|Ψ| < threshold`` are pruned for good (the mask only turns off).
+``resume=True`` continues from the run's checkpoint to the same final model, bit for bit on
+CPU, as an uninterrupted run with the same settings.
+
+    latent-sindy train sindy --order 2 --data data/push.h5 --out runs/sindy2
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from latent_sindy.configs import from_json, to_json
+from latent_sindy.data.store import Trajectories, read_trajectories
+from latent_sindy.data.windows import Normalizer, WindowDataset
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
+from latent_sindy.plots import loss_histories
+from latent_sindy.progress import Progress, Silent
+from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.runs import METRIC_COLUMNS, RUN_FORMAT, RUN_FORMAT_VERSION, RunDir
+
+__all__ = ["TrainingDiverged", "evaluate", "run_record", "train"]
+
+
+class TrainingDiverged(UserError):
+    """A loss term or a parameter became NaN or infinite."""
+
+
+# ----------------------------------------------------------------------------- the run record
+def _data_identity(data: Trajectories, path: Path) -> dict[str, Any]:
+    return {
+        "path": str(path.resolve()),
+        "fingerprint": data.fingerprint(),
+        "seed": data.seed,
+        "trajectories": data.n,
+        "steps": data.steps,
+        "splits": data.split_counts(),
+    }
+
+
+def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
+    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values).
+
+    Resolves the model's shapes from the data; raises UserError where they contradict it.
+    """
+    from latent_sindy import __version__
+
+    _, _, channels, size, _ = data.images.shape
+    model_cfg = cfg.model.resolve(channels, size, data.actions.shape[-1], source=str(cfg.data))
+    record = {
+        "format": RUN_FORMAT,
+        "format_version": RUN_FORMAT_VERSION,
+        "package_version": __version__,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "train": to_json(cfg),
+        "model": to_json(model_cfg),
+        "normalizer": Normalizer.from_trajectories(data).to_dict(),
+        "data": _data_identity(data, cfg.data),
+        "env": to_json(data.env_config),  # the world the images came from, for control
+    }
+    return json.loads(json.dumps(record))  # as config.json will hold it
+
+
+def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
+    """Check the run folder against the resume/overwrite flags, before anything is touched;
+    returns the checkpoint to resume from. Nothing is removed here (see :func:`train`)."""
+    if run.path.exists() and not run.path.is_dir():
+        raise UserError(f"--out {run.path} is a file; give a folder for the run")
+    if cfg.overwrite:
+        return None
+    if cfg.resume:
+        if (run / run.CONFIG).exists():
+            diffs = run.differences(record)
+            if diffs:
+                raise UserError(
+                    f"cannot resume {run.path}: settings differ from its {run.CONFIG}: "
+                    f"{'; '.join(diffs)}. Resume with the run's settings or start over "
+                    "with --overwrite")
+        if (run / run.CHECKPOINT).exists():
+            ckpt = run.load_torch(run.CHECKPOINT)
+            if ckpt["epoch"] > cfg.epochs:
+                raise UserError(
+                    f"{run / run.CHECKPOINT} is at epoch {ckpt['epoch']}, past --epochs "
+                    f"{cfg.epochs}: resume with --epochs {ckpt['epoch']} or more")
+            return ckpt
+        if run.finished:
+            raise UserError(f"cannot resume {run.path}: it has {run.MODEL} but no "
+                            f"{run.CHECKPOINT}; start over with --overwrite")
+    elif run.finished:
+        raise UserError(
+            f"{run.path} already holds a trained model ({run / run.MODEL}): pass --resume to "
+            "train it for more epochs, --overwrite to replace it, or choose another --out")
+    elif run.interrupted:
+        raise UserError(f"{run.path} holds an interrupted run ({run / run.CHECKPOINT}): pass "
+                        "--resume to continue it or --overwrite to start over")
+    return None
+
+
+# ----------------------------------------------------------------------------- training
+@torch.no_grad()
+def evaluate(
+    model: LatentModel,
+    x: torch.Tensor,
+    u: torch.Tensor,
+    weights: LossWeights | None = None,
+    batch_size: int = 500,
+) -> dict[str, float]:
+    """Mean loss terms over windows x (W, H+1, C, S, S), u (W, H, nu), in batches."""
+    was_training = model.training
+    model.eval()
+    sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
+    for b in range(0, len(x), batch_size):
+        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights)
+        sums += torch.stack([terms[k] for k in LOSS_TERMS]).double() * len(x[b : b + batch_size])
+    model.train(was_training)
+    return dict(zip(LOSS_TERMS, (sums / max(len(x), 1)).tolist(), strict=True))
+
+
+def _diverged(cfg: TrainConfig, epoch: int, what: str, last_ckpt: int | None) -> TrainingDiverged:
+    kept = (
+        f"the last good checkpoint is {cfg.out / RunDir.CHECKPOINT} (epoch {last_ckpt})"
+        if last_ckpt
+        else "no checkpoint was written yet"
+    )
+    return TrainingDiverged(
+        f"training diverged at epoch {epoch}: {what} is not finite; {kept}. "
+        f"Lower --lr (now {cfg.lr}) and start over with --overwrite"
+    )
+
+
+def _train_epoch(
+    model: LatentModel,
+    opt: torch.optim.Optimizer,
+    x: torch.Tensor,
+    u: torch.Tensor,
+    cfg: TrainConfig,
+    gen: torch.Generator,
+    epoch: int,
+    last_ckpt: int | None,
+) -> dict[str, float]:
+    """One shuffled pass; mean loss terms per window (as seen before each batch's update)."""
+    weights = cfg.loss
+    order = torch.randperm(len(x), generator=gen)
+    sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
+    for b in range(0, len(x), cfg.batch_size):
+        idx = order[b : b + cfg.batch_size]
+        terms = model.loss(x[idx], u[idx], weights)
+        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (6,)
+        if not torch.isfinite(values).all():
+            bad = next(
+                k
+                for k in ("recon", "pred_x", "pred_z", "l1", "total")
+                if not torch.isfinite(terms[k])
+            )
+            value = float(terms[bad].detach())
+            raise _diverged(cfg, epoch, f"loss term {bad} ({value})", last_ckpt)
+        opt.zero_grad(set_to_none=True)
+        terms["total"].backward()
+        opt.step()
+        sums += values.double() * len(idx)
+    for name, p in model.named_parameters():
+        if not torch.isfinite(p).all():
+            raise _diverged(cfg, epoch, f"parameter {name}", last_ckpt)
+    return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
+
+
+@torch.no_grad()
+def _prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float) -> int:
+    """Threshold SINDy coefficients; clear AdamW's moments of pruned entries so Ψ stays 0."""
+    dyn = model.dynamics
+    pruned = dyn.threshold(tau)
+    state = opt.state.get(dyn.psi, {})
+    for key in ("exp_avg", "exp_avg_sq"):
+        if key in state:
+            state[key].masked_fill_(~dyn.mask, 0.0)
+    return pruned
+
+
+def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
+    """Train the model `cfg` describes into the run folder ``cfg.out``; returns that folder.
+
+    Every setting, the data and the run folder are checked before a file is written or
+    removed; ``overwrite`` then removes the old run whole. Raises :class:`UserError` for
+    unusable settings, data or run folders and :class:`TrainingDiverged` (a UserError) when a
+    loss becomes NaN/inf; the last checkpoint stays loadable then.
+    """
+    progress = progress or Silent()
+    data = read_trajectories(cfg.data)
+    if cfg.window > data.steps:
+        raise UserError(
+            f"--window {cfg.window} is longer than the trajectories of {cfg.data} "
+            f"({data.steps} pushes): use 1..{data.steps}"
+        )
+    record = run_record(cfg, data)
+    run = RunDir(cfg.out)
+    ckpt = _prepare(run, cfg, record)
+    norm = Normalizer.from_dict(record["normalizer"])
+    model_cfg = from_json(ModelConfig, record["model"], "model")
+
+    with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
+        torch.manual_seed(cfg.seed)
+        model = LatentModel(model_cfg)
+    opt = torch.optim.AdamW(
+        model.parameters(), lr=cfg.lr, betas=cfg.betas, weight_decay=cfg.weight_decay
+    )
+    gen = torch.Generator().manual_seed(cfg.seed)  # the only randomness after the init
+    metrics: list[dict[str, Any]] = []
+    done = 0
+    if ckpt is not None:
+        try:
+            model.load_state_dict(ckpt["model"])
+            opt.load_state_dict(ckpt["optimizer"])
+            gen.set_state(ckpt["generator"])
+        except (KeyError, RuntimeError, ValueError) as e:
+            raise UserError(
+                f"{run / run.CHECKPOINT} does not fit this model ({e}); start "
+                "over with --overwrite"
+            ) from e
+        metrics, done = list(ckpt["metrics"]), int(ckpt["epoch"])
+    if cfg.overwrite:
+        run.clear()
+    run.path.mkdir(parents=True, exist_ok=True)
+    run.write_record(record)
+    run.write_metrics(metrics)  # drops rows logged after the checkpoint
+
+    x, u = WindowDataset(data.split("train"), cfg.window, norm).tensors()  # (W,H+1,C,S,S)
+    val = data.split("val")
+    xv, uv = WindowDataset(val, cfg.window, norm).tensors() if val.n else (None, None)
+    if val.n == 0:
+        progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
+    sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy
+    prune = sindy and cfg.threshold_every > 0
+
+    last_ckpt = done or None
+    model.train()
+    progress.start(cfg.epochs, done)
+    try:
+        for epoch in range(done + 1, cfg.epochs + 1):
+            t0 = time.perf_counter()
+            row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
+            row["epoch"] = epoch
+            train_terms = _train_epoch(model, opt, x, u, cfg, gen, epoch, last_ckpt)
+            row.update({f"train/{k}": v for k, v in train_terms.items()})
+            if prune and epoch % cfg.threshold_every == 0:
+                row["sindy/pruned"] = _prune(model, opt, cfg.threshold)
+            if xv is not None:
+                val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size)
+                if not math.isfinite(val_terms["total"]):
+                    raise _diverged(cfg, epoch, "the validation loss", last_ckpt)
+                row.update({f"val/{k}": v for k, v in val_terms.items()})
+            if sindy:
+                row["sindy/active"] = model.dynamics.n_active()
+                row["sindy/sparsity"] = model.dynamics.sparsity()
+            row["time_s"] = time.perf_counter() - t0
+            metrics.append(row)
+            run.append_metrics(row)
+            if epoch % cfg.checkpoint_every == 0 or epoch == cfg.epochs:
+                run.save_torch(run.CHECKPOINT, {
+                    "epoch": epoch, "model": model.state_dict(), "optimizer": opt.state_dict(),
+                    "generator": gen.get_state(), "metrics": metrics})
+                last_ckpt = epoch
+            progress.update(epoch, row)
+    except TrainingDiverged:
+        with contextlib.suppress(Exception):  # the plot is a convenience; the error matters
+            loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
+        raise
+    finally:
+        progress.close()
+    from latent_sindy import __version__
+
+    run.save_torch(run.MODEL, {"epoch": cfg.epochs, "model": model.state_dict(),
+                               "model_config": record["model"],
+                               "normalizer": record["normalizer"],
+                               "package_version": __version__})
+    loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
+    return run.path

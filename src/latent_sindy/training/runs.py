@@ -1,0 +1,310 @@
+"""The run folder: the one place that names its files and reads and writes them.
+
+A run folder describes itself; every later command needs only it::
+
+    RUN/config.json         the record: TrainConfig, resolved ModelConfig, normaliser, the
+                            data's identity, the environment, versions
+    RUN/model.pt            final weights (SINDy mask included) + model config + normaliser
+    RUN/checkpoint.pt       model, optimiser, epoch, shuffle-generator state, metrics so far
+    RUN/metrics.csv         one row per epoch: train/*, val/*, sindy/*, time_s
+    RUN/loss.png            train and validation objective per epoch
+    RUN/evaluation.json     the study's measurements of this run (cached)
+    RUN/coefficients.csv/.json   the equations' coefficients (``latent-sindy equations``)
+    RUN/control-TASK-SPACE/ closed-loop results (``latent-sindy control``, the study)
+
+Files are written atomically (temporary file + rename); ``.pt`` files are read with
+``torch.load(weights_only=True)`` only; config.json is checked (format, version, every key)
+when read, and records of format version 1 are migrated on read.
+
+    run = RunDir("runs/sindy2")
+    model, normalizer, config, env = run.load()
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import pickle
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal, NamedTuple
+
+import torch
+
+from latent_sindy.atomic import write_atomic
+from latent_sindy.configs import from_json
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.envs.config import PushEnvConfig
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, ModelConfig
+from latent_sindy.training.config import RESUMABLE, TrainConfig
+
+__all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
+           "read_metrics"]
+
+RUN_FORMAT = "latent-sindy-run"
+RUN_FORMAT_VERSION = 2
+#: Columns of metrics.csv (empty cells: no validation split / not a SINDy model).
+METRIC_COLUMNS = (
+    "epoch",
+    *(f"train/{t}" for t in LOSS_TERMS),
+    *(f"val/{t}" for t in LOSS_TERMS),
+    "sindy/active",
+    "sindy/sparsity",
+    "sindy/pruned",
+    "time_s",
+)
+
+Task = Literal["paper", "random"]
+Space = Literal["latent", "image"]
+
+
+class Run(NamedTuple):
+    """What :meth:`RunDir.load` rebuilds from a run folder."""
+
+    model: LatentModel
+    normalizer: Normalizer
+    config: TrainConfig
+    env_config: PushEnvConfig
+
+
+class RunDir:
+    """A run folder and its files. Construct it for any path; nothing is touched until asked."""
+
+    CONFIG = "config.json"
+    MODEL = "model.pt"
+    CHECKPOINT = "checkpoint.pt"
+    METRICS = "metrics.csv"
+    PLOT = "loss.png"
+    EVALUATION = "evaluation.json"
+    COEFFICIENTS_CSV = "coefficients.csv"
+    COEFFICIENTS_JSON = "coefficients.json"
+    #: Everything a run owns besides its control folders; ``clear()`` removes exactly these.
+    FILES = (CONFIG, MODEL, CHECKPOINT, METRICS, PLOT, EVALUATION, COEFFICIENTS_CSV,
+             COEFFICIENTS_JSON)
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunDir({str(self.path)!r})"
+
+    def __truediv__(self, name: str) -> Path:
+        return self.path / name
+
+    # ---------------------------------------------------------------- state
+    @property
+    def finished(self) -> bool:
+        """It holds a final model."""
+        return (self.path / self.MODEL).is_file()
+
+    @property
+    def interrupted(self) -> bool:
+        """It holds a checkpoint but no final model."""
+        return not self.finished and (self.path / self.CHECKPOINT).is_file()
+
+    def control_dir(self, task: Task, space: Space) -> Path:
+        """Where closed-loop results of (task, planning space) live: ``control-TASK-SPACE``."""
+        return self.path / f"control-{task}-{space}"
+
+    def control_dirs(self) -> list[Path]:
+        return sorted(p for p in self.path.glob("control-*") if p.is_dir())
+
+    def check_folder(self) -> None:
+        """UserError unless the path is a run folder with a config.json."""
+        if not self.path.exists():
+            raise UserError(f"run folder {self.path} does not exist: train one with "
+                            f"`latent-sindy train --out {self.path}`")
+        if not self.path.is_dir():
+            raise UserError(f"{self.path} is a file, not a run folder: give the --out folder "
+                            "of `latent-sindy train`")
+        if not (self.path / self.CONFIG).is_file():
+            raise UserError(f"{self.path} is not a run folder (no {self.CONFIG}); give the "
+                            "--out folder of `latent-sindy train`")
+
+    def clear(self) -> None:
+        """Remove every file of the run and its control folders (``--overwrite``)."""
+        for name in self.FILES:
+            (self.path / name).unlink(missing_ok=True)
+        for folder in self.control_dirs():
+            shutil.rmtree(folder)
+
+    # ---------------------------------------------------------------- config.json
+    def read_record(self) -> dict[str, Any]:
+        """config.json, checked and migrated to the current format version."""
+        self.check_folder()
+        path = self.path / self.CONFIG
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise UserError(f"{path} is damaged ({e}); retrain the run") from e
+        if not isinstance(record, dict) or record.get("format") != RUN_FORMAT:
+            raise UserError(f"{path} is not a latent-sindy run config")
+        version = record.get("format_version")
+        if version == 1:
+            record = _migrate_v1(record)
+        elif version != RUN_FORMAT_VERSION:
+            raise UserError(f"{path} has run format version {version}; this latent-sindy "
+                            f"reads versions 1 and {RUN_FORMAT_VERSION}: retrain the run")
+        return record
+
+    def write_record(self, record: Mapping[str, Any]) -> None:
+        write_atomic(self.path / self.CONFIG, lambda f: f.write(json.dumps(record, indent=2)),
+                     binary=False)
+
+    def train_config(self, record: Mapping[str, Any] | None = None) -> TrainConfig:
+        record = self.read_record() if record is None else record
+        return from_json(TrainConfig, record["train"], f"{self.path / self.CONFIG}: train")
+
+    # ---------------------------------------------------------------- .pt files
+    def save_torch(self, name: str, payload: dict[str, Any]) -> None:
+        write_atomic(self.path / name, lambda f: torch.save({"format": RUN_FORMAT, **payload}, f))
+
+    def load_torch(self, name: str) -> dict[str, Any]:
+        path = self.path / name
+        if not path.is_file():
+            raise UserError(f"{path} does not exist")
+        try:
+            obj = torch.load(path, map_location="cpu", weights_only=True)
+        except (RuntimeError, OSError, EOFError, ValueError, pickle.UnpicklingError) as e:
+            raise UserError(f"{path} is damaged or not a latent-sindy file "
+                            f"({type(e).__name__}); retrain the run") from e
+        if not isinstance(obj, dict) or obj.get("format") != RUN_FORMAT:
+            raise UserError(f"{path} is not a latent-sindy run file; retrain the run")
+        return obj
+
+    # ---------------------------------------------------------------- metrics.csv
+    def read_metrics(self) -> list[dict[str, float | None]]:
+        """metrics.csv as rows of numbers (None for empty cells)."""
+        path = self.path / self.METRICS
+        if not path.is_file():
+            raise UserError(f"{path} does not exist: {self.path} is not a (started) run folder")
+        with path.open(newline="") as f:
+            return [{k: (float(v) if v != "" else None) for k, v in row.items()}
+                    for row in csv.DictReader(f)]
+
+    def write_metrics(self, rows: list[dict[str, Any]]) -> None:
+        def write(f: io.TextIOBase) -> None:
+            w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
+            w.writeheader()
+            w.writerows(rows)
+
+        write_atomic(self.path / self.METRICS, write, binary=False)
+
+    def append_metrics(self, row: dict[str, Any]) -> None:
+        with (self.path / self.METRICS).open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=METRIC_COLUMNS).writerow(row)
+
+    # ---------------------------------------------------------------- the whole run
+    def load(self, checkpoint: bool = False) -> Run:
+        """Rebuild (model, normalizer, config, env config), the model in eval mode.
+
+        ``checkpoint=True`` loads the weights of checkpoint.pt instead of model.pt (the state
+        of an interrupted or diverged run).
+        """
+        record = self.read_record()
+        where = self.path / self.CONFIG
+        try:
+            config = self.train_config(record)
+            model_cfg = from_json(ModelConfig, record["model"], f"{where}: model")
+            norm = Normalizer.from_dict(record["normalizer"])
+            env_config = from_json(PushEnvConfig, record["env"], f"{where}: env")
+        except (KeyError, TypeError, ValueError) as e:
+            raise UserError(f"{where} is damaged ({type(e).__name__}: {e}); retrain the "
+                            "run") from e
+        if not model_cfg.resolved:
+            raise UserError(f"{where}: the model's image shape or action size is missing; "
+                            "retrain the run")
+        name = self.CHECKPOINT if checkpoint else self.MODEL
+        if not (self.path / name).is_file():
+            hint = ("" if checkpoint or not self.interrupted else
+                    f" (its training did not finish: resume it with --resume --out "
+                    f"{self.path}, or load its checkpoint)")
+            raise UserError(f"{self.path} has no {name}{hint}")
+        payload = self.load_torch(name)
+        model = LatentModel(model_cfg)
+        try:
+            model.load_state_dict(payload["model"])
+        except (KeyError, RuntimeError) as e:
+            raise UserError(f"{self.path / name} does not match the model of {where} "
+                            f"({type(e).__name__}); retrain the run") from e
+        return Run(model.eval(), norm, config, env_config)
+
+    def differences(self, record: Mapping[str, Any], ignore: frozenset[str] = RESUMABLE
+                    ) -> list[str]:
+        """Settings (train, normaliser, data identity) that differ between this run's record
+        and ``record``, as "name (run X, now Y)"; keys in ``ignore`` (train settings) and the
+        data path are left out."""
+        old = self.read_record()
+
+        def flat(r: Mapping[str, Any]) -> dict[str, Any]:
+            data = {k: v for k, v in r["data"].items() if k != "path"}
+            return _flatten({"train": r["train"], "normalizer": r["normalizer"], "data": data})
+
+        was, now = flat(old), flat(record)
+        if "fingerprint" not in old["data"]:  # recorded before fingerprints existed
+            now.pop("data.fingerprint", None)
+        return [f"{k.removeprefix('train.')} (run {was.get(k)!r}, now {now.get(k)!r})"
+                for k in sorted(set(was) | set(now))
+                if k.removeprefix("train.") not in ignore and was.get(k) != now.get(k)]
+
+
+def load_run(run_dir: str | os.PathLike, checkpoint: bool = False) -> Run:
+    """:meth:`RunDir.load` of ``run_dir``."""
+    return RunDir(run_dir).load(checkpoint)
+
+
+def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, float | None]]:
+    """:meth:`RunDir.read_metrics` of ``run_dir``."""
+    return RunDir(run_dir).read_metrics()
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+# ----------------------------------------------------------------------------- migration
+_AUTOENCODER_V1 = ("channels", "image_size", "latent_dim", "conv_channels", "encoder_hidden",
+                   "decoder", "decoder_hidden", "decoder_channels")
+
+
+def _model_v1(m: Mapping[str, Any], resolved: bool) -> dict[str, Any]:
+    """A version-1 flat model config as the nested version-2 one (version 1 always had
+    three actions; an unresolved config now leaves the action size to the data)."""
+    m = dict(m)
+    kind = m.get("kind", "sindy")
+    dynamics: dict[str, Any] = {"kind": kind}
+    if kind == "sindy":
+        dynamics.update(order=m.get("order", 2), include_sine=m.get("include_sine", True),
+                        init_scale=m.get("init_scale", 1e-3))
+    elif kind == "linear":
+        dynamics.update(init_scale=m.get("init_scale", 1e-3))
+    elif kind == "mlp":
+        dynamics.update(hidden=m.get("mlp_hidden", 128), layers=m.get("mlp_layers", 2))
+    auto = {k: m[k] for k in _AUTOENCODER_V1 if k in m}
+    auto.setdefault("decoder", "fc")  # runs saved before the conv decoder existed
+    action_dim = m.get("action_dim", 3) if resolved else None
+    return {"autoencoder": auto, "dynamics": dynamics, "action_dim": action_dim}
+
+
+def _migrate_v1(record: Mapping[str, Any]) -> dict[str, Any]:
+    """A version-1 record (flat model config, ``horizon``, loss weights at the top of the
+    training settings) in the current layout; the values are kept as they were."""
+    record = json.loads(json.dumps(record))
+    train = record["train"]
+    train["window"] = train.pop("horizon", 1)
+    train["loss"] = {k: train.pop(k) for k in ("lambda_pred_x", "lambda_pred_z", "lambda_l1")
+                     if k in train}
+    train["model"] = _model_v1(train["model"], resolved=False)
+    record["model"] = _model_v1(record["model"], resolved=True)
+    record["format_version"] = RUN_FORMAT_VERSION
+    return record
