@@ -159,7 +159,7 @@ def test_model_config_round_trip_and_resolve() -> None:
     assert dataclasses.replace(resolved) == resolved.resolve(3, 32, 3)
     with pytest.raises(UserError, match=r"channels is 1 but data\.h5 has channels 3"):
         ModelConfig(autoencoder=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
-    with pytest.raises(UserError, match=r"action_dim is 5 but data\.h5 has actions of size 3"):
+    with pytest.raises(UserError, match=r"--action-dim 5 but data\.h5 has actions of size 3"):
         ModelConfig(action_dim=5).resolve(1, 32, 3, "data.h5")
     with pytest.raises(ValueError, match="resolve"):
         LatentModel(cfg)

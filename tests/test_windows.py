@@ -11,15 +11,15 @@ from latent_sindy.errors import UserError
 from synthetic import make_trajectories
 
 
-@pytest.mark.parametrize("horizon", [1, 2, 4])
-def test_windows_count_and_alignment(horizon):
+@pytest.mark.parametrize("window", [1, 2, 4])
+def test_windows_count_and_alignment(window):
     data = make_trajectories(n=3, steps=4)
     norm = Normalizer.from_trajectories(data)
-    ds = WindowDataset(data, horizon, norm)
-    assert len(ds) == 3 * (4 - horizon + 1)
+    ds = WindowDataset(data, window, norm)
+    assert len(ds) == 3 * (4 - window + 1)
     x, u = ds[len(ds) - 1]  # last window of the last trajectory
-    assert x.shape == (horizon + 1, 1, 32, 32) and u.shape == (horizon, 3)
-    t0 = 4 - horizon
+    assert x.shape == (window + 1, 1, 32, 32) and u.shape == (window, 3)
+    t0 = 4 - window
     assert torch.allclose(norm.denormalize(x), torch.as_tensor(
         data.images[2, t0:], dtype=torch.float32), atol=1e-3)
     assert torch.equal(u, torch.as_tensor(data.actions[2, t0:]))
@@ -40,9 +40,9 @@ def test_normalised_training_images_have_zero_mean_unit_std():
 def test_impossible_horizon_and_constant_images():
     data = make_trajectories(n=3, steps=4)
     norm = Normalizer.from_trajectories(data)
-    with pytest.raises(UserError, match="horizon 5"):
+    with pytest.raises(UserError, match="window 5"):
         WindowDataset(data, 5, norm)
-    with pytest.raises(UserError, match="horizon 0"):
+    with pytest.raises(UserError, match="window 0"):
         WindowDataset(data, 0, norm)
     data.images[:] = 200
     with pytest.raises(UserError, match="constant"):

@@ -24,6 +24,7 @@ from typing import Annotated
 
 import tyro
 
+from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.data.collect import CollectionPlan
 from latent_sindy.errors import UserError
@@ -107,8 +108,9 @@ class Preview:
 
         if self.rows < 1:
             raise UserError(f"--rows {self.rows}: show at least 1 trajectory")
-        out = save_preview(read_trajectories(self.data), self.out or self.data.with_suffix(".png"),
-                           self.rows)
+        out = check_output_file(self.out or self.data.with_suffix(".png"), "--out", (".png",),
+                                inputs=(self.data,))
+        out = save_preview(read_trajectories(self.data), out, self.rows)
         print(f"wrote {out}")
 
 
@@ -190,8 +192,8 @@ class Control:
             raise UserError(f"--threads {self.threads}: use 1 or more")
         torch.set_num_threads(self.threads)
         run_dir = RunDir(self.run_dir)
+        out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
-        out = self.out or run_dir.control_dir(s.task, s.space)
         _, summary = run_control(run.model, run.normalizer, run.env_config, s, out,
                                  _bar("episodes", "ep") if self.progress else None)
         print(format_summary(summary, f"{self.run_dir} ({run.config.model.kind}), "
@@ -237,6 +239,18 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("LATENT_SINDY_DEBUG"):
             raise
         print(f"latent-sindy: error: {e}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # the reader of our output went away (`| head`): stop quietly, as shell tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except OSError as e:  # permissions, missing folders, a full disk: the path and the reason
+        if os.environ.get("LATENT_SINDY_DEBUG"):
+            raise
+        where = e.filename or "a file"
+        reason = e.strerror or type(e).__name__
+        print(f"latent-sindy: error: cannot use {where}: {reason}; check the path and its "
+              "permissions (and free disk space)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("latent-sindy: interrupted; re-run the same command to resume", file=sys.stderr)

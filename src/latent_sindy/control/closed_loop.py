@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import tyro
 
-from latent_sindy.atomic import atomic_path, write_atomic
+from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.control.costs import ImageCost, LatentCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
@@ -216,6 +216,15 @@ def format_summary(summary: dict[str, float], title: str) -> str:
     ])
 
 
+def model_memory_per_sample(model, space: str) -> int:
+    """Bytes one sample of one planning step holds besides MPPI's own arrays: a decoded image
+    in image space (float32), nothing more in latent space."""
+    if space != "image":
+        return 0
+    auto = model.config.autoencoder
+    return 4 * auto.channels * auto.image_size ** 2 * 3  # decoder output and the cost's copies
+
+
 def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
                 settings: ControlConfig, out: str | os.PathLike,
                 progress: Callable[[Iterable, int], Iterable] | None = None,
@@ -223,7 +232,12 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
     """Run every episode, write results.json, results.csv and episode GIFs into `out`."""
     from latent_sindy.envs.panda_push import PandaPushEnv
 
-    out = Path(out)
+    out = check_output_dir(out, "--out")
+    mppi = settings.mppi
+    check_memory(mppi.memory_bytes(env_config.action_dim, model.config.autoencoder.latent_dim)
+                 + mppi.samples * mppi.horizon * model_memory_per_sample(model, settings.space),
+                 f"MPPI with --samples {mppi.samples} --horizon {mppi.horizon}",
+                 "lower --samples or --horizon")
     out.mkdir(parents=True, exist_ok=True)
     env = PandaPushEnv(env_config, render_mode="rgb_array")
     controller = Controller(model, normalizer, settings, env_config)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 
-from latent_sindy.atomic import atomic_path, write_atomic
+from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
@@ -186,6 +186,10 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
                         "--out or delete the file")
     if out.suffix not in (".h5", ".hdf5"):
         raise UserError(f"--out {out}: trajectory files end in .h5")
+    env = plan.env
+    check_memory(plan.trajectories * (plan.steps + 1) * env.channels * env.image_size**2
+                 + 16 * env.render_size**2, f"{plan.trajectories} trajectories of "
+                 f"{env.image_size}x{env.image_size} images", "collect fewer or smaller images")
     partial = _open_journal(out, plan)
     done = _load_done(partial, plan)
     todo = [i for i in range(plan.trajectories) if i not in done]

@@ -128,9 +128,10 @@ def _check_arrays(t: Trajectories, where: str) -> None:
         i, k, j = (int(v) for v in np.argwhere(out)[0])
         raise bad(f"action {j} of step {k} of trajectory {i} is {float(t.actions[i, k, j]):.4g}, "
                   f"outside [{ACTION_LOW[j]:.4g}, {ACTION_HIGH[j]:.4g}]")
-    if np.any(t.split_ids >= len(SPLITS)):
-        raise bad(f"split labels must be 0 (train), 1 (val) or 2 (test), found "
-                  f"{sorted(set(t.split_ids.tolist()))}")
+    if (not np.issubdtype(t.split_ids.dtype, np.integer) or np.any(t.split_ids < 0)
+            or np.any(t.split_ids >= len(SPLITS))):
+        raise bad(f"split labels must be the integers 0 (train), 1 (val) or 2 (test), found "
+                  f"{sorted(set(t.split_ids.tolist()))[:5]} ({t.split_ids.dtype}); re-collect it")
     if t.env_config.channels != c or t.env_config.image_size != s:
         raise bad(f"images are {c}x{s}x{s} but the recorded environment renders "
                   f"{t.env_config.channels}x{t.env_config.image_size}x{t.env_config.image_size}")

@@ -1,13 +1,13 @@
 """Training windows cut from trajectories, and the image normalisation they use.
 
-A window of horizon H is (x_t..x_{t+H}, u_t..u_{t+H-1}) from one trajectory; every start
+A window of H pushes is (x_t..x_{t+H}, u_t..u_{t+H-1}) from one trajectory; every start
 t = 0..T-H of every trajectory of a split gives one. Images are normalised with one scalar
 mean and std computed on the training split only (as the course did), so validation and
 test data never inform the normalisation.
 
     data = read_trajectories("data/push.h5")
     norm = Normalizer.from_trajectories(data)
-    train = WindowDataset(data.split("train"), horizon=4, normalizer=norm)
+    train = WindowDataset(data.split("train"), window=4, normalizer=norm)
     x, u = train[0]  # (5, C, 32, 32) float32, (4, 3) float32
 """
 
@@ -57,16 +57,16 @@ class Normalizer:
 
 
 class WindowDataset(Dataset):
-    """All horizon-H windows of a set of trajectories, normalised, as torch tensors."""
+    """All windows of H pushes of a set of trajectories, normalised, as torch tensors."""
 
-    def __init__(self, data: Trajectories, horizon: int, normalizer: Normalizer) -> None:
-        if not 1 <= horizon <= data.steps:
-            raise UserError(f"horizon {horizon} is impossible for trajectories of {data.steps} "
+    def __init__(self, data: Trajectories, window: int, normalizer: Normalizer) -> None:
+        if not 1 <= window <= data.steps:
+            raise UserError(f"window {window} is impossible for trajectories of {data.steps} "
                             f"steps: use 1..{data.steps}")
-        self.horizon = horizon
+        self.window = window
         self.images = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
         self.actions = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, 3)
-        starts = np.arange(data.steps - horizon + 1)
+        starts = np.arange(data.steps - window + 1)
         traj = np.repeat(np.arange(data.n), len(starts))
         self._index = np.stack([traj, np.tile(starts, data.n)], axis=1)  # (W, 2)
 
@@ -75,14 +75,14 @@ class WindowDataset(Dataset):
 
     def __getitem__(self, k: int) -> tuple[torch.Tensor, torch.Tensor]:
         i, t = self._index[k]
-        h = self.horizon
+        h = self.window
         return self.images[i, t:t + h + 1], self.actions[i, t:t + h]
 
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
         """All windows at once: x (W, H+1, C, S, S), u (W, H, 3) — for small data sets."""
         i = torch.as_tensor(self._index[:, 0])
         t = torch.as_tensor(self._index[:, 1])
-        steps = torch.arange(self.horizon + 1)
+        steps = torch.arange(self.window + 1)
         x = self.images[i[:, None], t[:, None] + steps]
         u = self.actions[i[:, None], t[:, None] + steps[:-1]]
         return x, u

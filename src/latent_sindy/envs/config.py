@@ -23,6 +23,8 @@ PAPER_GOAL = (0.7, 0.0, 0.0)
 BLOCK_SIZE = (0.1, 0.1, 0.05)  # metres: length (block x), width (block y), height
 MAX_PUSH = 0.1  # metres: push length at ell = 1
 CONTACT_SPAN = 0.95  # p = +-1 reaches this fraction of the half-width
+#: Largest camera image side: TinyRenderer's frame buffers grow with its square.
+MAX_IMAGE_SIZE = 512
 #: The action box of u = [p, phi, ell].
 ACTION_LOW = (-1.0, -math.pi / 2, 0.0)
 ACTION_HIGH = (1.0, math.pi / 2, 1.0)
@@ -81,8 +83,11 @@ class PushEnvConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
 
     def __post_init__(self) -> None:
-        if self.image_size < 8:
-            raise UserError(f"image_size={self.image_size} is too small: use 8 or more pixels")
+        if not 8 <= self.image_size <= MAX_IMAGE_SIZE:
+            raise UserError(f"--image-size {self.image_size}: use 8 to {MAX_IMAGE_SIZE} pixels")
+        if not 16 <= self.render_size <= 4 * MAX_IMAGE_SIZE:
+            raise UserError(f"--render-size {self.render_size}: use 16 to "
+                            f"{4 * MAX_IMAGE_SIZE} pixels")
         if self.channels not in (1, 3):
             raise UserError(f"channels={self.channels} is not supported: use 1 (gray) or 3 (RGB)")
         if self.block_mass <= 0 or self.block_friction < 0:

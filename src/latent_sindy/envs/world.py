@@ -183,7 +183,7 @@ class PushWorld:
 
     # ------------------------------------------------------------------ motion
     def push(self, p: float, phi: float, ell: float) -> None:
-        """Execute one push u = [p, phi, ell] (see DESIGN §2) and let the block come to rest."""
+        """Execute one push u = [p, phi, ell] (docs/design.md) and let the block come to rest."""
         x, y, th = self.block_pose()
         hx, hy = BLOCK_SIZE[0] / 2, BLOCK_SIZE[1] / 2
         cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the block frame

@@ -48,6 +48,7 @@ from typing import Any
 
 import torch
 
+from latent_sindy.atomic import check_output_dir
 from latent_sindy.configs import to_json
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import Trajectories, read_trajectories
@@ -351,7 +352,9 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     """
     t_start = time.perf_counter()
     say = progress or (say_stderr if config.verbose else (lambda _: None))
-    out = config.out
+    out = check_output_dir(config.out, "--out")
+    if config.data is not None and config.data.exists():
+        read_trajectories(config.data)  # a foreign or damaged file is refused before any output
     out.mkdir(parents=True, exist_ok=True)
     specs = model_specs(config.preset, config.decoder)
     runs = {s: {m.name: out / "runs" / f"seed{s}" / m.name for m in specs} for s in config.seeds}

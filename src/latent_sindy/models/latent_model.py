@@ -75,7 +75,7 @@ class ModelConfig:
                 source: str = "the data") -> ModelConfig:
         """This config with the data's shapes filled in; UserError if it contradicts them."""
         if self.action_dim is not None and self.action_dim != action_dim:
-            raise UserError(f"model action_dim is {self.action_dim} but {source} has actions of "
+            raise UserError(f"--action-dim {self.action_dim} but {source} has actions of "
                             f"size {action_dim}: leave it unset to use the data's")
         return dataclasses.replace(
             self, autoencoder=self.autoencoder.resolve(channels, image_size, source),

@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 
+from latent_sindy.atomic import check_memory
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
@@ -206,6 +207,9 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             f"({data.steps} pushes): use 1..{data.steps}"
         )
     record = run_record(cfg, data)
+    n_windows = data.n * (data.steps - cfg.window + 1)
+    check_memory(4 * n_windows * (cfg.window + 1) * data.images[0, 0].size * 3,
+                 f"training windows of {cfg.window} pushes", "use a smaller --window")
     run = RunDir(cfg.out)
     ckpt = _prepare(run, cfg, record)
     norm = Normalizer.from_dict(record["normalizer"])

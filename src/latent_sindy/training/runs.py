@@ -218,6 +218,13 @@ class RunDir:
         if not model_cfg.resolved:
             raise UserError(f"{where}: the model's image shape or action size is missing; "
                             "retrain the run")
+        auto = model_cfg.autoencoder
+        seen = (auto.channels, auto.image_size, model_cfg.action_dim)
+        world = (env_config.channels, env_config.image_size, env_config.action_dim)
+        if seen != world:
+            raise UserError(f"{where}: the model takes {seen[0]}x{seen[1]}x{seen[1]} images and "
+                            f"{seen[2]} actions but its environment gives {world[0]}x{world[1]}x"
+                            f"{world[1]} and {world[2]}: the file was edited; retrain the run")
         name = self.CHECKPOINT if checkpoint else self.MODEL
         if not (self.path / name).is_file():
             hint = ("" if checkpoint or not self.interrupted else
