@@ -34,7 +34,7 @@ def tiny(kind: str, **kw) -> LatentModel:
         kw.pop("init_scale", None)
     dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw
     cfg = ModelConfig(
-        autoencoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
+        encoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
                                       encoder_hidden=16, decoder_hidden=(32,)),
         dynamics=DYNAMICS_KINDS[kind](**dyn),
         action_dim=3,
@@ -78,7 +78,7 @@ def test_conv_decoder_rejects_sizes_it_cannot_draw() -> None:
     with pytest.raises(UserError, match="unknown"):
         AutoencoderConfig(decoder="deconv")
     with pytest.raises(UserError, match="divisible by 4"):
-        ModelConfig(autoencoder=AutoencoderConfig(decoder="conv")).resolve(1, 30, 3)
+        ModelConfig(encoder=AutoencoderConfig(decoder="conv")).resolve(1, 30, 3)
 
 
 def test_course_encoder_sizes() -> None:
@@ -149,16 +149,16 @@ def test_loss_rejects_bad_shapes() -> None:
 
 
 def test_model_config_round_trip_and_resolve() -> None:
-    cfg = ModelConfig(autoencoder=AutoencoderConfig(decoder_hidden=(64, 32)),
+    cfg = ModelConfig(encoder=AutoencoderConfig(decoder_hidden=(64, 32)),
                       dynamics=MlpConfig(layers=3))
     back = from_json(ModelConfig, json.loads(json.dumps(to_json(cfg))), "model")
     assert back == cfg and isinstance(back.dynamics, MlpConfig)
     resolved = cfg.resolve(3, 32, 3)
-    assert (resolved.autoencoder.channels, resolved.autoencoder.image_size) == (3, 32)
-    assert cfg.autoencoder.channels is None and resolved.action_dim == 3
+    assert (resolved.encoder.channels, resolved.encoder.image_size) == (3, 32)
+    assert cfg.encoder.channels is None and resolved.action_dim == 3
     assert dataclasses.replace(resolved) == resolved.resolve(3, 32, 3)
     with pytest.raises(UserError, match=r"channels is 1 but data\.h5 has channels 3"):
-        ModelConfig(autoencoder=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
+        ModelConfig(encoder=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
     with pytest.raises(UserError, match=r"--action-dim 5 but data\.h5 has actions of size 3"):
         ModelConfig(action_dim=5).resolve(1, 32, 3, "data.h5")
     with pytest.raises(ValueError, match="resolve"):

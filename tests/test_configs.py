@@ -88,7 +88,7 @@ def test_a_run_folder_of_format_1_loads_and_predicts_as_before(kind: str, tmp_pa
     assert json.loads((run / "config.json").read_text())["format_version"] == 1
     loaded = load_run(run)
     assert loaded.config.window == 1 and loaded.config.model.kind == kind
-    assert loaded.model.config.action_dim == 3 and loaded.model.config.autoencoder.latent_dim == 3
+    assert loaded.model.config.action_dim == 3 and loaded.model.config.encoder.latent_dim == 3
     expected = json.loads((DATA / "run_v1_expected.json").read_text())["predict_every_97th"]
     g = torch.Generator().manual_seed(0)
     x, u = torch.randn(2, 1, 32, 32, generator=g), torch.rand(2, 2, 3, generator=g)

@@ -13,9 +13,11 @@ limit is reached.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import os
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,7 +31,7 @@ from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, wri
 from latent_sindy.configs import to_json
 from latent_sindy.control.costs import ImageCost, LatentCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
-from latent_sindy.data.windows import Normalizer
+from latent_sindy.data.windows import OBSERVATIONS, Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 
@@ -94,11 +96,18 @@ class EpisodeResult:
     plan_ms_max: float
     discarded: int
     """MPPI samples given zero weight because their rollout or cost was not finite."""
+    pushes_executed: int = 0
+    """Pushes the arm could carry out (the others were out of its reach)."""
     actions: list[list[float]] = field(default_factory=list)
 
 
 class Controller:
-    """A trained model with its MPPI, ready to push: `act(obs) -> action`."""
+    """A trained model with its MPPI, ready to push: ``act(image, pose) -> action``.
+
+    The model takes from each observation what its encoder sees (the image, or the true
+    pose for a state-space reference model). Building it runs the dynamics step once, so a
+    one-time compilation (numba's, for SINDy) is not counted as planning: ``warmup_s``.
+    """
 
     def __init__(self, model, normalizer: Normalizer, settings: ControlConfig,
                  env_config: PushEnvConfig) -> None:
@@ -106,24 +115,35 @@ class Controller:
         self.normalizer = normalizer
         self.settings = settings
         self.box = (env_config.action_low, env_config.action_high)
+        self._observe = OBSERVATIONS[model.config.encoder.kind].one
+        self._period = env_config.angle_period
         self.step = latent_step(model.dynamics)  # active SINDy terms only
+        t0 = time.perf_counter()
+        MPPI(self.step, torch.zeros(model.config.encoder.latent_dim),
+             dataclasses.replace(settings.mppi, samples=2, horizon=2), *self.box).command(
+            torch.zeros(model.config.encoder.latent_dim))
+        self.warmup_s = time.perf_counter() - t0
+
+    def observe(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
+        """What the model sees of an observation (normalised image or encoded pose)."""
+        return self._observe(image, pose, self.normalizer, self._period)
 
     @torch.no_grad()
-    def encode(self, obs: np.ndarray) -> torch.Tensor:
-        """uint8 image (C, S, S) -> latent (nz,)."""
-        return self.model.encode(self.normalizer.normalize(obs)[None])[0]
+    def encode(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
+        """An observation -> latent (nz,)."""
+        return self.model.encode(self.observe(image, pose)[None])[0]
 
     @torch.no_grad()
-    def start(self, goal_obs: np.ndarray, seed: int) -> None:
+    def start(self, goal_image: np.ndarray, goal_pose: np.ndarray, seed: int) -> None:
         if self.settings.space == "image":
-            goal = self.normalizer.normalize(goal_obs)
-            cost = ImageCost(self.model.decode, goal)
+            cost = ImageCost(self.model.decode, self.observe(goal_image, goal_pose))
         else:
-            cost = LatentCost(self.encode(goal_obs), 1.0)
+            cost = LatentCost(self.encode(goal_image, goal_pose),
+                              self.model.autoencoder.cost_weights())
         self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
 
-    def act(self, obs: np.ndarray):
-        action, info = self.mppi.command(self.encode(obs))
+    def act(self, image: np.ndarray, pose: np.ndarray):
+        action, info = self.mppi.command(self.encode(image, pose))
         return action.numpy(), info
 
 
@@ -146,21 +166,22 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
     reset_seed, options = _episode_options(env, settings, seed)
     obs, info = env.reset(seed=reset_seed, options=options)
     start, goal = info["pose"].tolist(), info["goal"].tolist()
-    controller.start(env.goal_observation(), seed)
+    controller.start(env.goal_observation(), info["goal"], seed)
     key = "is_success" if settings.until == "course" else "is_success_strict"
     if frames is not None:
         frames.append(env.render())
     steps_goal = 0 if info["is_success"] else None
     steps_strict = 0 if info["is_success_strict"] else None
     plan_ms, actions, discarded, left = [], [], 0, False
-    steps = 0
+    steps = executed = 0
     while steps < settings.max_steps and not info[key]:
-        action, plan = controller.act(obs)
+        action, plan = controller.act(obs, info["pose"])
         plan_ms.append(plan.seconds * 1e3)
         discarded += plan.discarded
         actions.append([float(a) for a in action])
         obs, _, terminated, _, info = env.step(action)
         steps += 1
+        executed += bool(info["push_executed"])
         if frames is not None:
             frames.append(env.render())
         if info["is_success"] and steps_goal is None:
@@ -179,18 +200,39 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
         left_workspace=left,
         plan_ms_mean=float(np.mean(plan_ms)) if plan_ms else 0.0,
         plan_ms_max=float(np.max(plan_ms)) if plan_ms else 0.0,
-        discarded=discarded, actions=actions)
+        discarded=discarded, pushes_executed=executed, actions=actions)
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a success rate (well behaved at 0 and n)."""
+    if n == 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def summarize(results: list[EpisodeResult]) -> dict[str, float]:
-    """Success rates, mean steps to goal (successful episodes), errors, planning time."""
+    """Success rates with 95 % Wilson intervals, mean steps to goal (successful episodes),
+    final errors, executed pushes, planning time."""
     ok = [r for r in results if r.success]
     ok_strict = [r for r in results if r.strict_success]
     plan = [r.plan_ms_mean for r in results if r.steps]
+    n, pushes = len(results), sum(r.steps for r in results)
+    lo, hi = wilson_interval(len(ok), n)
+    slo, shi = wilson_interval(len(ok_strict), n)
     return {
-        "episodes": len(results),
-        "success_rate": len(ok) / len(results),
-        "strict_success_rate": len(ok_strict) / len(results),
+        "episodes": n,
+        "success_rate": len(ok) / n,
+        "success_ci_low": lo,
+        "success_ci_high": hi,
+        "strict_success_rate": len(ok_strict) / n,
+        "strict_ci_low": slo,
+        "strict_ci_high": shi,
+        "final_angle_error_deg_mean": float(np.mean([abs(r.final_angle_error_deg)
+                                                     for r in results])),
+        "executed_rate": sum(r.pushes_executed for r in results) / pushes if pushes else math.nan,
         "steps_to_goal_mean": float(np.mean([r.steps_to_goal for r in ok])) if ok else math.nan,
         "steps_to_strict_mean": (float(np.mean([r.steps_to_strict for r in ok_strict]))
                                  if ok_strict else math.nan),
@@ -205,12 +247,14 @@ def format_summary(summary: dict[str, float], title: str) -> str:
     s = summary
     return "\n".join([
         title,
-        f"  success (course)   {s['success_rate']:6.1%}   mean steps to goal "
-        f"{s['steps_to_goal_mean']:.1f}",
-        f"  success (strict)   {s['strict_success_rate']:6.1%}   mean steps "
-        f"{s['steps_to_strict_mean']:.1f}",
+        f"  success (course)   {s['success_rate']:6.1%}   (95% CI {s['success_ci_low']:.0%}-"
+        f"{s['success_ci_high']:.0%})   mean steps to goal {s['steps_to_goal_mean']:.1f}",
+        f"  success (strict)   {s['strict_success_rate']:6.1%}   (95% CI {s['strict_ci_low']:.0%}-"
+        f"{s['strict_ci_high']:.0%})   mean steps {s['steps_to_strict_mean']:.1f}",
         f"  final distance     {100 * s['final_distance_mean']:.1f} cm (mean)",
-        f"  planning           {s['plan_ms_mean']:.1f} ms per step (mean)",
+        f"  planning           {s['plan_ms_mean']:.1f} ms per step (mean; one-time warm-up "
+        f"{s.get('warmup_ms', math.nan):.0f} ms not included)",
+        f"  pushes executed    {s['executed_rate']:6.1%}",
         f"  discarded samples  {s['discarded_total']}   left workspace "
         f"{s['left_workspace']} episode(s)",
     ])
@@ -221,8 +265,9 @@ def model_memory_per_sample(model, space: str) -> int:
     in image space (float32), nothing more in latent space."""
     if space != "image":
         return 0
-    auto = model.config.autoencoder
-    return 4 * auto.channels * auto.image_size ** 2 * 3  # decoder output and the cost's copies
+    with torch.no_grad():
+        out = model.decode(torch.zeros(1, model.config.encoder.latent_dim))
+    return 4 * out.numel() * 3  # decoder output and the cost's copies
 
 
 def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
@@ -234,7 +279,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
 
     out = check_output_dir(out, "--out")
     mppi = settings.mppi
-    check_memory(mppi.memory_bytes(env_config.action_dim, model.config.autoencoder.latent_dim)
+    check_memory(mppi.memory_bytes(env_config.action_dim, model.config.encoder.latent_dim)
                  + mppi.samples * mppi.horizon * model_memory_per_sample(model, settings.space),
                  f"MPPI with --samples {mppi.samples} --horizon {mppi.horizon}",
                  "lower --samples or --horizon")
@@ -253,7 +298,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
                 save_gif(frames, out / f"episode_{i:03d}.gif")
     finally:
         env.close()
-    summary = summarize(results)
+    summary = {**summarize(results), "warmup_ms": 1e3 * controller.warmup_s}
     record = {"settings": to_json(settings), "summary": summary,
               "episodes": [asdict(r) for r in results]}
     write_atomic(out / "results.json", lambda f: f.write(json.dumps(record, indent=1)), False)

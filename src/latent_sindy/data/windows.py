@@ -1,4 +1,9 @@
-"""Training windows cut from trajectories, and the image normalisation they use.
+"""Training windows cut from trajectories, what a model observes, and the normalisation.
+
+A model observes either the camera images (normalised) or the block's true pose encoded so
+that poses the camera cannot tell apart are equal (a state-space reference model);
+:data:`OBSERVATIONS` maps the model's encoder kind to the one class that prepares both whole
+data sets (training) and single frames (control).
 
 A window of H pushes is (x_t..x_{t+H}, u_t..u_{t+H-1}) from one trajectory; every start
 t = 0..T-H of every trajectory of a split gives one. Images are normalised with one scalar
@@ -56,15 +61,71 @@ class Normalizer:
         return cls(float(d["mean"]), float(d["std"]))
 
 
-class WindowDataset(Dataset):
-    """All windows of H pushes of a set of trajectories, normalised, as torch tensors."""
+def pose_features(poses: np.ndarray, period: float) -> torch.Tensor:
+    """(x, y, θ) (..., 3) -> (x, y, cos(2πθ/P), sin(2πθ/P)) (..., 4) float32: equal for poses
+    whose images are equal (P: the block's visible rotational symmetry)."""
+    p = torch.as_tensor(np.asarray(poses), dtype=torch.float64)
+    a = p[..., 2] * (2 * np.pi / period)
+    return torch.stack([p[..., 0], p[..., 1], torch.cos(a), torch.sin(a)], -1).float()
 
-    def __init__(self, data: Trajectories, window: int, normalizer: Normalizer) -> None:
+
+class ImageObservations:
+    """The camera images, normalised by the training split's scalar pixel statistics."""
+
+    kind = "image"
+
+    @staticmethod
+    def normalizer(data: Trajectories) -> Normalizer:
+        return Normalizer.from_trajectories(data)
+
+    @staticmethod
+    def batch(data: Trajectories, normalizer: Normalizer) -> torch.Tensor:
+        """(N, T+1, C, S, S)"""
+        return normalizer.normalize(data.images)
+
+    @staticmethod
+    def one(image: np.ndarray, pose: np.ndarray, normalizer: Normalizer,
+            period: float) -> torch.Tensor:
+        """(C, S, S)"""
+        return normalizer.normalize(image)
+
+
+class StateObservations:
+    """The block's true pose, as :func:`pose_features` (no normalisation)."""
+
+    kind = "state"
+
+    @staticmethod
+    def normalizer(data: Trajectories) -> Normalizer:
+        return Normalizer(0.0, 1.0)
+
+    @staticmethod
+    def batch(data: Trajectories, normalizer: Normalizer) -> torch.Tensor:
+        """(N, T+1, 4)"""
+        return pose_features(data.poses, data.env_config.angle_period)
+
+    @staticmethod
+    def one(image: np.ndarray, pose: np.ndarray, normalizer: Normalizer,
+            period: float) -> torch.Tensor:
+        """(4,)"""
+        return pose_features(pose, period)
+
+
+#: Encoder kind -> what the model observes.
+OBSERVATIONS = {c.kind: c for c in (ImageObservations, StateObservations)}
+
+
+class WindowDataset(Dataset):
+    """All windows of H pushes of a set of trajectories, as observed by an encoder ``kind``
+    (normalised images by default), as torch tensors."""
+
+    def __init__(self, data: Trajectories, window: int, normalizer: Normalizer,
+                 kind: str = "image") -> None:
         if not 1 <= window <= data.steps:
             raise UserError(f"window {window} is impossible for trajectories of {data.steps} "
                             f"steps: use 1..{data.steps}")
         self.window = window
-        self.images = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
+        self.images = OBSERVATIONS[kind].batch(data, normalizer)  # (N, T+1, *observation)
         self.actions = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, 3)
         starts = np.arange(data.steps - window + 1)
         traj = np.repeat(np.arange(data.n), len(starts))
@@ -79,7 +140,7 @@ class WindowDataset(Dataset):
         return self.images[i, t:t + h + 1], self.actions[i, t:t + h]
 
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """All windows at once: x (W, H+1, C, S, S), u (W, H, 3) — for small data sets."""
+        """All windows at once: x (W, H+1, *observation), u (W, H, nu) — for small data sets."""
         i = torch.as_tensor(self._index[:, 0])
         t = torch.as_tensor(self._index[:, 1])
         steps = torch.arange(self.window + 1)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from latent_sindy.data.store import SPLITS, Trajectories
-from latent_sindy.data.windows import Normalizer, WindowDataset
+from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.training import evaluate
 
@@ -46,21 +46,23 @@ def split_losses(model: LatentModel, data: Trajectories, normalizer: Normalizer,
         part = data.split(split)
         if part.n == 0:
             continue
-        terms = evaluate(model, *WindowDataset(part, 1, normalizer).tensors(), weights)
+        windows = WindowDataset(part, 1, normalizer, model.config.encoder.kind)
+        terms = evaluate(model, *windows.tensors(), weights)
         out[split] = {k: terms[k] for k in ("objective", "recon", "pred_x", "pred_z")}
     return out
 
 
 def _by_horizon(x: torch.Tensor, predict: Callable[[int], torch.Tensor]) -> list[float]:
-    """Mean image MSE at horizon h = 1..T (index h-1) over all starts t with t + h <= T.
+    """Mean squared error at horizon h = 1..T (index h-1) over all starts t with t + h <= T.
 
-    x (N, T+1, C, S, S) true images; ``predict(t)`` gives the predictions of x[:, t+1:].
-    NaN (a diverged rollout) becomes inf.
+    x (N, T+1, ...) true observations (images, or encoded states); ``predict(t)`` gives the
+    predictions of x[:, t+1:]. NaN (a diverged rollout) becomes inf.
     """
     steps = x.shape[1] - 1
+    dims = (0, *range(2, x.ndim))  # everything but the horizon
     sums, counts = np.zeros(steps), np.zeros(steps)
     for t in range(steps):
-        err = (predict(t) - x[:, t + 1:]).square().mean(dim=(0, 2, 3, 4))  # (T-t,)
+        err = (predict(t) - x[:, t + 1:]).square().mean(dim=dims)  # (T-t,)
         sums[: steps - t] += err.double().numpy() * len(x)
         counts[: steps - t] += len(x)
     err = sums / np.maximum(counts, 1)
@@ -71,7 +73,7 @@ def _by_horizon(x: torch.Tensor, predict: Callable[[int], torch.Tensor]) -> list
 def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> list[float]:
     """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
     over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN)."""
-    x = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
+    x = OBSERVATIONS[model.config.encoder.kind].batch(data, normalizer)  # (N, T+1, ...)
     u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
     model.eval()
     return _by_horizon(x, lambda t: model.predict(x[:, t], u[:, t:])[:, 1:])

@@ -195,7 +195,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
     auto = AutoencoderConfig(decoder=decoder)
 
     def model(dynamics: Any) -> ModelConfig:
-        return ModelConfig(autoencoder=auto, dynamics=dynamics)
+        return ModelConfig(encoder=auto, dynamics=dynamics)
 
     return (
         *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model(SindyConfig(order=k)),

@@ -21,15 +21,25 @@ from latent_sindy.models.dynamics import (
     SparseSindyDynamics,
     make_dynamics,
 )
-from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
+from latent_sindy.models.latent_model import (
+    ENCODER_CONFIGS,
+    LOSS_TERMS,
+    EncoderConfig,
+    LatentModel,
+    LossWeights,
+    ModelConfig,
+)
+from latent_sindy.models.state import StateConfig
 
 __all__ = [
     "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
+    "ENCODER_CONFIGS",
     "LOSS_TERMS",
     "Autoencoder",
     "AutoencoderConfig",
     "DynamicsConfig",
+    "EncoderConfig",
     "LatentDynamics",
     "LatentModel",
     "LinearConfig",
@@ -41,5 +51,6 @@ __all__ = [
     "SindyConfig",
     "SindyDynamics",
     "SparseSindyDynamics",
+    "StateConfig",
     "make_dynamics",
 ]

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import torch
 from torch import nn
@@ -43,6 +43,7 @@ class AutoencoderConfig:
     (:meth:`resolve`); an autoencoder is built only from a resolved config.
     """
 
+    kind: ClassVar[str] = "image"
     channels: int | None = None
     """Image channels C (1 grayscale, 3 RGB); None: from the data file."""
     image_size: int | None = None
@@ -101,6 +102,9 @@ class AutoencoderConfig:
                     f"leave model {name} unset to use the data's"
                 )
         return dataclasses.replace(self, channels=channels, image_size=image_size)
+
+    def build(self) -> Autoencoder:
+        return Autoencoder(self)
 
     def conv_size(self) -> int:
         """Side of the feature maps after both conv + pool stages (5 for 32×32 images)."""
@@ -191,3 +195,7 @@ class Autoencoder(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.decode(self.encode(x))
+
+    def cost_weights(self) -> torch.Tensor:
+        """Q of MPPI's latent cost: every latent coordinate alike."""
+        return torch.ones(self.config.latent_dim)

@@ -1,6 +1,8 @@
-"""The image-to-image latent model: autoencoder + one latent dynamics model, and its loss.
+"""The latent model: an observation encoder + one latent dynamics model, and its loss.
 
-``LatentModel`` joins an :class:`~latent_sindy.models.autoencoder.Autoencoder` and any latent
+``LatentModel`` joins an encoder of :data:`ENCODER_CONFIGS` (the image
+:class:`~latent_sindy.models.autoencoder.Autoencoder`, or the identity codec of the true
+state, :mod:`latent_sindy.models.state`) and any latent
 dynamics model of :data:`~latent_sindy.models.dynamics.DYNAMICS_CONFIGS` (SINDy, linear,
 MLP). Its :meth:`LatentModel.loss` is the paper's loss (eq. 1–4, docs/design.md) on one batch
 of windows x_0..x_H, u_0..u_{H-1}, every term a mean squared error per element of normalised
@@ -26,16 +28,26 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Annotated, Union
 
 import torch
 import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
-from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
+from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import DynamicsConfig, LatentDynamics, SindyConfig
+from latent_sindy.models.state import StateConfig
 
-__all__ = ["LOSS_TERMS", "LatentModel", "LossWeights", "ModelConfig"]
+__all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "EncoderConfig", "LatentModel", "LossWeights",
+           "ModelConfig"]
+
+#: The registry of observation encoders: images (the autoencoder) or the true state.
+ENCODER_CONFIGS: tuple[type, ...] = (AutoencoderConfig, StateConfig)
+#: A tagged union of them; on the command line a subcommand after the dynamics' one
+#: (``latent-sindy train sindy state``); images are the default.
+EncoderConfig = Union[tuple(  # noqa: UP007  (built from the registry at import time)
+    Annotated[c, tyro.conf.subcommand(c.kind)] for c in ENCODER_CONFIGS)]
 
 #: The names of the loss terms :meth:`LatentModel.loss` returns, in report order.
 LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "objective")
@@ -49,11 +61,11 @@ class ModelConfig:
     :meth:`resolve`); a model can only be built from a resolved config.
     """
 
-    autoencoder: tyro.conf.OmitArgPrefixes[AutoencoderConfig] = field(
-        default_factory=AutoencoderConfig)
-    """Encoder and decoder (the latent size included)."""
     dynamics: DynamicsConfig = field(default_factory=SindyConfig)
     """Latent dynamics: a subcommand on the command line (sindy, linear, mlp)."""
+    encoder: EncoderConfig = field(default_factory=AutoencoderConfig)
+    """What the model sees: "image" (the autoencoder; the latent size included) or "state"
+    (the block's true pose: a reference model)."""
     action_dim: int | None = None
     """Action size nu; None: from the data file."""
 
@@ -64,7 +76,7 @@ class ModelConfig:
 
     @property
     def resolved(self) -> bool:
-        return self.autoencoder.resolved and self.action_dim is not None
+        return self.encoder.resolved and self.action_dim is not None
 
     @property
     def kind(self) -> str:
@@ -78,7 +90,7 @@ class ModelConfig:
             raise UserError(f"--action-dim {self.action_dim} but {source} has actions of "
                             f"size {action_dim}: leave it unset to use the data's")
         return dataclasses.replace(
-            self, autoencoder=self.autoencoder.resolve(channels, image_size, source),
+            self, encoder=self.encoder.resolve(channels, image_size, source),
             action_dim=action_dim)
 
 
@@ -120,9 +132,9 @@ class LatentModel(nn.Module):
         if not config.resolved:
             raise ValueError("ModelConfig needs the data's shapes: call resolve() first")
         self.config = config
-        self.autoencoder = Autoencoder(config.autoencoder)
+        self.autoencoder = config.encoder.build()
         self.dynamics: LatentDynamics = config.dynamics.build(
-            config.autoencoder.latent_dim, config.action_dim)
+            config.encoder.latent_dim, config.action_dim)
         self._has_l1 = hasattr(self.dynamics, "l1_penalty")
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
@@ -159,9 +171,9 @@ class LatentModel(nn.Module):
         ``weights`` None uses the defaults of :class:`LossWeights`.
         """
         weights = weights or _DEFAULT_WEIGHTS
-        if x.ndim != 5 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
+        if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
             raise ValueError(
-                f"loss expects x (B, H+1, C, S, S) and u (B, H, nu), got {tuple(x.shape)} and "
+                f"loss expects x (B, H+1, ...) and u (B, H, nu), got {tuple(x.shape)} and "
                 f"{tuple(u.shape)}"
             )
         h = u.shape[1]

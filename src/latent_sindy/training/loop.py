@@ -26,7 +26,7 @@ import torch
 from latent_sindy.atomic import check_memory
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import Trajectories, read_trajectories
-from latent_sindy.data.windows import Normalizer, WindowDataset
+from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
@@ -69,7 +69,7 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "train": to_json(cfg),
         "model": to_json(model_cfg),
-        "normalizer": Normalizer.from_trajectories(data).to_dict(),
+        "normalizer": OBSERVATIONS[model_cfg.encoder.kind].normalizer(data).to_dict(),
         "data": _data_identity(data, cfg.data),
         "env": to_json(data.env_config),  # the world the images came from, for control
     }
@@ -241,9 +241,10 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     run.write_record(record)
     run.write_metrics(metrics)  # drops rows logged after the checkpoint
 
-    x, u = WindowDataset(data.split("train"), cfg.window, norm).tensors()  # (W,H+1,C,S,S)
+    kind = model_cfg.encoder.kind
+    x, u = WindowDataset(data.split("train"), cfg.window, norm, kind).tensors()  # (W, H+1, ..)
     val = data.split("val")
-    xv, uv = WindowDataset(val, cfg.window, norm).tensors() if val.n else (None, None)
+    xv, uv = WindowDataset(val, cfg.window, norm, kind).tensors() if val.n else (None, None)
     if val.n == 0:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy

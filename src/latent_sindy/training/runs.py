@@ -218,8 +218,9 @@ class RunDir:
         if not model_cfg.resolved:
             raise UserError(f"{where}: the model's image shape or action size is missing; "
                             "retrain the run")
-        auto = model_cfg.autoencoder
-        seen = (auto.channels, auto.image_size, model_cfg.action_dim)
+        enc = model_cfg.encoder
+        seen = (getattr(enc, "channels", env_config.channels),
+                getattr(enc, "image_size", env_config.image_size), model_cfg.action_dim)
         world = (env_config.channels, env_config.image_size, env_config.action_dim)
         if seen != world:
             raise UserError(f"{where}: the model takes {seen[0]}x{seen[1]}x{seen[1]} images and "
@@ -297,10 +298,10 @@ def _model_v1(m: Mapping[str, Any], resolved: bool) -> dict[str, Any]:
         dynamics.update(init_scale=m.get("init_scale", 1e-3))
     elif kind == "mlp":
         dynamics.update(hidden=m.get("mlp_hidden", 128), layers=m.get("mlp_layers", 2))
-    auto = {k: m[k] for k in _AUTOENCODER_V1 if k in m}
+    auto = {"kind": "image", **{k: m[k] for k in _AUTOENCODER_V1 if k in m}}
     auto.setdefault("decoder", "fc")  # runs saved before the conv decoder existed
     action_dim = m.get("action_dim", 3) if resolved else None
-    return {"autoencoder": auto, "dynamics": dynamics, "action_dim": action_dim}
+    return {"dynamics": dynamics, "encoder": auto, "action_dim": action_dim}
 
 
 def _migrate_v1(record: Mapping[str, Any]) -> dict[str, Any]:
