@@ -22,7 +22,10 @@ from latent_sindy.experiments.table import PAPER, ROWS, format_stat
 from latent_sindy.training import RunDir
 from test_report import CHECK, _chromium, _render_title
 
-MODELS = [s.name for s in model_specs(SCALES["tiny"])]
+SPECS = model_specs(SCALES["tiny"])
+MODELS = [s.name for s in SPECS]
+CONDITIONS = {s.name: SCALES["tiny"].conditions(s) for s in SPECS}
+N_CONDITIONS = sum(len(c) for c in CONDITIONS.values())
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +56,7 @@ def test_pipeline_runs_in_well_under_a_minute(study):
 
 def test_rerun_reuses_data_runs_evaluations_and_episodes(study):
     mtimes = study["mtimes"]
-    assert len(mtimes) == 1 + 2 * len(MODELS) + 4 * len(MODELS)  # data; model, evaluation; episodes
+    assert len(mtimes) == 1 + 2 * len(MODELS) + N_CONDITIONS  # data; model, evaluation; episodes
     changed = [str(p) for p, t in mtimes.items() if p.stat().st_mtime_ns != t]
     assert not changed
     assert study["second"] < 0.5 * study["first"], (study["first"], study["second"])
@@ -74,9 +77,16 @@ def test_table1_has_paper_values_and_ours_for_every_model(study):
             r = by[(row.label, m)]
             if row.in_paper and m in PAPER and PAPER[m].get(row.key) is not None:
                 assert float(r["paper"]) == PAPER[m][row.key]
-            if row.key.startswith(("loss/", "control/")) and "steps" not in row.key:
+            planned = {f"control/{c.name}/" for c in CONDITIONS[m]}
+            measured = row.key.startswith("loss/") or any(row.key.startswith(p)
+                                                              for p in planned)
+            if measured and "steps" not in row.key:
                 assert math.isfinite(float(r["ours_mean"])), (row.label, m)
-            if row.key.startswith("pred_err/"):  # inf would be a diverged rollout
+            if row.key.startswith("control/") and "/image/" in row.key and not any(
+                    c.space == "image" for c in CONDITIONS[m]):
+                assert r["ours"] == "n/a", (row.label, m)  # not planned in image space
+            if row.key.startswith("pred_err/") and not m.startswith("state"):
+                # inf would be a diverged rollout
                 assert not math.isnan(float(r["ours_mean"])), (row.label, m)
     assert {r["model"] for r in rows} == set(MODELS)
 
@@ -85,12 +95,14 @@ def test_every_figure_equation_and_summary_is_written(study):
     out = study["out"]
     fig = out / "figures"
     expected = ["loss_histories.png", "prediction_error.png", "rollouts.png", "control.png",
-                *(f"coefficients_{m}.png" for m in MODELS if m.startswith("sindy"))]
+                *(f"coefficients_{m}.png" for m in MODELS if "sindy" in m)]
     for name in expected:
         assert (fig / name).stat().st_size > 1000, name
     gifs = {p.name for p in (fig / "gifs").glob("*.gif")}
-    assert gifs == {f"{m}_{task}-{space}.gif" for m in MODELS for task in ("paper", "random")
-                    for space in ("latent", "image")}
+    assert gifs == {f"{m}_{c.task}-{c.space}.gif" for m, conds in CONDITIONS.items()
+                    for c in conds}
+    assert {c.space for c in CONDITIONS["state_sindy2"]} == {"latent"}
+    assert {c.space for c in CONDITIONS["sindy2"]} == {"latent", "image"}
     for m in MODELS:
         assert (out / f"equations_{m}.txt").read_text().startswith("# seed 0")
     summary = json.loads((out / "summary.json").read_text(),
@@ -125,7 +137,7 @@ def test_report_renders_every_table_and_image(study, tmp_path):
     browser = _chromium()
     text = study["report"].read_text()
     n_img, n_cells = text.count("<img "), text.count("<td>")
-    assert n_img >= 4 + 5 + 4 * len(MODELS) and "Table I" in text
+    assert n_img >= 4 + 5 + N_CONDITIONS and "Table I" in text
     page = tmp_path / "checked.html"
     page.write_text(text.replace("</body>", CHECK + "</body>"))
     title = _render_title(browser, page, tmp_path)

@@ -144,7 +144,8 @@ def eval_job(job: EvalJob) -> RunResult:
     control = {cond.name: _control(loaded, run, cond, s) for cond, s in job.controls}
     train_s = sum(r["time_s"] or 0.0 for r in run.read_metrics())
     return RunResult(losses=record["losses"], horizon=record["horizon"], stats=record["stats"],
-                     control=control, train_seconds=train_s, seconds=time.perf_counter() - t0)
+                     control=control, train_seconds=train_s, seconds=time.perf_counter() - t0,
+                     observation=loaded.model.config.encoder.kind)
 
 
 class Inline:

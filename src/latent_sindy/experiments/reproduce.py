@@ -151,9 +151,9 @@ def run_stage(study: Study, data: Path, say: Say) -> None:
                              threshold_every=scale.threshold_every, seed=seed)
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
-    episodes = sum(c.episodes for c in scale.conditions())
+    episodes = sum(c.episodes for spec in study.specs for c in scale.conditions(spec))
     say(f"[2/4] training and evaluating {len(study.specs)} models x {len(cfg.seeds)} seed(s) "
-        f"({scale.epochs} epochs; {episodes} control episodes per model) on "
+        f"({scale.epochs} epochs; {episodes} control episodes per seed) on "
         f"{min(cfg.workers, len(jobs))} process(es)")
     with executor(cfg.workers, len(jobs)) as pool:
         try:
@@ -170,7 +170,6 @@ def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
            say: Say) -> None:
     """Run the training jobs; each finished one queues its evaluation; until all are done."""
     scale, threads, n = study.scale, study.config.threads, len(jobs)
-    conditions = scale.conditions()
     t0 = time.perf_counter()
     done_eval = 0
     pending: dict[Future, tuple[str, Any]] = {
@@ -189,13 +188,15 @@ def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
                     continue
                 say(f"  [{elapsed:5.0f} s] {result['status']} {job.name} (seed {job.seed})"
                     f" in {result['seconds']:.0f} s")
-                controls = tuple((c, scale.control_config(c, job.seed)) for c in conditions)
+                spec = study.spec(job.name)
+                controls = tuple((c, scale.control_config(c, job.seed))
+                                 for c in scale.conditions(spec))
                 ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
                 pending[pool.submit(eval_job, ev)] = ("eval", ev)
             else:
                 done_eval += 1
                 study.results.setdefault(job.seed, {})[job.name] = result
-                m = result.metrics(conditions)
+                m = result.metrics(scale.conditions(study.spec(job.name)))
                 study.per_seed.setdefault(job.seed, {})[job.name] = m
                 say(f"  [{elapsed:5.0f} s] evaluated {job.name} (seed {job.seed}) in "
                     f"{result.seconds:.0f} s: test loss {_num(m['loss/test'])}, "
@@ -260,7 +261,7 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
                 files["coefficients"][spec.name] = figures.coefficient_map(
                     dyn, spec.label, fig_dir / f"coefficients_{spec.name}.png")
 
-    conditions = study.scale.conditions()
+    conditions = study.scale.all_conditions()
     bars, plan_ms = {}, {}
     for cond in conditions:
         key = f"control/{cond.name}/success_rate"
@@ -327,7 +328,8 @@ def summary_record(study: Study, data: Trajectories, data_path: Path) -> dict[st
         "data": {"path": str(data_path), "trajectories": data.n, "steps": data.steps,
                  "splits": data.split_counts(), "seed": data.seed,
                  "fingerprint": data.fingerprint()},
-        "control": {c.name: to_json(scale.control_config(c, 0)) for c in scale.conditions()},
+        "control": {s.name: {c.name: to_json(scale.control_config(c, 0))
+                             for c in scale.conditions(s)} for s in study.specs},
         "versions": versions(),
         "machine": {"cpus": os.cpu_count(), "load_average": list(os.getloadavg()),
                     "platform": platform.platform()},

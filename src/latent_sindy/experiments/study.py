@@ -7,7 +7,7 @@ string to split.
 
     >>> SCALES["paper"].epochs, SCALES["demo"].epochs
     (3000, 60)
-    >>> [c.name for c in SCALES["demo"].conditions()]
+    >>> [c.name for c in SCALES["demo"].all_conditions()]
     ['paper/latent', 'random/latent', 'paper/image', 'random/image']
 """
 
@@ -28,6 +28,7 @@ from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.latent_model import ModelConfig
+from latent_sindy.models.state import StateConfig
 
 __all__ = ["SCALES", "Condition", "ModelSpec", "ReproduceConfig", "RunResult", "Scale", "Study",
            "model_specs"]
@@ -78,12 +79,17 @@ class Scale:
     """... every this many epochs."""
     multistep_window: int = 4
     """Training window H of the multi-step SINDy model."""
-    paper_episodes: int = 1
-    """Latent MPPI episodes on the paper's task (each with its own MPPI noise)."""
-    random_episodes: int = 10
-    """Latent MPPI episodes on random tasks."""
-    image_paper_episodes: int = 1
-    image_random_episodes: int = 4
+    paper_episodes: int = 5
+    """Latent MPPI episodes on the paper's task (each with its own controller seed)."""
+    random_episodes: int = 50
+    """Latent MPPI episodes on random tasks of the headline rows (SINDy-2, linear, the
+    state-space references): one fixed task list, the same for every model."""
+    other_random_episodes: int = 20
+    """... and of the other rows."""
+    image_paper_episodes: int = 5
+    """Image-space MPPI episodes on the paper's task (models with ``image_space``)."""
+    image_random_episodes: int = 20
+    """Image-space MPPI episodes on random tasks (the first of the same task list)."""
     max_steps: int = 20
     """Pushes per latent MPPI episode (the course: 20)."""
     image_max_steps: int = 30
@@ -93,13 +99,24 @@ class Scale:
     mppi: MPPIConfig = field(default_factory=MPPIConfig)
     """The planner of every condition (the course's K = 100, H = 10)."""
 
-    def conditions(self) -> tuple[Condition, ...]:
-        """The closed-loop conditions with at least one episode, in report order."""
-        all_ = (Condition("paper", "latent", self.paper_episodes, self.max_steps),
+    def all_conditions(self) -> tuple[Condition, ...]:
+        """Every kind of closed-loop condition, in report order (episodes of a headline row)."""
+        return (Condition("paper", "latent", self.paper_episodes, self.max_steps),
                 Condition("random", "latent", self.random_episodes, self.max_steps),
                 Condition("paper", "image", self.image_paper_episodes, self.image_max_steps),
                 Condition("random", "image", self.image_random_episodes, self.image_max_steps))
-        return tuple(c for c in all_ if c.episodes > 0)
+
+    def conditions(self, spec: ModelSpec) -> tuple[Condition, ...]:
+        """The closed-loop conditions of one model, with at least one episode."""
+        out = []
+        for c in self.all_conditions():
+            if c.space == "image" and not spec.image_space:
+                continue
+            if c.task == "random" and c.space == "latent" and not spec.headline:
+                c = dataclasses.replace(c, episodes=self.other_random_episodes)
+            if c.episodes > 0:
+                out.append(c)
+        return tuple(out)
 
     def control_config(self, condition: Condition, seed: int) -> ControlConfig:
         return ControlConfig(task=condition.task, space=condition.space,
@@ -115,13 +132,15 @@ SCALES: dict[str, Scale] = {
     # The paper's settings: 3000 epochs, batch 500, thresholding every 300 epochs; 10
     # paper-task runs (as its image-space test) and 20 random tasks per model and planner.
     "paper": dataclasses.replace(_DEMO, epochs=3000, batch_size=500, threshold_every=300,
-                                 paper_episodes=10, random_episodes=20,
-                                 image_paper_episodes=10, image_random_episodes=20),
+                                 paper_episodes=10, random_episodes=100,
+                                 other_random_episodes=50, image_paper_episodes=10,
+                                 image_random_episodes=50),
     # Seconds: only checks that the pipeline runs end to end (tests).
     "tiny": dataclasses.replace(_DEMO, trajectories=6, steps=3, epochs=2, batch_size=500,
-                                threshold_every=1, multistep_window=2, random_episodes=1,
-                                image_random_episodes=1, max_steps=2, image_max_steps=2,
-                                mppi=MPPIConfig(samples=8, horizon=2)),
+                                threshold_every=1, multistep_window=2, paper_episodes=1,
+                                random_episodes=1, other_random_episodes=1,
+                                image_paper_episodes=1, image_random_episodes=1, max_steps=2,
+                                image_max_steps=2, mppi=MPPIConfig(samples=8, horizon=2)),
 }
 
 
@@ -181,7 +200,23 @@ class ModelSpec:
     """Training window H (1: single-step)."""
     cost: float = 1.0
     """Relative training time, to start the longest jobs first."""
+    headline: bool = False
+    """A headline row: the most random-task episodes."""
+    image_space: bool = False
+    """Also plan with image-space MPPI (the paper's variant; needs an image model)."""
 
+    @property
+    def observation(self) -> str:
+        """What the model sees: "image" or "state"."""
+        return self.model.encoder.kind
+
+
+#: What the study keeps of each closed-loop summary (control/<task>/<space>/<key>).
+CONTROL_METRICS = ("episodes", "success_rate", "success_ci_low", "success_ci_high",
+                   "strict_success_rate", "strict_ci_low", "strict_ci_high",
+                   "steps_to_goal_mean", "steps_to_strict_mean", "final_distance_mean",
+                   "final_angle_error_deg_mean", "executed_rate", "plan_ms_mean", "warmup_ms",
+                   "discarded_total", "left_workspace")
 
 #: The name of the single-step model the multi-step one is compared with.
 SINGLE_STEP = "sindy2"
@@ -190,20 +225,31 @@ SINGLE_STEP = "sindy2"
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
                 ) -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, and SINDy order 2 trained on H-step windows, all
-    with the same autoencoder architecture."""
+    with the same autoencoder architecture; then SINDy-2, linear and MLP on the true state
+    (the reference rows the image models are measured against)."""
     h = scale.multistep_window
     auto = AutoencoderConfig(decoder=decoder)
 
     def model(dynamics: Any) -> ModelConfig:
         return ModelConfig(encoder=auto, dynamics=dynamics)
 
+    def state(dynamics: Any) -> ModelConfig:
+        return ModelConfig(encoder=StateConfig(), dynamics=dynamics)
+
     return (
         *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model(SindyConfig(order=k)),
-                    cost=(1.0, 1.1, 1.2, 1.6)[k - 1]) for k in (1, 2, 3, 4)),
-        ModelSpec("linear", "linear (E2C)", model(LinearConfig()), cost=0.8),
+                    cost=(1.0, 1.1, 1.2, 1.6)[k - 1], headline=k == 2, image_space=k == 2)
+          for k in (1, 2, 3, 4)),
+        ModelSpec("linear", "linear (E2C)", model(LinearConfig()), cost=0.8, headline=True,
+                  image_space=True),
         ModelSpec("mlp", "MLP", model(MlpConfig()), cost=0.9),
         ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", model(SindyConfig(order=2)),
                   window=h, cost=1.1 * (h + 1) / 2),
+        ModelSpec("state_sindy2", "SINDy-2, state", state(SindyConfig(order=2)), cost=0.1,
+                  headline=True),
+        ModelSpec("state_linear", "linear, state", state(LinearConfig()), cost=0.1,
+                  headline=True),
+        ModelSpec("state_mlp", "MLP, state", state(MlpConfig()), cost=0.1, headline=True),
     )
 
 
@@ -221,6 +267,8 @@ class RunResult:
     """Condition name -> closed-loop summary (``nonfinite_actions`` included)."""
     train_seconds: float
     seconds: float
+    observation: str = "image"
+    """What the model saw; the prediction error is in that space ("state_err/*" for states)."""
 
     def metrics(self, conditions: tuple[Condition, ...]) -> dict[str, float | None]:
         """One flat {metric: value} dictionary (the keys of table.ROWS and more)."""
@@ -228,25 +276,25 @@ class RunResult:
         for split in ("train", "val", "test"):
             m[f"loss/{split}"] = self.losses.get(split, {}).get("objective")
         m.update(self.stats)
-        m.update({f"pred_err/h{h}": v for h, v in enumerate(self.horizon, start=1)})
-        m["pred_err/hmax"] = self.horizon[-1]
+        err = "pred_err" if self.observation == "image" else "state_err"
+        m.update({f"{err}/h{h}": v for h, v in enumerate(self.horizon, start=1)})
+        m[f"{err}/hmax"] = self.horizon[-1]
         plan_ms: dict[str, list[float]] = {"latent": [], "image": []}
         discarded = nonfinite = 0
         for cond in conditions:
             s = self.control.get(cond.name)
             if s is None:
                 continue
-            for k in ("success_rate", "strict_success_rate", "steps_to_goal_mean",
-                      "steps_to_strict_mean", "final_distance_mean", "plan_ms_mean",
-                      "discarded_total", "left_workspace", "episodes"):
-                m[f"control/{cond.name}/{k}"] = s[k]
+            for k in CONTROL_METRICS:
+                m[f"control/{cond.name}/{k}"] = s.get(k, math.nan)
             if math.isfinite(s["plan_ms_mean"]):
                 plan_ms[cond.space].append(s["plan_ms_mean"])
             discarded += s["discarded_total"]
             nonfinite += s["nonfinite_actions"]
+        planned = {c.space for c in conditions}
         for space, values in plan_ms.items():
-            m[f"control/{space}/plan_ms_mean"] = (sum(values) / len(values) if values
-                                                  else math.nan)
+            m[f"control/{space}/plan_ms_mean"] = (
+                sum(values) / len(values) if values else math.nan if space in planned else None)
         m["control/discarded_total"] = discarded
         m["train/seconds"] = self.train_seconds
         m["control/nonfinite_actions"] = nonfinite

@@ -97,7 +97,7 @@ def _control_rows(study: Study) -> list[list[str]]:
     rows = []
     n = len(study.config.seeds)
     for m in study.models:
-        for cond in study.scale.conditions():
+        for cond in study.scale.all_conditions():
             key = f"control/{cond.name}"
             if _get(study, m, f"{key}/episodes") is None:
                 continue
@@ -110,10 +110,22 @@ def _control_rows(study: Study) -> list[list[str]]:
                 None if dist.mean is None else 100 * dist.mean,
                 None if dist.std is None else 100 * dist.std, dist.n), "num", n)
             rows.append([study.labels[m], cond.task, cond.space, f("episodes", "int"),
-                         f("success_rate", "pct"), f("strict_success_rate", "pct"),
-                         f("steps_to_goal_mean", "num"), cm, f("plan_ms_mean", "num"),
-                         f("discarded_total", "int"), f("left_workspace", "int")])
+                         f("success_rate", "pct"), _ci(study, m, key, "success"),
+                         f("strict_success_rate", "pct"), _ci(study, m, key, "strict"),
+                         f("steps_to_goal_mean", "num"), cm,
+                         f("final_angle_error_deg_mean", "num"), f("executed_rate", "pct"),
+                         f("plan_ms_mean", "num"), f("discarded_total", "int"),
+                         f("left_workspace", "int")])
     return rows
+
+
+def _ci(study: Study, model: str, key: str, which: str) -> str:
+    """The Wilson interval of the first seed, e.g. "22–48%" ("—" where not measured)."""
+    first = study.per_seed.get(study.config.seeds[0], {}).get(model, {})
+    lo, hi = first.get(f"{key}/{which}_ci_low"), first.get(f"{key}/{which}_ci_high")
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return "—"
+    return f"{100 * lo:.0f}–{100 * hi:.0f}%"
 
 
 def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
@@ -126,10 +138,14 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     train_s = sum(m.get("train/seconds") or 0.0 for d in study.per_seed.values()
                   for m in d.values())
     load = ", ".join(f"{v:.1f}" for v in summary["machine"]["load_average"])
-    control_note = (f"closed loop per model and seed: {scale.paper_episodes} paper-task and "
-                    f"{scale.random_episodes} random-task episodes with latent MPPI (at most "
-                    f"{scale.max_steps} pushes), {scale.image_paper_episodes} + "
-                    f"{scale.image_random_episodes} with image-space MPPI (at most "
+    headline = ", ".join(s.label for s in study.specs if s.headline)
+    image = ", ".join(s.label for s in study.specs if s.image_space)
+    control_note = (f"closed loop per model and seed, on one fixed list of random tasks: "
+                    f"{scale.paper_episodes} paper-task episodes (one controller seed each) and "
+                    f"{scale.random_episodes} random tasks with latent MPPI for {headline}, "
+                    f"{scale.other_random_episodes} for the other rows (at most "
+                    f"{scale.max_steps} pushes); {scale.image_paper_episodes} + "
+                    f"{scale.image_random_episodes} with image-space MPPI for {image} (at most "
                     f"{scale.image_max_steps}); MPPI K={scale.mppi.samples}, "
                     f"H={scale.mppi.horizon}")
     r.paragraph(
@@ -161,9 +177,15 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                 "n/a: does not apply; —: no value.")
 
     r.heading("Closed-loop control")
-    r.table(["model", "task", "MPPI", "episodes", "success (course)", "success (strict)",
-             "steps to goal", "final distance (cm)", "plan ms/step", "discarded samples",
+    r.table(["model", "task", "MPPI", "episodes", "success (course)", "95% CI",
+             "success (strict)", "95% CI", "steps to goal", "final distance (cm)",
+             "final angle error (°)", "pushes executed", "plan ms/step", "discarded samples",
              "left workspace"], _control_rows(study))
+    r.paragraph("95% CI: the Wilson score interval of the first seed's success rate over its "
+                "episodes. The strict criterion (2 cm, 10°) compares orientations modulo the "
+                "block's visible symmetry. Planning time excludes the one-time warm-up (numba "
+                "compiling the SINDy kernel). State rows see the block's true pose: they are "
+                "the upper bound of what the image models could reach.")
     r.image(files["control"], "Success rate per condition and latent-MPPI planning time")
 
     r.heading("Beyond the paper")
@@ -191,7 +213,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
 
     if files["gifs"]:
         r.heading(f"Closed-loop episodes (seed {cfg.seeds[0]}, first episode of each condition)")
-        for cond in study.scale.conditions():
+        for cond in study.scale.all_conditions():
             items = [(p, f"{study.labels[m]}, {cond.label}")
                      for m, c, p in files["gifs"] if c == cond]
             if items:

@@ -43,6 +43,8 @@ class Row:
     label: str
     fmt: str  # "loss", "pct" (a fraction shown in %), "pct100" (already in %), "num", "int"
     in_paper: bool = False
+    ci: str | None = None
+    """Metric prefix of a 95% interval (``<ci>_ci_low``, ``_ci_high``) shown with one seed."""
 
 
 ROWS: tuple[Row, ...] = (
@@ -53,21 +55,30 @@ ROWS: tuple[Row, ...] = (
         "num", True),
     Row("sindy/sparsity", "sparsity", "pct100", True),
     Row("sindy/active", "active coefficients", "int"),
-    Row("control/paper/latent/success_rate", "success, paper task, latent MPPI", "pct"),
+    Row("control/paper/latent/success_rate", "success, paper task, latent MPPI", "pct",
+        ci="control/paper/latent/success"),
     Row("control/random/latent/success_rate", "success, random tasks, latent MPPI (course)",
-        "pct"),
+        "pct", ci="control/random/latent/success"),
     Row("control/random/latent/strict_success_rate",
-        "success, random tasks, latent MPPI (strict)", "pct"),
+        "success, random tasks, latent MPPI (strict)", "pct",
+        ci="control/random/latent/strict"),
     Row("control/random/latent/steps_to_goal_mean", "steps to goal, random tasks, latent MPPI",
         "num"),
-    Row("control/paper/image/success_rate", "success, paper task, image-space MPPI", "pct"),
-    Row("control/random/image/success_rate", "success, random tasks, image-space MPPI (course)",
+    Row("control/random/latent/final_distance_mean",
+        "final distance to goal, random tasks, latent MPPI (m)", "loss"),
+    Row("control/random/latent/executed_rate", "pushes executed, random tasks, latent MPPI",
         "pct"),
+    Row("control/paper/image/success_rate", "success, paper task, image-space MPPI", "pct",
+        ci="control/paper/image/success"),
+    Row("control/random/image/success_rate", "success, random tasks, image-space MPPI (course)",
+        "pct", ci="control/random/image/success"),
     Row("control/latent/plan_ms_mean", "planning ms per step, latent MPPI", "num"),
     Row("control/image/plan_ms_mean", "planning ms per step, image-space MPPI", "num"),
     Row("control/discarded_total", "discarded MPPI samples (NaN/inf), all episodes", "int"),
     Row("pred_err/h1", "prediction error, 1 step (test, image MSE)", "loss"),
     Row("pred_err/hmax", "prediction error, last horizon (test, image MSE)", "loss"),
+    Row("state_err/h1", "prediction error, 1 step (test, state MSE)", "loss"),
+    Row("state_err/hmax", "prediction error, last horizon (test, state MSE)", "loss"),
 )
 
 
@@ -110,6 +121,17 @@ def _ours(stats: Mapping[str, Stat], row: Row) -> Stat | None:
     return s
 
 
+def _interval(stats: Mapping[str, Stat], row: Row, seeds: int) -> str:
+    """" (lo–hi%)" for a row with an interval, measured with one seed; else ""."""
+    if row.ci is None or seeds != 1:
+        return ""
+    lo, hi = stats.get(f"{row.ci}_ci_low"), stats.get(f"{row.ci}_ci_high")
+    if lo is None or hi is None or lo.mean is None or hi.mean is None or not (
+            math.isfinite(lo.mean) and math.isfinite(hi.mean)):
+        return ""
+    return f" ({100 * lo.mean:.0f}–{100 * hi.mean:.0f}%)"
+
+
 def _paper(model: str, row: Row) -> str:
     if model not in PAPER:
         return "—"
@@ -124,7 +146,8 @@ def table1_rows(models: Sequence[str], stats: Mapping[str, Mapping[str, Stat]],
     for row in ROWS:
         if row.in_paper:
             rows.append([f"{row.label} (paper)", *(_paper(m, row) for m in models)])
-        cells = [format_stat(_ours(stats.get(m, {}), row), row.fmt, seeds) for m in models]
+        cells = [format_stat(_ours(stats.get(m, {}), row), row.fmt, seeds)
+                 + _interval(stats.get(m, {}), row, seeds) for m in models]
         rows.append([f"{row.label} (ours)" if row.in_paper else row.label, *cells])
     return rows
 
