@@ -128,6 +128,19 @@ def test_stlsq_threshold_is_relative_to_the_target() -> None:
     assert not bool(STLSQ(threshold=1.1 * share).fit(theta, target).mask_[5, 0])
 
 
+def test_keep_mask_is_the_fit_rule_without_refitting() -> None:
+    theta, coef, target = _random_problem()
+    opt = STLSQ(threshold=0.05)
+    noisy = coef + 1e-9  # every coefficient nonzero; the tiny ones must go
+    keep = opt.keep_mask(noisy, theta, target)
+    assert torch.equal(keep, opt.fit(theta, target).mask_)
+    some = torch.ones_like(keep)
+    some[0, 0] = False
+    assert torch.equal(opt.keep_mask(noisy.float(), theta, target, mask=some), keep & some)
+    with pytest.raises(ValueError, match="keep_mask"):
+        opt.keep_mask(noisy[:-1], theta, target)
+
+
 def test_stlsq_mask_only_turns_off_and_threshold_zero_is_least_squares() -> None:
     theta, _, target = _random_problem(1)
     allowed = torch.ones(10, 3, dtype=torch.bool)

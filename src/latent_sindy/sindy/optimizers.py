@@ -141,6 +141,36 @@ class STLSQ:
         self.target_scale_ = y_scale
         return self
 
+    @torch.no_grad()
+    def keep_mask(
+        self,
+        coef: ArrayLike,
+        theta: ArrayLike,
+        target: ArrayLike,
+        mask: ArrayLike | None = None,
+    ) -> torch.Tensor:
+        """The thresholding rule alone, without refitting: which of ``coef`` stay active.
+
+        For a trainer that fits Ψ by gradient steps and prunes now and then (the image
+        trainer): ``coef`` (p, m) its current coefficients, ``theta`` (N, p) and ``target``
+        (N, m) a batch of library values and targets (for latent SINDy: Θ(z_t, u_t) and
+        z_{t+1} − z_t of encoded frames) that set the scales. Returns the (p, m) bool mask
+        ``mask & (|coef| · rms(theta) >= threshold · rms(target))``, on ``coef``'s device.
+        """
+        c = torch.as_tensor(coef).detach()
+        th = _as_matrix(theta, "theta")
+        y = _as_matrix(target, "target")
+        if c.shape != (th.shape[1], y.shape[1]):
+            raise ValueError(
+                f"keep_mask: coef must be (p, m) = ({th.shape[1]}, {y.shape[1]}) to match theta "
+                f"and target, got {tuple(c.shape)}"
+            )
+        share = c.to("cpu", torch.float64).abs() * th.square().mean(dim=0).sqrt()[:, None]
+        keep = share >= self.threshold * y.square().mean(dim=0).sqrt()[None, :]
+        if mask is not None:
+            keep &= torch.as_tensor(mask).to("cpu", torch.bool)
+        return keep.to(c.device)
+
     def _ridge(self, gram: torch.Tensor, rhs: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
         """Per column j: (G_aa + αI) ξ_a = rhs_aj on the active set a; 0 elsewhere: (p, m)."""
         xi = torch.zeros_like(rhs)
