@@ -11,12 +11,12 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
 with F = [z, u, trig] for the block (only the sines and cosines some term uses, of states
 or of actions, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2)
-and b the constant term's coefficients. Terms are
-sorted lexicographically so a term reuses its predecessor's partial product over their
-common prefix (x0 x1 x2 after x0 x1: one multiply). Everything runs feature-major (nz, K):
-``step`` returns a transposed view, so the next step's input is contiguous again, and
-``rollout`` a permuted one. Results equal the model's own step to float rounding (checked on
-a probe batch when the step is built; tested for orders 1-4).
+and b the constant term's coefficients. Terms are sorted lexicographically so a term reuses
+its predecessor's partial product over their common prefix (x0 x1 x2 after x0 x1: one
+multiply). Everything runs feature-major (nz, K): ``step`` returns a transposed view, so the
+next step's input is contiguous again, and ``rollout`` a permuted one. Results equal the
+model's own step to float rounding (checked on a probe batch when the step is built; tested
+for orders 1-4 and libraries with trig of states and of actions).
 
 On devices other than the CPU the model's sparse torch step runs instead.
 

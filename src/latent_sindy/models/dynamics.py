@@ -7,6 +7,7 @@ Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p libr
     >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
     >>> fast = model.compile_sparse()  # same step, only the active library terms
+    >>> from latent_sindy.sindy import push_library  # any composed library spec
     >>> push = make_dynamics("sindy", nz=16, nu=3, library_spec=push_library(order=2))
     >>> push.fit_state_data(Z, U, Znext)  # sparse regression (STLSQ) on states: (N, nz), ...
 """
