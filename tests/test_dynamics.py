@@ -1,7 +1,9 @@
-"""Latent dynamics models: one interface, SINDy masking, closed-form and known-system fits."""
+"""Latent dynamics models: one interface, SINDy masking and libraries, the linear model's
+closed-form fit (the SINDy fits are in test_fit.py)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -15,7 +17,7 @@ from latent_sindy.models import (
     SindyDynamics,
     make_dynamics,
 )
-from latent_sindy.sindy.fit import fit_state_data, refit_active_least_squares
+from latent_sindy.sindy import Polynomial, Sine, push_library
 
 NZ, NU = 4, 2
 
@@ -23,14 +25,20 @@ NZ, NU = 4, 2
 MODEL_CASES = [
     *(f"sindy{order}" for order in (1, 2, 3, 4)),
     "sindy2-sparse",
+    "sindy-push",
     "linear",
     "mlp",
 ]
 
 
+PUSH = push_library(order=2, angle=0, length=1)
+
+
 def _build(case: str) -> LatentDynamics:
     """A model with non-trivial (random, seeded) parameters, so steps differ from identity."""
     torch.manual_seed(0)
+    if case == "sindy-push":  # a composed library: trig of an action times the state
+        return SindyDynamics(NZ, NU, library_spec=PUSH, seed=0, init_scale=0.05)
     if case.startswith("sindy"):
         model = SindyDynamics(NZ, NU, order=int(case[5]), seed=0, init_scale=0.05)
         if case.endswith("-sparse"):
@@ -292,88 +300,44 @@ def test_linear_least_squares_recovers_the_system() -> None:
     torch.testing.assert_close(model.step(Z, U), Znext, rtol=0, atol=1e-4)
 
 
-# The known system: nz=2, nu=1, 7 true terms out of 2 x 12 candidates (order 2 + sin).
-TRUE_TERMS = {
-    ("z0", "z0"): -0.1,
-    ("z0", "z1"): 0.2,
-    ("z0", "u0"): 0.5,
-    ("z1", "1"): 0.05,
-    ("z1", "z0^2"): 0.1,
-    ("z1", "z0 z1"): -0.3,
-    ("z1", "z1 u0"): -0.2,
-}
+# ---------------------------------------------------------------- SINDy libraries and coefficients
 
 
-def _true_step(z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-    z0, z1, u0 = z[:, 0], z[:, 1], u[:, 0]
-    dz0 = -0.1 * z0 + 0.2 * z1 + 0.5 * u0
-    dz1 = 0.05 + 0.1 * z0**2 - 0.3 * z0 * z1 - 0.2 * z1 * u0
-    return z + torch.stack([dz0, dz1], dim=1)
+def test_library_spec_model_rebuilds_from_json_hparams() -> None:
+    model = _build("sindy-push")
+    assert model.names[-1] == "z3 u1 cos(u0)"
+    params = json.loads(json.dumps(model.hparams()))  # JSON-able
+    assert "order" not in params and params["library_spec"] == PUSH.to_dict()
+    copy = make_dynamics("sindy", **params)
+    assert copy.names == model.names
+    copy.load_state_dict(model.state_dict())
+    z0, actions = _batch()
+    torch.testing.assert_close(copy.rollout(z0, actions), model.rollout(z0, actions))
+    with pytest.raises(ValueError, match="library_spec and order=3"):
+        SindyDynamics(NZ, NU, order=3, library_spec=PUSH)
 
 
-@pytest.fixture(scope="module")
-def known_data() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """400 random trajectories of 5 steps from random states and actions in [-1, 1]."""
-    gen = torch.Generator().manual_seed(0)
-    z = torch.rand(400, 2, generator=gen) * 2 - 1
-    Z, U, Znext = [], [], []
-    for _ in range(5):
-        u = torch.rand(400, 1, generator=gen) * 2 - 1
-        z_next = _true_step(z, u)
-        Z.append(z), U.append(u), Znext.append(z_next)
-        z = z_next
-    return torch.cat(Z), torch.cat(U), torch.cat(Znext)
+def test_classic_arguments_build_the_same_model_as_their_spec() -> None:
+    spec = Polynomial("z,u", 3) + Sine("z")
+    a = SindyDynamics(NZ, NU, order=3, seed=1)
+    b = SindyDynamics(NZ, NU, library_spec=spec, seed=1)
+    assert a.names == b.names and a.library.spec == spec
+    z0, actions = _batch()
+    torch.testing.assert_close(a.rollout(z0, actions), b.rollout(z0, actions), rtol=0, atol=0)
 
 
-def _recovered(model: SindyDynamics) -> dict[tuple[str, str], float]:
-    return {(state, term): value for state, term, value in model.coefficient_rows()}
-
-
-def _worst_relative_error(model: SindyDynamics) -> float:
-    got = _recovered(model)
-    return max(abs(got.get(k, 0.0) - v) / abs(v) for k, v in TRUE_TERMS.items())
-
-
-SPARSIFY = {"epochs": 600, "lr": 1e-2, "l1": 1e-3, "threshold": 0.02, "every": 200}
-
-
-def test_sindy_recovers_a_known_controlled_system(known_data) -> None:
-    model = SindyDynamics(2, 1, order=2, seed=0)
-    result = fit_state_data(model, *known_data, **SPARSIFY, debias_epochs=300)
-    assert set(_recovered(model)) == set(TRUE_TERMS)
-    assert _worst_relative_error(model) < 0.02
-    assert result.n_active == len(TRUE_TERMS)
-    assert result.pruned[0] == (200, 24 - len(TRUE_TERMS))
-    assert len(result.losses) == 900 and result.losses[-1] < 1e-8
-
-
-def test_debiasing_removes_the_l1_shrinkage(known_data) -> None:
-    model = SindyDynamics(2, 1, order=2, seed=0)
-    fit_state_data(model, *known_data, **SPARSIFY)
-    assert set(_recovered(model)) == set(TRUE_TERMS)
-    biased = _worst_relative_error(model)
-    assert biased > 0.02  # L1 alone shrinks the coefficients beyond tolerance
-    refit_active_least_squares(model, *known_data)  # closed-form debias on the same mask
-    assert set(_recovered(model)) == set(TRUE_TERMS)
-    assert _worst_relative_error(model) < 1e-4
-
-
-def test_fit_without_sparsity_for_other_models(known_data) -> None:
-    Z, U, Znext = known_data
-    model = MlpDynamics(2, 1, hidden=32)
-    result = fit_state_data(model, Z, U, Znext, epochs=60, lr=3e-3, batch_size=500)
-    assert result.n_active is None
-    assert result.losses[-1] < 0.2 * result.losses[0]
-    with pytest.raises(ValueError, match="need a SindyDynamics"):
-        fit_state_data(LinearDynamics(2, 1), Z, U, Znext, l1=1e-3)
-
-
-def test_fit_is_deterministic_for_a_seed(known_data) -> None:
-    runs = []
-    for _ in range(2):
-        model = SindyDynamics(2, 1, order=2, seed=3)
-        fit_state_data(model, *known_data, epochs=20, l1=1e-3, threshold=0.02, every=10,
-                       batch_size=256, seed=5)  # fmt: skip
-        runs.append(model.state_dict())
-    for key in runs[0]:
-        assert torch.equal(runs[0][key], runs[1][key]), key
+def test_set_coefficients_replaces_psi_and_mask() -> None:
+    model = _hand_set_model()
+    model.threshold(0.5)
+    coef = torch.zeros(12, 2, dtype=torch.float64)
+    coef[model.names.index("u0"), 0] = 0.25
+    coef[model.names.index("z0 z1"), 1] = -1.5
+    assert model.set_coefficients(coef) is model
+    assert model.n_active() == 2 and model.psi.dtype == torch.float32
+    assert model.equations() == ["z0[t+1] = z0 + 0.25 u0", "z1[t+1] = z1 - 1.5 z0 z1"]
+    mask = coef != 0
+    mask[0, 0] = True  # an active coefficient may be 0
+    model.set_coefficients(coef.float() + 1.0, mask)  # entries outside the mask are zeroed
+    assert model.n_active() == 3 and int((model.psi != 0).sum()) == 3
+    with pytest.raises(ValueError, match="set_coefficients expects"):
+        model.set_coefficients(torch.zeros(11, 2))

@@ -1,7 +1,9 @@
-"""The SINDy candidate library: pysindy's terms and names, subset evaluation, gradients."""
+"""The SINDy candidate libraries: pysindy's terms and names (polynomial, generalized and
+tensored libraries), specs and presets, subset evaluation, gradients."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -9,7 +11,22 @@ import pysindy as ps
 import pytest
 import torch
 
-from latent_sindy.sindy import CandidateLibrary
+from latent_sindy.errors import UserError
+from latent_sindy.sindy import (
+    LIBRARY_PRESETS,
+    CandidateLibrary,
+    Cosine,
+    Identity,
+    Polynomial,
+    Product,
+    SindyLibrary,
+    Sine,
+    Sum,
+    library_preset,
+    poly_library,
+    push_library,
+    spec_from_dict,
+)
 
 ORDERS = [1, 2, 3, 4]
 NZ, NU = 3, 2
@@ -130,7 +147,7 @@ def test_subset_of_polynomials_only_and_empty_subset() -> None:
     z, u = _inputs()
     lib = CandidateLibrary(NZ, NU, 2)
     sub = lib.subset([3, 1, 7])
-    assert not sub._needs_sin  # no trig features are computed for it
+    assert sub.trig == ()  # no trig features are computed for it
     torch.testing.assert_close(sub(z, u), lib(z, u)[:, [3, 1, 7]])
     sines = lib.subset([lib.n_terms - 1])  # only sin(z2)
     torch.testing.assert_close(sines(z, u)[:, 0], torch.sin(z[:, 2]))
@@ -165,3 +182,167 @@ def test_gradient_at_zero_input_is_finite_and_correct() -> None:
     # d/dz of sum(terms) at 0: only linear terms and sin contribute (1 + cos 0 = 2 per z).
     torch.testing.assert_close(z.grad, torch.full((1, 2), 2.0))
     torch.testing.assert_close(u.grad, torch.ones(1, 1))
+
+
+# ---------------------------------------------------------------- composed libraries
+
+
+def _pysindy_factors(name: str) -> list[str]:
+    """pysindy's product name -> our factor names, sorted: 'u1 sin(1 u0) 1' -> [sin(u0), u1]."""
+    return sorted(f for f in name.replace("(1 ", "(").split(" ") if f != "1")
+
+
+def test_classic_library_is_the_poly_spec() -> None:
+    for order in ORDERS:
+        lib = CandidateLibrary(NZ, NU, order, include_cosine=True)
+        assert lib.spec == poly_library(order, include_sine=True, include_cosine=True)
+        same = SindyLibrary(lib.spec, NZ, NU)
+        assert same.names == lib.names and torch.equal(same.table, lib.table)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_sum_matches_pysindy_generalized_library(order: int) -> None:
+    # Monomials of [z, u] + sin of the state + cos of one control.
+    z, u = _inputs(seed=2)
+    x = torch.cat([z, u], dim=1).numpy()
+    ref = ps.GeneralizedLibrary(
+        [ps.PolynomialLibrary(order), ps.FourierLibrary(1, include_cos=False),
+         ps.FourierLibrary(1, include_sin=False)],
+        inputs_per_library=[list(range(NZ + NU)), list(range(NZ)), [NZ + 1]],
+    ).fit(x)  # fmt: skip
+    lib = SindyLibrary(Polynomial("z,u", order) + Sine("z") + Cosine("u1"), NZ, NU)
+    assert lib.names == [n.replace("(1 ", "(") for n in ref.get_feature_names(VAR_NAMES)]
+    np.testing.assert_allclose(lib(z, u).numpy(), ref.transform(x), rtol=1e-12, atol=1e-12)
+
+
+def test_product_matches_pysindy_tensored_library() -> None:
+    # The push geometry: u1 * (sin u0, cos u0) * (1, z0, z1, z2).
+    z, u = _inputs(seed=3)
+    x = torch.cat([z, u], dim=1).numpy()
+    ref = ps.TensoredLibrary(
+        [ps.PolynomialLibrary(1, include_bias=False), ps.FourierLibrary(1),
+         ps.PolynomialLibrary(1)],
+        inputs_per_library=[[NZ + 1], [NZ], list(range(NZ))],
+    ).fit(x)  # fmt: skip
+    spec = Identity("u1") * (Sine("u0") + Cosine("u0")) * Polynomial("z", 1)
+    lib = SindyLibrary(spec, NZ, NU)
+    ref_names = ref.get_feature_names(VAR_NAMES)
+    assert [sorted(n.split(" ")) for n in lib.names] == [_pysindy_factors(n) for n in ref_names]
+    assert lib.names[:2] == ["u1 sin(u0)", "z0 u1 sin(u0)"]  # monomial factors, then trig
+    np.testing.assert_allclose(lib(z, u).numpy(), ref.transform(x), rtol=1e-12, atol=1e-12)
+
+
+def test_product_of_sums_by_hand() -> None:
+    z, u = _inputs(seed=4)
+    spec = (Identity("z0") + Sine("u1")) * (Identity("z0") + Cosine("z2")) + Sine("z1") * Sine("z1")
+    lib = SindyLibrary(spec, NZ, NU)
+    assert lib.names == [
+        "z0^2", "z0 cos(z2)", "z0 sin(u1)", "cos(z2) sin(u1)", "sin(z1)^2",
+    ]  # fmt: skip
+    want = torch.stack(
+        [z[:, 0] ** 2, z[:, 0] * torch.cos(z[:, 2]), z[:, 0] * torch.sin(u[:, 1]),
+         torch.sin(u[:, 1]) * torch.cos(z[:, 2]), torch.sin(z[:, 1]) ** 2],
+        dim=1,
+    )  # fmt: skip
+    torch.testing.assert_close(lib(z, u), want, rtol=1e-12, atol=1e-12)
+    # F's trig columns: only those some term uses, sines first, each by variable.
+    assert lib.trig == ((1, "sin"), (NZ + 1, "sin"), (2, "cos"))
+
+
+def test_plus_and_times_flatten_and_modules_combine() -> None:
+    a, b, c = Polynomial("z", 2), Sine("u"), Cosine("u0")
+    assert a + b + c == Sum((a, b, c)) == a + (b + c)
+    assert a * b * c == Product((a, b, c)) == a * (b * c)
+    z, u = _inputs(seed=5)
+    la, lb = SindyLibrary(a, NZ, NU), SindyLibrary(b, NZ, NU)
+    assert (la + lb).names == SindyLibrary(a + b, NZ, NU).names
+    torch.testing.assert_close((la * lb)(z, u), SindyLibrary(a * b, NZ, NU)(z, u))
+    with pytest.raises(ValueError, match="sizes"):
+        la + SindyLibrary(b, NZ, NU + 1)
+
+
+def test_spec_round_trips_through_json() -> None:
+    spec = push_library(order=3, angle=0, length=1) + Sine("u0,z1") * Polynomial("z", 1, False)
+    text = json.dumps(spec.to_dict())
+    back = spec_from_dict(json.loads(text))
+    assert back == spec
+    assert SindyLibrary(json.loads(text), NZ, NU).names == SindyLibrary(spec, NZ, NU).names
+    assert str(Polynomial("z,u", 2) + Sine("z")) == "poly(z,u; 2) + sin(z)"
+
+
+def test_push_preset_adds_the_push_geometry() -> None:
+    nz, nu = 4, 3
+    lib = SindyLibrary(library_preset("push", order=2, angle=1, length=2), nz, nu)
+    classic = CandidateLibrary(nz, nu, 2)
+    assert lib.names[: classic.n_terms] == classic.names
+    extra = lib.names[classic.n_terms :]
+    assert len(extra) == 2 * (nz + 1)
+    assert extra[:2] == ["u2 sin(u1)", "z0 u2 sin(u1)"] and extra[-1] == "z3 u2 cos(u1)"
+    gen = torch.Generator().manual_seed(6)
+    z, u = torch.randn(9, nz, generator=gen), torch.randn(9, nu, generator=gen)
+    theta = lib(z, u)
+    torch.testing.assert_close(
+        theta[:, lib.names.index("z3 u2 sin(u1)")], z[:, 3] * u[:, 2] * torch.sin(u[:, 1])
+    )
+    torch.testing.assert_close(
+        theta[:, lib.names.index("u2 cos(u1)")], u[:, 2] * torch.cos(u[:, 1])
+    )
+    assert set(LIBRARY_PRESETS) >= {"poly", "push"}
+    assert library_preset("poly", order=3) == poly_library(3)
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: SindyLibrary(Polynomial("z", 2) + Identity("z1"), NZ, NU), "twice"),
+        (lambda: SindyLibrary(Sine("u7"), NZ, NU), "n_control > 7"),
+        (lambda: Sine("x0"), "not valid"),
+        (lambda: Polynomial("z", 0), "degree"),
+        (lambda: Sum(()), "non-empty"),
+        (lambda: spec_from_dict({"kind": "exp", "variables": ["z"]}), "unknown"),
+        (lambda: spec_from_dict({"kind": "sin", "variables": ["z"], "degree": 2}), "unknown"),
+        (lambda: library_preset("fourier"), "unknown"),
+        (lambda: library_preset("push", angle=2, length=2), "different"),
+        (lambda: library_preset("poly", degree=2), "unexpected"),
+    ],
+)
+def test_bad_specs_are_user_errors(make, match: str) -> None:
+    with pytest.raises(UserError, match=match):
+        make()
+
+
+def _mixed_library(order: int) -> SindyLibrary:
+    """Trig of states and of controls, products of trig with monomials."""
+    spec = (
+        poly_library(order, include_sine=True, include_cosine=True)
+        + Sine("u")
+        + Identity("u1") * Cosine("u0") * Polynomial("z", 1)
+    )
+    return SindyLibrary(spec, NZ, NU)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_subset_of_a_mixed_library_equals_its_columns(order: int) -> None:
+    z, u = _inputs(seed=7)
+    lib = _mixed_library(order)
+    full = lib(z, u)
+    gen = torch.Generator().manual_seed(order)
+    idx = [*torch.randint(0, lib.n_terms, (15,), generator=gen).tolist(), -1, -NZ - 2, 0]
+    sub = lib.subset(idx)
+    assert sub.names == [lib.names[i] for i in idx]
+    assert len(sub.trig) <= len(lib.trig) and set(sub.trig) <= set(lib.trig)
+    torch.testing.assert_close(sub(z, u), full[:, idx], rtol=0, atol=0)
+    only_u = lib.subset([lib.names.index("z2 u1 cos(u0)")])
+    assert only_u.trig == ((NZ, "cos"),)
+    torch.testing.assert_close(only_u(z, u)[:, 0], z[:, 2] * u[:, 1] * torch.cos(u[:, 0]))
+
+
+@pytest.mark.parametrize("order", [1, 3])
+def test_gradients_of_a_mixed_library_pass_gradcheck(order: int) -> None:
+    lib = _mixed_library(order)
+    gen = torch.Generator().manual_seed(1)
+    z = torch.randn(3, NZ, generator=gen, dtype=torch.float64, requires_grad=True)
+    u = torch.randn(3, NU, generator=gen, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda z, u: lib(z, u), (z, u))
+    sub = lib.subset([lib.n_terms - 1, NZ + NU + 2, 3])
+    assert torch.autograd.gradcheck(lambda z, u: sub(z, u), (z, u))

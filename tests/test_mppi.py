@@ -20,6 +20,7 @@ from latent_sindy.control import (
 )
 from latent_sindy.errors import UserError
 from latent_sindy.models import SindyDynamics, make_dynamics
+from latent_sindy.sindy import Cosine, Identity, Polynomial, Sine, poly_library
 
 B = torch.tensor([[0.5, 0.1], [0.0, 0.4]])  # integrator z_{t+1} = z + B u, nz = nu = 2
 PUSH_LOW, PUSH_HIGH = (-1.0, -math.pi / 2, 0.0), (1.0, math.pi / 2, 1.0)  # the env's box
@@ -278,12 +279,22 @@ def test_sparse_active_terms_give_the_dense_actions(order: int) -> None:
     torch.testing.assert_close(runs[2], runs[0], rtol=0, atol=1e-5)
 
 
+def _trig_model(order: int, trig: str, init_scale: float) -> SindyDynamics:
+    """nz=3, nu=2 SINDy model; trig "none", "sin", "sin+cos" (of the state) or "u" (sin and cos
+    of the state, of the controls, and products of a control's cosine with u1 and the state)."""
+    if trig != "u":
+        return SindyDynamics(3, 2, order=order, seed=order, init_scale=init_scale,
+                             include_sine=trig != "none", include_cosine=trig == "sin+cos")
+    spec = (poly_library(order, include_sine=True, include_cosine=True) + Sine("u")
+            + Cosine("u1") + Identity("u1") * Cosine("u0") * Polynomial("z", 1))
+    return SindyDynamics(3, 2, library_spec=spec, seed=order, init_scale=init_scale)
+
+
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
-@pytest.mark.parametrize("trig", ["none", "sin", "sin+cos"])
+@pytest.mark.parametrize("trig", ["none", "sin", "sin+cos", "u"])
 @pytest.mark.parametrize("tau", [0.0, 0.05, 0.12, 10.0])
 def test_sparse_sindy_step_matches_the_model(order: int, trig: str, tau: float) -> None:
-    model = SindyDynamics(3, 2, order=order, seed=order, init_scale=0.1,
-                          include_sine=trig != "none", include_cosine=trig == "sin+cos")
+    model = _trig_model(order, trig, init_scale=0.1)
     model.threshold(tau)
     step = SparseSindyStep(model)
     gen = torch.Generator().manual_seed(0)
@@ -297,13 +308,16 @@ def test_sparse_sindy_step_matches_the_model(order: int, trig: str, tau: float) 
 
 
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
-@pytest.mark.parametrize("trig", ["none", "sin+cos"])
+@pytest.mark.parametrize("trig", ["none", "sin+cos", "u"])
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_sparse_sindy_rollout_matches_the_model(order: int, trig: str, dtype) -> None:
     # K = 1100 spans two full kernel blocks and a partial one; z0 is one state expanded, as
     # MPPI passes it; the actions are a strided view.
-    model = SindyDynamics(3, 2, order=order, seed=order, init_scale=0.05,
-                          include_sine=trig != "none", include_cosine=trig == "sin+cos")
+    model = _trig_model(order, trig, init_scale=0.05)
+    if trig == "u":  # make sure terms with trig of a control stay active
+        with torch.no_grad():
+            for j, name in enumerate(("sin(u0)", "cos(u1)", "z2 u1 cos(u0)")):
+                model.psi[model.names.index(name), j] = 0.05
     model.threshold(0.02)
     model = model.to(dtype)
     step = SparseSindyStep(model)

@@ -33,8 +33,9 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_shift, bias, terms, degree
     """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j).
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
-    repeats one start state); out (H, nz, K). Feature row nz + nu + i is
-    sin(z[trig_var[i]] + trig_shift[i]) (shift π/2: a cosine). terms (S, order): feature
+    repeats one start state); out (H, nz, K). Feature rows are [z, u, trig]: row nz + nu + i
+    is sin(feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz) or an action, and a
+    cosine for shift π/2. terms (S, order): feature
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
     the first product level to recompute (lower levels are shared with term s-1); the nonzero
     coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].

@@ -9,13 +9,14 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
     out_i = z_i + b_i + Σ_{(s, i, c) ∈ nnz(C_S)} c · θ_s,   θ_s = Π_k F[term_s[k]]
 
-with F = [z, u, sin z, cos z] for the block (only the sines and cosines some term uses,
-from the kernel's own vectorisable sine) and b the constant term's coefficients. Terms are
-sorted lexicographically so a term reuses its predecessor's partial product over their
-common prefix (x0 x1 x2 after x0 x1: one multiply). Everything runs feature-major (nz, K):
-``step`` returns a transposed view, so the next step's input is contiguous again, and
-``rollout`` a permuted one. Results equal the model's own step to float rounding (checked on
-a probe batch when the step is built; tested for orders 1-4).
+with F = [z, u, trig] for the block (only the sines and cosines some term uses, of states
+or of actions, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2)
+and b the constant term's coefficients. Terms are sorted lexicographically so a term reuses
+its predecessor's partial product over their common prefix (x0 x1 x2 after x0 x1: one
+multiply). Everything runs feature-major (nz, K): ``step`` returns a transposed view, so the
+next step's input is contiguous again, and ``rollout`` a permuted one. Results equal the
+model's own step to float rounding (checked on a probe batch when the step is built; tested
+for orders 1-4 and libraries with trig of states and of actions).
 
 On devices other than the CPU the model's sparse torch step runs instead.
 
@@ -72,14 +73,18 @@ class SparseSindyStep:
         self._sparse = sparse
         nz, nu = sparse.nz, sparse.nu
         self.nz, self.nu = nz, nu
-        one = nz + nu  # library feature layout: [z, u, 1, sin z, cos z]
-        table = sparse.library.table.cpu()  # (|S|, order)
+        # The library's feature layout: [z, u, 1, trig...], trig column k being
+        # library.trig[k] = (index into [z, u], "sin" | "cos").
+        one = nz + nu
+        library = sparse.library
+        table = library.table.cpu()  # (|S|, width)
         coef = sparse.coef.detach().cpu().double()  # (|S|, nz)
         self.n_terms = int(table.shape[0])
-        # Our features drop the constant and keep only the trig rows some term uses.
+        # Our features drop the constant and keep only the trig columns some term uses.
         trig_rows = sorted({int(i) for i in table.flatten() if i > one})
-        trig_var = np.array([(r - one - 1) % nz for r in trig_rows], dtype=np.int64)
-        trig_shift = np.array([0.0 if r - one - 1 < nz else np.pi / 2 for r in trig_rows])
+        trig = [library.trig[r - one - 1] for r in trig_rows]
+        trig_var = np.array([var for var, _ in trig], dtype=np.int64)
+        trig_shift = np.array([0.0 if kind == "sin" else np.pi / 2 for _, kind in trig])
         remap = {r: one + k for k, r in enumerate(trig_rows)} | {i: i for i in range(one)}
         products = [tuple(sorted(remap[int(i)] for i in row if i != one)) for row in table]
         bias = torch.zeros(nz, dtype=torch.float64)
@@ -174,5 +179,5 @@ class SparseSindyStep:
             raise RuntimeError(
                 "SparseSindyStep disagrees with SparseSindyDynamics.step (max difference "
                 f"{float((want - got).abs().max()):.3g}): the library's feature layout "
-                "[z, u, 1, sin z, cos z] has changed; update latent_sindy/control/sindy_step.py"
+                "[z, u, 1, trig...] has changed; update latent_sindy/control/sindy_step.py"
             )

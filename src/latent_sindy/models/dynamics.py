@@ -11,11 +11,15 @@ Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p libr
     >>> model = SindyConfig(order=2).build(nz=16, nu=3)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
     >>> fast = model.compile_sparse()  # same step, only the active library terms
+    >>> from latent_sindy.sindy import push_library  # any composed library spec
+    >>> push = make_dynamics("sindy", nz=16, nu=3, library_spec=push_library(order=2))
+    >>> push.fit_state_data(Z, U, Znext)  # sparse regression (STLSQ) on states: (N, nz), ...
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Union
 
@@ -24,7 +28,16 @@ import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
-from latent_sindy.sindy.library import VALID_ORDERS, CandidateLibrary, LibrarySubset
+from latent_sindy.sindy import fit as sindy_fit
+from latent_sindy.sindy.library import (
+    VALID_ORDERS,
+    CandidateLibrary,
+    LibrarySpec,
+    LibrarySubset,
+    SindyLibrary,
+    spec_from_dict,
+)
+from latent_sindy.sindy.optimizers import STLSQ
 
 __all__ = [
     "DYNAMICS_CONFIGS",
@@ -142,14 +155,19 @@ class SindyDynamics(LatentDynamics):
 
     Args:
         nz, nu: latent and action sizes.
-        order: polynomial order of the library (1-4).
-        include_sine, include_cosine: add sin(z_i) / cos(z_i) candidates.
+        order: polynomial order of the classic library (1-4).
+        include_sine, include_cosine: add sin(z_i) / cos(z_i) candidates to it.
         init_scale: standard deviation of the normal initialisation of Ψ.
         seed: seed for that initialisation; None draws from the global torch generator.
+        library_spec: any library instead of the classic one: a
+            :data:`~latent_sindy.sindy.library.LibrarySpec` or its ``to_dict()`` form (e.g.
+            ``push_library(order=2, angle=1, length=2)``); then leave ``order``,
+            ``include_sine`` and ``include_cosine`` at their defaults.
     """
 
     kind = "sindy"
     mask: torch.Tensor  # (p, nz) bool
+    library: SindyLibrary
 
     def __init__(
         self,
@@ -160,20 +178,27 @@ class SindyDynamics(LatentDynamics):
         include_cosine: bool = False,
         init_scale: float = 1e-3,
         seed: int | None = None,
+        library_spec: LibrarySpec | Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__(nz, nu)
-        self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
+        init: dict[str, Any]
+        if library_spec is None:
+            self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
+            init = {"order": order, "include_sine": include_sine, "include_cosine": include_cosine}
+        else:
+            if (order, include_sine, include_cosine) != (2, True, False):
+                raise ValueError(
+                    f"SindyDynamics got library_spec and order={order}, include_sine="
+                    f"{include_sine}, include_cosine={include_cosine}: put the polynomial "
+                    "order and trig terms in the spec (e.g. poly_library(order, ...)) instead"
+                )
+            self.library = SindyLibrary(spec_from_dict(library_spec), nz, nu)
+            init = {"library_spec": self.library.spec.to_dict()}
         p = self.library.n_terms
         gen = None if seed is None else torch.Generator().manual_seed(seed)
         self.psi = nn.Parameter(torch.randn(p, nz, generator=gen) * init_scale)  # (p, nz)
         self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
-        self._init = {
-            "order": order,
-            "include_sine": include_sine,
-            "include_cosine": include_cosine,
-            "init_scale": init_scale,
-            "seed": seed,
-        }
+        self._init = {**init, "init_scale": init_scale, "seed": seed}
 
     @property
     def names(self) -> list[str]:
@@ -204,6 +229,45 @@ class SindyDynamics(LatentDynamics):
         self.mask &= ~newly
         self.psi.masked_fill_(~self.mask, 0.0)
         return int(newly.sum())
+
+    @torch.no_grad()
+    def set_coefficients(
+        self, coef: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> SindyDynamics:
+        """Set Ψ = ``coef`` (p, nz) and M = ``mask`` (p, nz) bool, default ``coef != 0``;
+        returns ``self``. Unlike :meth:`threshold` this replaces the mask (it may turn terms
+        back on); Ψ is set to 0 where the mask is off."""
+        coef = torch.as_tensor(coef)
+        mask = coef != 0 if mask is None else torch.as_tensor(mask)
+        if coef.shape != self.psi.shape or mask.shape != self.mask.shape:
+            raise ValueError(
+                f"set_coefficients expects coef and mask of shape {tuple(self.psi.shape)} "
+                f"(terms, nz), got {tuple(coef.shape)} and {tuple(mask.shape)}"
+            )
+        self.mask.copy_(mask.to(self.mask.device, torch.bool))
+        self.psi.copy_(coef.to(self.psi.device, self.psi.dtype))
+        self.psi.masked_fill_(~self.mask, 0.0)
+        return self
+
+    def fit_state_data(
+        self,
+        Z: torch.Tensor,
+        U: torch.Tensor,
+        Znext: torch.Tensor,
+        optimizer: STLSQ | None = None,
+        restrict_to_mask: bool = False,
+    ) -> SindyDynamics:
+        """Fit Ψ and M to transitions by sparse regression; returns ``self``.
+
+        ``Znext − Z = Θ(Z, U) (M ⊙ Ψ)`` is linear in Ψ: ``optimizer`` (default ``STLSQ()``,
+        fitted in place, so pass one to read its ``n_iter_`` etc.) solves it in closed form.
+        Z (N, nz), U (N, nu), Znext (N, nz). With ``restrict_to_mask`` only terms the current
+        mask allows may be active (``STLSQ(threshold=0)`` then refits them by least squares).
+        """
+        opt = sindy_fit.fit_state_data(
+            self.library, Z, U, Znext, optimizer, mask=self.mask if restrict_to_mask else None
+        )
+        return self.set_coefficients(opt.coef_, opt.mask_)
 
     def l1_penalty(self) -> torch.Tensor:
         """‖M ⊙ Ψ‖₁, a scalar tensor with gradient."""
@@ -243,18 +307,14 @@ class SindyDynamics(LatentDynamics):
 
     def summary(self) -> list[str]:
         p, nz = self.mask.shape
-        lib = self.library
-        trig = " with sin(z)" if lib.include_sine else ""
-        trig += " and cos(z)" if lib.include_cosine else ""
-        return [f"SINDy latent dynamics, library order {lib.order}{trig} ({p} candidate terms "
+        return [f"SINDy latent dynamics, library {self.library.spec} ({p} candidate terms "
                 f"x {nz} states), z[t+1] = z + Θ(z, u) (M ⊙ Ψ)",
                 f"active coefficients: {self.n_active()} of {p * nz} (sparsity "
                 f"{100 * self.sparsity():.1f}%); terms used by some state: "
                 f"{int(self.mask.any(dim=1).sum())} of {p}"]
 
     def export_info(self) -> dict[str, Any]:
-        return {"order": self.library.order, "include_sine": self.library.include_sine,
-                "include_cosine": self.library.include_cosine, "n_active": self.n_active(),
+        return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
                 "n_coefficients": self.mask.numel(), "sparsity": self.sparsity(),
                 "terms": self.names}
 

@@ -1,58 +1,419 @@
-"""Differentiable SINDy candidate library Θ(z, u) in torch, with sparse (active-term) evaluation.
+"""Differentiable SINDy candidate libraries Θ(z, u) in torch, composed from small parts.
 
-The library holds the candidate functions a SINDy model combines linearly: every monomial of
-the concatenated variables ``[z0 .. z_{nz-1}, u0 .. u_{nu-1}]`` up to ``order`` (constant
-included), in the same order and with the same names as
-``pysindy.PolynomialLibrary(degree=order, include_bias=True)``, then ``sin(z_i)`` (and
-optionally ``cos(z_i)``) of the state variables only.
+A library is described by a *spec*, a small frozen dataclass tree that is independent of the
+model's sizes and serialises to JSON (:meth:`to_dict` / :func:`spec_from_dict`):
 
-Every term, the sines included, is stored as one row of an integer table of at most ``order``
-indices into a feature vector ``F = [z, u, 1, sin z, cos z]``; a term is the product of the
-features its row names (unused slots point at the constant ``1``). Evaluation is one gather
-and multiply per slot, so the hot path has no Python loop over terms, and evaluating a subset
-of terms is the same code on a subset of the rows.
+* :class:`Polynomial` ``(variables, degree, bias)``: every monomial of the variables up to
+  ``degree`` (the constant ``1`` when ``bias``), in the order and with the names of
+  ``pysindy.PolynomialLibrary``;
+* :class:`Sine`, :class:`Cosine` ``(variables)``: ``sin(x)`` / ``cos(x)`` of each variable;
+* :class:`Identity` ``(variables)``: the variables themselves;
+* ``a + b`` (:class:`Sum`): the terms of ``a``, then those of ``b``;
+* ``a * b`` (:class:`Product`): every product of a term of ``a`` with a term of ``b``
+  (row-major: for each term of ``a``, every term of ``b``).
 
-    >>> lib = CandidateLibrary(n_state=16, n_control=3, order=2)
-    >>> lib.n_terms
+Variables are named ``z0 .. z{nz-1}`` (state) and ``u0 .. u{nu-1}`` (control); ``"z"`` and
+``"u"`` stand for the whole group. :class:`SindyLibrary` builds the torch module for given
+sizes; :class:`CandidateLibrary` is the classic library (monomials of ``[z, u]`` up to
+``order``, then ``sin(z)``, optionally ``cos(z)``), and :data:`LIBRARY_PRESETS` names specs.
+
+Every term is one row of an integer table of feature indices into the feature vector
+``F = [z, u, 1, sin(x_a), .., cos(x_b), ..]`` (``x = [z, u]``; the trig columns are listed in
+``trig`` as ``(variable index, "sin" | "cos")``, sines first); a term is the product of the
+features its row names, shorter rows padded with the constant. Evaluation is one gather and
+multiply per table column, so the hot path has no Python loop over terms, and a subset of
+terms is the same code on a subset of the rows. Term names follow pysindy: ``1``, ``z0 u2``,
+``z3^2``, ``sin(z1)``, ``u2 cos(u1)`` (monomial factors first, by variable, then trig ones).
+
+    >>> spec = Polynomial("z,u", degree=2) + Sine("z") + Identity("u2") * Cosine("u1")
+    >>> lib = SindyLibrary(spec, n_state=16, n_control=3)
+    >>> lib.n_terms, lib.names[-1]
+    (227, 'u2 cos(u1)')
+    >>> theta = lib(torch.zeros(5, 16), torch.zeros(5, 3))  # (5, 227)
+    >>> CandidateLibrary(n_state=16, n_control=3, order=2).n_terms
     226
-    >>> theta = lib(torch.zeros(5, 16), torch.zeros(5, 3))  # (5, 226)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import numbers
-from collections.abc import Sequence
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import torch
 from torch import nn
 
-__all__ = ["VALID_ORDERS", "CandidateLibrary", "LibrarySubset"]
+from latent_sindy.errors import UserError
+
+__all__ = [
+    "LIBRARY_PRESETS",
+    "VALID_ORDERS",
+    "CandidateLibrary",
+    "Cosine",
+    "Identity",
+    "LibrarySpec",
+    "LibrarySubset",
+    "Polynomial",
+    "Product",
+    "SindyLibrary",
+    "Sine",
+    "Sum",
+    "library_preset",
+    "poly_library",
+    "push_library",
+    "spec_from_dict",
+]
 
 VALID_ORDERS = (1, 2, 3, 4)
 
 TermIndex = Sequence[int] | torch.Tensor
 
+# A factor of a term: (variable index into x = [z, u], function); a term is a sorted tuple.
+_IDENTITY, _SIN, _COS = 0, 1, 2
+_FN_NAMES = {_SIN: "sin", _COS: "cos"}
+_Factor = tuple[int, int]
+_Term = tuple[_Factor, ...]
 
-def _monomial_name(variables: tuple[int, ...], var_names: Sequence[str]) -> str:
-    """pysindy's name of the monomial multiplying ``variables`` (sorted, repeats allowed)."""
-    if not variables:
+_VARIABLE = re.compile(r"^([zu])(\d+)?$")
+
+
+def _factor_key(f: _Factor) -> tuple[int, int, int]:
+    """Monomial factors first by variable, then trig factors by variable, sine before cosine."""
+    return (f[1] != _IDENTITY, f[0], f[1])
+
+
+def _trig_order(f: _Factor) -> tuple[int, int]:
+    """Trig columns of F: sines first, each by variable."""
+    return (f[1], f[0])
+
+
+def _canonical(factors: Sequence[_Factor]) -> _Term:
+    return tuple(sorted(factors, key=_factor_key))
+
+
+# ---------------------------------------------------------------- specs
+
+
+def _as_variables(value: str | Sequence[str]) -> tuple[str, ...]:
+    """``"z,u"``, ``"z u1"`` or ``("z", "u1")`` -> ``("z", "u1")``, names checked."""
+    names = tuple(re.split(r"[,\s]+", value.strip())) if isinstance(value, str) else tuple(value)
+    if not names or names == ("",):
+        raise UserError("a library part needs at least one variable: name e.g. 'z', 'u' or 'u1'")
+    for name in names:
+        if not isinstance(name, str) or not _VARIABLE.match(name):
+            raise UserError(
+                f"library variable {name!r} is not valid: use 'z' or 'u' (the whole group), "
+                "or one variable such as 'z3' or 'u1'"
+            )
+    return names
+
+
+class _SpecOps:
+    """``+`` and ``*`` for every spec; subclasses are frozen dataclasses with a ``kind``."""
+
+    kind: ClassVar[str]
+
+    def __add__(self, other: LibrarySpec) -> Sum:
+        if not isinstance(other, _SpecOps):
+            return NotImplemented
+        return Sum((*_summands(self), *_summands(other)))  # type: ignore[arg-type]
+
+    def __mul__(self, other: LibrarySpec) -> Product:
+        if not isinstance(other, _SpecOps):
+            return NotImplemented
+        return Product((*_multiplicands(self), *_multiplicands(other)))  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict that :func:`spec_from_dict` turns back into this spec."""
+        out: dict[str, Any] = {"kind": self.kind}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            if isinstance(value, tuple) and value and isinstance(value[0], _SpecOps):
+                out[f.name] = [v.to_dict() for v in value]
+            elif isinstance(value, tuple):
+                out[f.name] = list(value)
+            else:
+                out[f.name] = value
+        return out
+
+
+@dataclass(frozen=True)
+class _Group(_SpecOps):
+    """A leaf over a group of variables."""
+
+    variables: tuple[str, ...] = ("z",)
+    """Variable names: ``"z"``/``"u"`` (all states / controls) or ``"z3"``, ``"u1"``; a string
+    ``"z,u"`` is split."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "variables", _as_variables(self.variables))
+
+    def __str__(self) -> str:
+        return f"{self.kind}({','.join(self.variables)})"
+
+
+@dataclass(frozen=True)
+class Polynomial(_Group):
+    """Monomials of ``variables`` of degree 1 to ``degree``, after the constant if ``bias``."""
+
+    kind: ClassVar[str] = "poly"
+    variables: tuple[str, ...] = ("z", "u")
+    degree: int = 2
+    """Highest total degree (at least 1)."""
+    bias: bool = True
+    """Start with the constant term ``1``."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if (
+            isinstance(self.degree, bool)
+            or not isinstance(self.degree, numbers.Integral)
+            or (self.degree < 1)
+        ):
+            raise UserError(
+                f"polynomial library degree {self.degree!r} is not valid: use an integer >= 1"
+            )
+        object.__setattr__(self, "degree", int(self.degree))
+        object.__setattr__(self, "bias", bool(self.bias))
+
+    def __str__(self) -> str:
+        bias = "" if self.bias else ", no bias"
+        return f"poly({','.join(self.variables)}; {self.degree}{bias})"
+
+
+@dataclass(frozen=True)
+class Sine(_Group):
+    """``sin(x)`` of every variable ``x`` of ``variables``."""
+
+    kind: ClassVar[str] = "sin"
+
+
+@dataclass(frozen=True)
+class Cosine(_Group):
+    """``cos(x)`` of every variable ``x`` of ``variables``."""
+
+    kind: ClassVar[str] = "cos"
+
+
+@dataclass(frozen=True)
+class Identity(_Group):
+    """The variables themselves (degree-1 monomials, no constant)."""
+
+    kind: ClassVar[str] = "identity"
+    variables: tuple[str, ...] = ("u",)
+
+
+@dataclass(frozen=True)
+class Sum(_SpecOps):
+    """Concatenation: the terms of every part, in order (``a + b``)."""
+
+    kind: ClassVar[str] = "sum"
+    parts: tuple[LibrarySpec, ...]
+
+    def __post_init__(self) -> None:
+        _check_children(self, "parts", "sum")
+
+    def __str__(self) -> str:
+        return " + ".join(str(p) for p in self.parts)
+
+
+@dataclass(frozen=True)
+class Product(_SpecOps):
+    """Tensor product: every product of one term of each factor (``a * b``), row-major."""
+
+    kind: ClassVar[str] = "product"
+    factors: tuple[LibrarySpec, ...]
+
+    def __post_init__(self) -> None:
+        _check_children(self, "factors", "product")
+
+    def __str__(self) -> str:
+        return " * ".join(f"({f})" if isinstance(f, Sum) else str(f) for f in self.factors)
+
+
+LibrarySpec = Polynomial | Sine | Cosine | Identity | Sum | Product
+_LEAVES: dict[str, type[_Group]] = {c.kind: c for c in (Polynomial, Sine, Cosine, Identity)}
+
+
+def _check_children(spec: Sum | Product, field: str, what: str) -> None:
+    children = getattr(spec, field)
+    if isinstance(children, list):
+        object.__setattr__(spec, field, children := tuple(children))
+    if not isinstance(children, tuple) or not children:
+        raise UserError(f"a library {what} needs a non-empty tuple of parts, got {children!r}")
+    for c in children:
+        if not isinstance(c, _SpecOps):
+            raise UserError(f"a library {what} holds specs such as Polynomial(...), got {c!r}")
+
+
+def _summands(spec: _SpecOps) -> tuple[LibrarySpec, ...]:
+    return spec.parts if isinstance(spec, Sum) else (spec,)  # type: ignore[return-value]
+
+
+def _multiplicands(spec: _SpecOps) -> tuple[LibrarySpec, ...]:
+    return spec.factors if isinstance(spec, Product) else (spec,)  # type: ignore[return-value]
+
+
+def spec_from_dict(d: Mapping[str, Any] | LibrarySpec) -> LibrarySpec:
+    """Rebuild a spec from :meth:`to_dict` output (a spec is returned as it is)."""
+    if isinstance(d, _SpecOps):
+        return d  # type: ignore[return-value]
+    if not isinstance(d, Mapping) or "kind" not in d:
+        raise UserError(f"a library spec is a dict with a 'kind' key, got {d!r}")
+    fields = {k: v for k, v in d.items() if k != "kind"}
+    kind = d["kind"]
+    if kind in ("sum", "product"):
+        key = "parts" if kind == "sum" else "factors"
+        if set(fields) != {key} or not isinstance(fields[key], Sequence):
+            raise UserError(f"a library {kind} spec has exactly one list field {key!r}, got {d!r}")
+        children = tuple(spec_from_dict(c) for c in fields[key])
+        return Sum(children) if kind == "sum" else Product(children)
+    cls = _LEAVES.get(kind)
+    if cls is None:
+        kinds = ", ".join([*_LEAVES, "sum", "product"])
+        raise UserError(f"library part kind {kind!r} is unknown: use one of {kinds}")
+    allowed = {f.name for f in dataclasses.fields(cls)}
+    if set(fields) - allowed:
+        raise UserError(
+            f"library part {kind!r} has unknown fields {sorted(set(fields) - allowed)}: "
+            f"allowed {sorted(allowed)}"
+        )
+    if "variables" in fields and not isinstance(fields["variables"], str):
+        fields["variables"] = tuple(fields["variables"])
+    return cls(**fields)  # type: ignore[return-value]
+
+
+# ---------------------------------------------------------------- presets
+
+
+def poly_library(
+    order: int = 2, include_sine: bool = True, include_cosine: bool = False
+) -> LibrarySpec:
+    """The classic library: monomials of ``[z, u]`` up to ``order`` with the constant, then
+    ``sin(z)`` and ``cos(z)`` if asked (what :class:`CandidateLibrary` builds)."""
+    spec: LibrarySpec = Polynomial(("z", "u"), order, bias=True)
+    if include_sine:
+        spec = spec + Sine("z")
+    if include_cosine:
+        spec = spec + Cosine("z")
+    return spec
+
+
+def push_library(
+    order: int = 2, angle: int = 1, length: int = 2, include_sine: bool = True
+) -> LibrarySpec:
+    """:func:`poly_library` plus the push's geometry: the push length times the sine and the
+    cosine of the push angle, alone and times each state variable.
+
+    ``angle`` and ``length`` are the action indices of the angle (radians) and the length:
+    with the defaults the extra terms are ``u2 sin(u1)``, ``z0 u2 sin(u1)``, ..,
+    ``u2 cos(u1)``, ``z0 u2 cos(u1)``, .. (2 (nz + 1) terms).
+    """
+    if angle == length or min(angle, length) < 0:
+        raise UserError(
+            f"push library: angle index {angle} and length index {length} must be different "
+            "action indices >= 0"
+        )
+    direction = Sine(f"u{angle}") + Cosine(f"u{angle}")
+    push = Identity(f"u{length}") * direction * Polynomial("z", 1, bias=True)
+    return poly_library(order, include_sine) + push
+
+
+#: Named spec builders; their keyword arguments are the preset's parameters.
+LIBRARY_PRESETS: dict[str, Callable[..., LibrarySpec]] = {
+    "poly": poly_library,
+    "push": push_library,
+}
+
+
+def library_preset(name: str, **params: Any) -> LibrarySpec:
+    """The spec of preset ``name`` (see :data:`LIBRARY_PRESETS`) with ``params``."""
+    try:
+        build = LIBRARY_PRESETS[name]
+    except KeyError:
+        raise UserError(
+            f"library preset {name!r} is unknown: use one of {', '.join(LIBRARY_PRESETS)}"
+        ) from None
+    try:
+        return build(**params)
+    except TypeError as e:
+        raise UserError(f"library preset {name!r}: {e}") from None
+
+
+# ---------------------------------------------------------------- terms of a spec
+
+
+def _resolve(names: tuple[str, ...], n_state: int, n_control: int) -> list[int]:
+    """Variable names -> sorted, distinct indices into x = [z, u]."""
+    out: set[int] = set()
+    for name in names:
+        m = _VARIABLE.match(name)
+        assert m is not None  # checked when the spec was made
+        group, idx = m.group(1), m.group(2)
+        size, offset = (n_state, 0) if group == "z" else (n_control, n_state)
+        if idx is None:
+            out.update(range(offset, offset + size))
+        elif int(idx) < size:
+            out.add(offset + int(idx))
+        else:
+            what = "n_state" if group == "z" else "n_control"
+            raise UserError(
+                f"library variable {name} needs {what} > {idx}, but the model has {what}={size}: "
+                f"use a variable below {group}{size}"
+            )
+    return sorted(out)
+
+
+def _spec_terms(spec: LibrarySpec, n_state: int, n_control: int) -> list[_Term]:
+    if isinstance(spec, Sum):
+        return [t for part in spec.parts for t in _spec_terms(part, n_state, n_control)]
+    if isinstance(spec, Product):
+        terms: list[_Term] = [()]
+        for factor in spec.factors:
+            right = _spec_terms(factor, n_state, n_control)
+            terms = [_canonical(a + b) for a in terms for b in right]
+        return terms
+    variables = _resolve(spec.variables, n_state, n_control)
+    if isinstance(spec, Polynomial):
+        # pysindy's order: by degree, then itertools.combinations_with_replacement.
+        return [
+            tuple((v, _IDENTITY) for v in combo)
+            for degree in range(0 if spec.bias else 1, spec.degree + 1)
+            for combo in itertools.combinations_with_replacement(variables, degree)
+        ]
+    fn = {"sin": _SIN, "cos": _COS, "identity": _IDENTITY}[spec.kind]
+    return [((v, fn),) for v in variables]
+
+
+def _term_name(term: _Term, var_names: Sequence[str]) -> str:
+    """pysindy's name: ``1``, ``z0^2 u1``, ``u2 sin(u1)``, ``sin(z0)^2``."""
+    if not term:
         return "1"
     parts = []
-    for var, group in itertools.groupby(variables):
+    for (var, fn), group in itertools.groupby(term):
         power = len(list(group))
-        parts.append(var_names[var] if power == 1 else f"{var_names[var]}^{power}")
+        base = var_names[var] if fn == _IDENTITY else f"{_FN_NAMES[fn]}({var_names[var]})"
+        parts.append(base if power == 1 else f"{base}^{power}")
     return " ".join(parts)
 
 
-class _ProductTerms(nn.Module):
-    """Terms given as rows of feature indices; evaluates their products.
+# ---------------------------------------------------------------- torch modules
 
-    Subclasses set ``table`` (p, width) long buffer, ``names`` and the flags saying whether any
-    row uses a sine or cosine feature (so a subset without them skips computing them).
+
+class _ProductTerms(nn.Module):
+    """Terms given as rows of feature indices into F = [z, u, 1, trig...]; evaluates them.
+
+    ``table`` (p, width) long buffer; ``trig`` lists the trig columns of F after the constant
+    as ``(variable index into [z, u], "sin" | "cos")``, sines first.
     """
 
     table: torch.Tensor  # (p, width) indices into the feature vector F
+    _sin_idx: torch.Tensor  # (n_sin,) indices into [z, u]
+    _cos_idx: torch.Tensor  # (n_cos,)
 
     def __init__(
         self,
@@ -60,24 +421,34 @@ class _ProductTerms(nn.Module):
         n_control: int,
         table: torch.Tensor,
         names: list[str],
+        trig: Sequence[tuple[int, str]],
     ) -> None:
         super().__init__()
         self.n_state = n_state
         self.n_control = n_control
         self.register_buffer("table", table, persistent=False)
         self.names = names
+        self.trig: tuple[tuple[int, str], ...] = tuple(trig)
+        kinds = [k for _, k in self.trig]
+        if kinds != sorted(kinds, reverse=True) or not set(kinds) <= {"sin", "cos"}:
+            raise ValueError(f"trig columns must be sines then cosines, got {self.trig}")
+        sin_idx = [v for v, k in self.trig if k == "sin"]
+        cos_idx = [v for v, k in self.trig if k == "cos"]
+        self.register_buffer("_sin_idx", torch.tensor(sin_idx, dtype=torch.long), persistent=False)
+        self.register_buffer("_cos_idx", torch.tensor(cos_idx, dtype=torch.long), persistent=False)
         self._one = n_state + n_control  # column of F holding the constant 1
-        self._sin0 = self._one + 1  # first sine column
-        self._cos0 = self._sin0 + n_state  # first cosine column
-        self._needs_sin = bool(((table >= self._sin0) & (table < self._cos0)).any())
-        self._needs_cos = bool((table >= self._cos0).any())
 
     @property
     def n_terms(self) -> int:
         return int(self.table.shape[0])
 
+    @property
+    def n_features(self) -> int:
+        """Columns of F = [z, u, 1, trig...]."""
+        return self._one + 1 + len(self.trig)
+
     def _features(self, z: torch.Tensor, u: torch.Tensor | None) -> torch.Tensor:
-        """F = [z, u, 1, sin z, cos z]: (..., nz + nu + 1 + nz [+ nz])."""
+        """F = [z, u, 1, sin(x[sin_idx]), cos(x[cos_idx])]: (..., n_features)."""
         if z.shape[-1] != self.n_state:
             raise ValueError(
                 f"library expects z with last dimension n_state={self.n_state}, "
@@ -93,19 +464,22 @@ class _ProductTerms(nn.Module):
                 )
             parts.append(u.to(z.dtype))
         parts.append(z.new_ones((*z.shape[:-1], 1)))
-        # A table never points past the columns built here (sines before cosines).
-        if self._needs_sin or self._needs_cos:
-            parts.append(torch.sin(z))
-        if self._needs_cos:
-            parts.append(torch.cos(z))
-        return torch.cat(parts, dim=-1)
+        base = torch.cat(parts, dim=-1)  # (..., nz + nu + 1)
+        if not self.trig:
+            return base
+        trig = [base]
+        if self._sin_idx.numel():
+            trig.append(torch.sin(base.index_select(-1, self._sin_idx)))
+        if self._cos_idx.numel():
+            trig.append(torch.cos(base.index_select(-1, self._cos_idx)))
+        return torch.cat(trig, dim=-1)
 
     def _evaluate(
         self, z: torch.Tensor, u: torch.Tensor | None, table: torch.Tensor
     ) -> torch.Tensor:
         feats = self._features(z, u)  # (..., n_features)
         out = feats.index_select(-1, table[:, 0])  # (..., p)
-        for k in range(1, table.shape[1]):  # at most order - 1 iterations
+        for k in range(1, table.shape[1]):  # at most width - 1 iterations
             out = out * feats.index_select(-1, table[:, k])
         return out
 
@@ -118,84 +492,80 @@ class _ProductTerms(nn.Module):
 
 
 class LibrarySubset(_ProductTerms):
-    """The chosen terms of a :class:`CandidateLibrary`, in the chosen order.
+    """The chosen terms of a :class:`SindyLibrary`, in the chosen order.
 
-    ``subset(idx)(z, u)`` equals ``library(z, u)[..., idx]`` but computes only those terms.
+    ``subset(idx)(z, u)`` equals ``library(z, u)[..., idx]`` but computes only those terms
+    (and only the trig features they use).
     """
 
-    def __init__(self, parent: CandidateLibrary, terms: torch.Tensor) -> None:
+    terms: torch.Tensor  # (p_sub,) indices into the parent's terms
+
+    def __init__(self, parent: SindyLibrary, terms: torch.Tensor) -> None:
+        rows = parent.table.index_select(0, terms.to(parent.table.device)).cpu()
+        one = parent.n_state + parent.n_control
+        used = sorted({int(c) for c in rows.flatten() if c > one})  # trig columns used
+        remap = torch.arange(parent.n_features)
+        remap[used] = torch.arange(one + 1, one + 1 + len(used))
         super().__init__(
             parent.n_state,
             parent.n_control,
-            parent.table.index_select(0, terms.to(parent.table.device)).clone(),
+            remap[rows].to(parent.table.device),
             [parent.names[i] for i in terms.tolist()],
+            [parent.trig[c - one - 1] for c in used],
         )
-        self.register_buffer("terms", terms.clone(), persistent=False)  # (p_sub,) parent indices
+        self.register_buffer("terms", terms.clone(), persistent=False)
 
 
-class CandidateLibrary(_ProductTerms):
-    """Candidate functions Θ(z, u) for SINDy: monomials of [z, u] up to ``order``, then sin(z).
+class SindyLibrary(_ProductTerms):
+    """The torch library of a spec for ``n_state`` states and ``n_control`` controls.
 
     Args:
-        n_state: nz, number of state (latent) variables, named ``z0 .. z{nz-1}``.
-        n_control: nu, number of control inputs, named ``u0 .. u{nu-1}`` (may be 0).
-        order: highest total degree of the monomials, one of 1, 2, 3, 4.
-        include_sine: append ``sin(z_i)`` for every state variable.
-        include_cosine: append ``cos(z_i)`` for every state variable (after the sines).
+        spec: a :data:`LibrarySpec` (or its :meth:`to_dict` form).
+        n_state: nz, state variables ``z0 .. z{nz-1}``.
+        n_control: nu, control inputs ``u0 .. u{nu-1}`` (may be 0).
 
     Attributes:
-        names: term names in column order, pysindy style (``1``, ``z0 u2``, ``z3^2``,
-            ``sin(z1)``).
+        spec: the spec (rebuilds this library with the same sizes).
+        names: term names in column order, pysindy style.
         n_terms: p, the number of columns of Θ.
+        trig: ``(variable index into [z, u], "sin" | "cos")`` of F's trig columns.
+
+    Raises:
+        UserError: a variable beyond the sizes, or a term that appears twice.
     """
 
-    def __init__(
-        self,
-        n_state: int,
-        n_control: int,
-        order: int,
-        include_sine: bool = True,
-        include_cosine: bool = False,
-    ) -> None:
-        if (
-            isinstance(order, bool)
-            or not isinstance(order, numbers.Integral)
-            or (order not in VALID_ORDERS)
-        ):
-            raise ValueError(
-                f"library order must be one of {VALID_ORDERS}, got {order!r}; "
-                "choose a polynomial degree from 1 to 4"
-            )
+    def __init__(self, spec: LibrarySpec | Mapping[str, Any], n_state: int, n_control: int) -> None:
         if n_state < 1 or n_control < 0:
             raise ValueError(
                 f"need n_state >= 1 and n_control >= 0, got n_state={n_state}, "
                 f"n_control={n_control}"
             )
-        order = int(order)
-        n_vars = n_state + n_control
+        spec = spec_from_dict(spec)
+        terms = _spec_terms(spec, n_state, n_control)
         var_names = [f"z{i}" for i in range(n_state)] + [f"u{j}" for j in range(n_control)]
-        one = n_vars  # F column of the constant, used to pad rows of lower degree
-
-        rows: list[list[int]] = []
-        names: list[str] = []
-        # pysindy's order: by degree, then itertools.combinations_with_replacement.
-        for degree in range(order + 1):
-            for combo in itertools.combinations_with_replacement(range(n_vars), degree):
-                rows.append(list(combo) + [one] * (order - degree))
-                names.append(_monomial_name(combo, var_names))
-        if include_sine:
-            for i in range(n_state):
-                rows.append([one + 1 + i] + [one] * (order - 1))
-                names.append(f"sin(z{i})")
-        if include_cosine:
-            for i in range(n_state):
-                rows.append([one + 1 + n_state + i] + [one] * (order - 1))
-                names.append(f"cos(z{i})")
-
-        super().__init__(n_state, n_control, torch.tensor(rows, dtype=torch.long), names)
-        self.order = order
-        self.include_sine = include_sine
-        self.include_cosine = include_cosine
+        names = [_term_name(t, var_names) for t in terms]
+        first: dict[_Term, int] = {}
+        for i, t in enumerate(terms):
+            if first.setdefault(t, i) != i:
+                raise UserError(
+                    f"library {spec} has the term {names[i]!r} twice: remove the overlap "
+                    "between its parts"
+                )
+        one = n_state + n_control
+        # Trig columns of F: every (variable, function) some term uses, sines first.
+        trig_keys = sorted({f for t in terms for f in t if f[1] != _IDENTITY}, key=_trig_order)
+        column = {f: one + 1 + k for k, f in enumerate(trig_keys)}
+        column.update({(v, _IDENTITY): v for v in range(one)})
+        width = max([1, *(len(t) for t in terms)])
+        rows = [[column[f] for f in t] + [one] * (width - len(t)) for t in terms]
+        super().__init__(
+            n_state,
+            n_control,
+            torch.tensor(rows, dtype=torch.long).reshape(len(rows), width),
+            names,
+            [(v, _FN_NAMES[fn]) for v, fn in trig_keys],
+        )
+        self.spec: LibrarySpec = spec
 
     def _term_tensor(self, terms: TermIndex) -> torch.Tensor:
         idx = torch.as_tensor(terms, dtype=torch.long).reshape(-1)
@@ -226,8 +596,62 @@ class CandidateLibrary(_ProductTerms):
         """A module evaluating only ``terms`` (indices into :attr:`names`), in that order."""
         return LibrarySubset(self, self._term_tensor(terms))
 
+    def _combine(self, other: object, op: Callable[[Any, Any], LibrarySpec]) -> SindyLibrary:
+        if not isinstance(other, SindyLibrary):
+            return NotImplemented
+        if (other.n_state, other.n_control) != (self.n_state, self.n_control):
+            raise ValueError(
+                f"cannot combine libraries of sizes (nz={self.n_state}, nu={self.n_control}) "
+                f"and (nz={other.n_state}, nu={other.n_control}): build both for one model"
+            )
+        return SindyLibrary(op(self.spec, other.spec), self.n_state, self.n_control)
+
+    def __add__(self, other: SindyLibrary) -> SindyLibrary:
+        """Concatenation of the two libraries' terms."""
+        return self._combine(other, lambda a, b: a + b)
+
+    def __mul__(self, other: SindyLibrary) -> SindyLibrary:
+        """Tensor product of the two libraries' terms."""
+        return self._combine(other, lambda a, b: a * b)
+
     def extra_repr(self) -> str:
-        return (
-            f"{super().extra_repr()}, order={self.order}, include_sine={self.include_sine}, "
-            f"include_cosine={self.include_cosine}"
-        )
+        return f"{super().extra_repr()}, spec={self.spec}"
+
+
+class CandidateLibrary(SindyLibrary):
+    """The classic library: monomials of [z, u] up to ``order``, then sin(z), then cos(z).
+
+    The spec :func:`poly_library` ``(order, include_sine, include_cosine)``; the monomials have
+    the order, names and values of ``pysindy.PolynomialLibrary(degree=order,
+    include_bias=True)``.
+
+    Args:
+        n_state: nz, number of state (latent) variables, named ``z0 .. z{nz-1}``.
+        n_control: nu, number of control inputs, named ``u0 .. u{nu-1}`` (may be 0).
+        order: highest total degree of the monomials, one of 1, 2, 3, 4.
+        include_sine: append ``sin(z_i)`` for every state variable.
+        include_cosine: append ``cos(z_i)`` for every state variable (after the sines).
+    """
+
+    def __init__(
+        self,
+        n_state: int,
+        n_control: int,
+        order: int,
+        include_sine: bool = True,
+        include_cosine: bool = False,
+    ) -> None:
+        if (
+            isinstance(order, bool)
+            or not isinstance(order, numbers.Integral)
+            or (order not in VALID_ORDERS)
+        ):
+            raise ValueError(
+                f"library order must be one of {VALID_ORDERS}, got {order!r}; "
+                "choose a polynomial degree from 1 to 4"
+            )
+        order = int(order)
+        super().__init__(poly_library(order, include_sine, include_cosine), n_state, n_control)
+        self.order = order
+        self.include_sine = include_sine
+        self.include_cosine = include_cosine
