@@ -144,3 +144,37 @@ def test_negative_workers(tmp_path):
     with pytest.raises(UserError, match="--workers -1"):
         collect(tmp_path / "d.h5", PLAN, workers=-1)
     assert not any(tmp_path.iterdir())
+
+
+class _RecordingEnv:
+    """Stands in for PandaPushEnv: records the actions it is given, simulates nothing."""
+
+    def __init__(self) -> None:
+        self.actions: list[np.ndarray] = []
+
+    def reset(self, seed=None):
+        return np.zeros((1, 32, 32), np.uint8), {"pose": np.zeros(3)}
+
+    def step(self, a):
+        self.actions.append(np.asarray(a))
+        return np.zeros((1, 32, 32), np.uint8), 0.0, False, False, {"pose": np.zeros(3)}
+
+
+@pytest.mark.parametrize("world", ["symmetric", "paper"])
+def test_actions_are_drawn_from_the_worlds_own_box(world):
+    from latent_sindy.data.collect import collect_one
+    from latent_sindy.envs.config import PushEnvConfig
+
+    cfg = PushEnvConfig.named(world)
+    plan = CollectionPlan(trajectories=1, steps=200, seed=0, val_fraction=0, test_fraction=0,
+                          env=cfg)
+    env = _RecordingEnv()
+    item = collect_one(env, 0, plan)
+    a = item["actions"]
+    assert a.shape == (200, cfg.action_dim) and a.dtype == np.float32
+    assert np.array_equal(np.stack(env.actions), a)
+    low, high = np.array(cfg.action_low), np.array(cfg.action_high)
+    assert np.all(a >= low - 1e-6) and np.all(a <= high + 1e-6)
+    # uniform over the whole box: the samples reach near both ends of every component
+    span = (a.max(axis=0) - a.min(axis=0)) / (high - low)
+    assert np.all(span > 0.9)

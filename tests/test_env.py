@@ -1,4 +1,8 @@
-"""The pushing world behaves like a pushed block and its camera shows it."""
+"""The pushing world behaves like a pushed block and its camera shows it.
+
+Tests of the paper's action u = [p, phi, ell] (phi relative to the block) run in the named
+"paper" world; the default world is the symmetric one (see envs/config.py).
+"""
 
 from __future__ import annotations
 
@@ -10,8 +14,20 @@ import numpy as np
 import pytest
 
 import latent_sindy  # noqa: F401  (registers the environment)
-from latent_sindy.envs import ENV_ID, PAPER_GOAL, PAPER_START
+from latent_sindy.configs import to_json
+from latent_sindy.envs import ENV_ID, PAPER_GOAL, PAPER_START, PushEnvConfig
+from latent_sindy.envs.config import ENV_PRESETS
 from latent_sindy.envs.panda_push import PandaPushEnv
+from latent_sindy.envs.world import wrap_angle
+from latent_sindy.errors import UserError
+
+
+@pytest.fixture(scope="module")
+def paper():
+    """The paper's world: pushes from the block's -x face, phi relative to the block."""
+    e = PandaPushEnv(PushEnvConfig.named("paper"))
+    yield e
+    e.close()
 
 
 def push_from(env, start, action):
@@ -28,9 +44,9 @@ def in_push_frame(start, end, direction):
 
 
 @pytest.mark.parametrize("theta", [0.0, 0.7, -1.2])
-def test_centred_push_moves_block_forward_by_push_length(env, theta):
+def test_centred_push_moves_block_forward_by_push_length(paper, theta):
     start = (0.5, 0.05, theta)
-    end, _, _, info = push_from(env, start, (0.0, 0.0, 1.0))
+    end, _, _, info = push_from(paper, start, (0.0, 0.0, 1.0))
     forward, lateral = in_push_frame(start, end, theta)
     assert info["push_executed"]
     assert 0.08 < forward < 0.12  # ell = 1 is 0.1 m
@@ -38,25 +54,25 @@ def test_centred_push_moves_block_forward_by_push_length(env, theta):
     assert abs(end[2] - theta) < 0.1
 
 
-def test_half_push_moves_about_half_as_far(env):
+def test_half_push_moves_about_half_as_far(paper):
     start = (0.5, 0.0, 0.0)
-    end, _, _, _ = push_from(env, start, (0.0, 0.0, 0.5))
+    end, _, _, _ = push_from(paper, start, (0.0, 0.0, 0.5))
     forward, _ = in_push_frame(start, end, 0.0)
     assert 0.035 < forward < 0.065
 
 
-def test_off_centre_pushes_rotate_in_opposite_directions(env):
+def test_off_centre_pushes_rotate_in_opposite_directions(paper):
     start = (0.5, 0.0, 0.3)
-    left, _, _, _ = push_from(env, start, (0.8, 0.0, 1.0))
-    right, _, _, _ = push_from(env, start, (-0.8, 0.0, 1.0))
+    left, _, _, _ = push_from(paper, start, (0.8, 0.0, 1.0))
+    right, _, _, _ = push_from(paper, start, (-0.8, 0.0, 1.0))
     # contact at +y of the block frame turns it clockwise (negative theta), and vice versa
     assert left[2] - 0.3 < -0.2
     assert right[2] - 0.3 > 0.2
 
 
-def test_angled_push_slides_along_the_face(env):
+def test_angled_push_slides_along_the_face(paper):
     start = (0.5, 0.0, 0.0)
-    end, _, _, _ = push_from(env, start, (0.0, 0.6, 1.0))
+    end, _, _, _ = push_from(paper, start, (0.0, 0.6, 1.0))
     d = end[:2] - np.array(start[:2])
     # finger-block friction is low (0.1): the pusher slides along the face, so the block
     # goes mostly along the face normal (+x), drifting a little towards the push (+y)
@@ -119,9 +135,9 @@ def test_success_criteria_course_and_strict(env):
     assert info["is_success_strict"]
 
 
-def test_leaving_the_workspace_terminates(env):
-    env.reset(options={"start": (0.5, 0.36, math.pi / 2), "goal": (0.7, 0.0, 0.0)})
-    _, _, terminated, _, info = env.step(np.array([0.0, 0.0, 1.0], dtype=np.float32))
+def test_leaving_the_workspace_terminates(paper):
+    paper.reset(options={"start": (0.5, 0.36, math.pi / 2), "goal": (0.7, 0.0, 0.0)})
+    _, _, terminated, _, info = paper.step(np.array([0.0, 0.0, 1.0], dtype=np.float32))
     assert info["pose"][1] > 0.4 and not info["in_bounds"]
     assert terminated
 
@@ -154,11 +170,20 @@ def test_sampled_poses_lie_in_workspace(env):
         assert np.all(info["goal"] >= lo) and np.all(info["goal"] <= hi)
 
 
-@pytest.mark.parametrize("action", [[np.nan, 0, 0.5], [0, 0, 1.5], [0, 2.0, 0.5], [0, 0]])
+@pytest.mark.parametrize("action", [[np.nan, 0, 0.5], [0, 0, 1.5], [0, 3.5, 0.5], [0, 0]])
 def test_bad_actions_are_refused(env, action):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(np.array(action, dtype=np.float32))
+
+
+def test_paper_world_refuses_pushes_beyond_its_box(paper, env):
+    for e in (paper, env):
+        e.reset(seed=0)
+    with pytest.raises(ValueError, match="outside the action box"):
+        paper.step(np.array([0, 2.0, 0.5], dtype=np.float32))
+    _, _, _, _, info = env.step(np.array([0, 2.0, 0.5], dtype=np.float32))  # psi: any direction
+    assert info["push_executed"]
 
 
 def test_rgb_observation_and_render():
@@ -182,3 +207,165 @@ def test_gymnasium_check_env():
         warnings.simplefilter("ignore")  # advice about asymmetric action boxes
         check_env(e, skip_render_check=True)
     e.close()
+
+
+# ---------------------------------------------------------------- named worlds and symmetry
+def test_each_world_owns_its_action_box():
+    for name, cfg in ENV_PRESETS.items():
+        e = PandaPushEnv(cfg)
+        assert e.action_space.shape == (cfg.action_dim,) == (len(cfg.action_names),), name
+        assert np.allclose(e.action_space.low, cfg.action_low), name
+        assert np.allclose(e.action_space.high, cfg.action_high), name
+        e.close()
+    sym, pap = PushEnvConfig(), PushEnvConfig.named("paper")
+    assert sym.push == "symmetric" and sym.action_names == ("p", "psi", "ell")
+    assert sym.action_high[1] == pytest.approx(math.pi)  # any direction
+    assert pap.action_names == ("p", "phi", "ell") and pap.action_high[1] == pytest.approx(
+        math.pi / 2)
+    assert sym.angle_period == pytest.approx(math.pi / 2)
+    assert PushEnvConfig.named("marked").angle_period == pytest.approx(2 * math.pi)
+
+
+def test_named_worlds_and_records():
+    assert PushEnvConfig.named("paper", channels=3).channels == 3
+    with pytest.raises(UserError, match="'nope' is not a named world"):
+        PushEnvConfig.named("nope")
+    with pytest.raises(UserError, match="push='sideways'"):
+        PushEnvConfig(push="sideways")
+    # a record written before the push style existed means the paper's world
+    old = to_json(PushEnvConfig())
+    del old["push"], old["block_look"]
+    assert PushEnvConfig.from_record(old, "f.h5") == PushEnvConfig.named("paper")
+    assert PushEnvConfig.from_record(to_json(PushEnvConfig()), "f.h5") == PushEnvConfig()
+    with pytest.raises(UserError, match=r"f\.h5: unknown settings \['colour'\]") as e:
+        PushEnvConfig.from_record({**old, "colour": "red"}, "f.h5")
+    assert "\n" not in str(e.value)
+
+
+QUARTER_TURN_CASES = [  # (x, y, theta), action: centred, off-centre, near a face's diagonal
+    ((0.5, 0.1, 0.3), (0.0, 0.4, 1.0)),
+    ((0.55, -0.15, -1.0), (0.7, 2.5, 0.8)),
+    ((0.45, 0.2, 0.6), (-0.6, -1.2, 0.6)),
+]
+
+
+@pytest.mark.parametrize(("pose", "action"), QUARTER_TURN_CASES)
+def test_poses_that_look_alike_are_pushed_alike(env, pose, action):
+    """theta and theta + pi/2 give the same picture; the same push must then give the same
+    next picture (in the paper's world it need not: see the next test)."""
+    turned = (pose[0], pose[1], pose[2] + math.pi / 2)
+    assert np.array_equal(env.observe(pose), env.observe(turned))
+    end_a, _, obs_a, info_a = push_from(env, pose, action)
+    end_b, _, obs_b, info_b = push_from(env, turned, action)
+    assert info_a["push_executed"] and info_b["push_executed"]
+    assert np.linalg.norm(end_a[:2] - pose[:2]) > 0.02  # the block did move
+    assert np.array_equal(obs_a, obs_b)
+    assert np.allclose(end_a[:2], end_b[:2], atol=1e-3)
+    assert abs(wrap_angle(end_a[2] - end_b[2], math.pi / 2)) < 0.01
+
+
+def test_paper_world_pushes_look_alike_poses_differently(paper):
+    pose, action = QUARTER_TURN_CASES[0]
+    turned = (pose[0], pose[1], pose[2] + math.pi / 2)
+    _, obs0, obs_a, _ = push_from(paper, pose, action)
+    _, obs0_b, obs_b, _ = push_from(paper, turned, action)
+    assert np.array_equal(obs0, obs0_b) and not np.array_equal(obs_a, obs_b)
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.5, -1.3])
+@pytest.mark.parametrize("direction", [0.0, 2.0, math.pi, -2.4])
+def test_symmetric_push_goes_where_psi_points(env, theta, direction):
+    """Pushing square onto a face (psi along a face normal, centred) moves the block by the
+    push length along psi, whichever side of the block that face is on."""
+    k = round((direction - theta) / (math.pi / 2))
+    psi = wrap_angle(theta + k * math.pi / 2)  # a face normal near `direction`
+    start = (0.52, 0.0, theta)
+    end, _, _, info = push_from(env, start, (0.0, psi, 1.0))
+    forward, lateral = in_push_frame(start, end, psi)
+    assert info["push_executed"]
+    assert 0.08 < forward < 0.12 and abs(lateral) < 0.015
+    assert abs(wrap_angle(end[2] - theta, math.pi / 2)) < 0.1
+
+
+# Pushes the arm could not start before the hand could turn round and lean: far from the
+# base, pushed back towards it (and one along the far edge).
+HARD_PUSHES = [
+    ((0.65, -0.326, 0.721), (-0.65, 2.28, 0.54)),
+    ((0.675, 0.328, -1.525), (0.73, 3.02, 0.96)),
+    ((0.698, 0.197, -0.045), (-0.15, 2.37, 0.09)),
+    ((0.67, 0.231, 0.749), (0.42, -3.09, 0.44)),
+    ((0.694, 0.258, 1.491), (0.98, -2.74, 0.6)),
+]
+
+
+def test_pushes_in_every_direction_execute(env):
+    rng = np.random.default_rng(123)
+    cfg = env.config
+    sample = [(rng.uniform(cfg.workspace_low, cfg.workspace_high),
+               rng.uniform(cfg.action_low, cfg.action_high)) for _ in range(24)]
+    executed = []
+    for pose, action in HARD_PUSHES + sample:
+        env.reset(seed=0, options={"start": pose, "goal": PAPER_GOAL})
+        executed.append(env.step(np.asarray(action, dtype=np.float32))[4]["push_executed"])
+    assert all(executed[:len(HARD_PUSHES)])
+    assert sum(executed) >= len(executed) - 1  # >= 99 % in BENCHMARKS.md; 1 miss allowed here
+
+
+# Recorded with the world as it was before push styles existed (commit ef20942): the paper
+# world must push exactly as it did (bit for bit on the recording machine; the tolerance
+# only absorbs other platforms' rounding, which pushing amplifies).
+PAPER_GOLDEN = [
+    ((0.5, 0.05, 0.7), (0.0, 0.0, 1.0), (0.5817725677500938, 0.1101252278668961, 0.6968855)),
+    ((0.5, 0.0, 0.3), (0.8, 0.0, 1.0), (0.5903791032120479, 0.020655161624896876, -0.1914111)),
+    ((0.45, -0.2, -1.0), (-0.5, 0.9, 0.6), (0.5163018237969701, -0.20836711112635697, -1.2714522)),
+    ((0.6, 0.2, 1.2), (0.3, -1.1, 0.8), (0.6610755508385847, 0.21527385968783289, 1.6822066)),
+]
+
+
+@pytest.mark.parametrize(("start", "action", "expected"), PAPER_GOLDEN)
+def test_paper_world_pushes_as_before(paper, env, start, action, expected):
+    end, _, _, info = push_from(paper, start, action)
+    assert info["push_executed"]
+    assert np.allclose(end[:2], expected[:2], atol=2e-3)
+    assert abs(end[2] - expected[2]) < 0.02
+    sym_end, *_ = push_from(env, start, action)  # the symmetric world reads phi otherwise
+    if abs(action[1]) > 0.05 or start[2] != 0.0:
+        assert np.linalg.norm(sym_end[:2] - np.array(expected[:2])) > 0.01 or abs(
+            wrap_angle(sym_end[2] - expected[2], math.pi / 2)) > 0.05
+
+
+def test_angle_error_is_taken_modulo_the_visible_symmetry(env):
+    goal = (0.6, 0.1, 0.2)
+    turned = (0.6, 0.1, 0.2 + math.pi / 2 + 0.05)  # looks like the goal turned by 0.05 rad
+    _, info = env.reset(options={"start": turned, "goal": goal})
+    assert info["angle_error"] == pytest.approx(0.05, abs=1e-6)
+    assert info["is_success_strict"]
+    _, info = env.reset(options={"start": (0.6, 0.1, 0.2 + math.pi / 4 + 0.01), "goal": goal})
+    assert info["angle_error"] == pytest.approx(-math.pi / 4 + 0.01, abs=1e-6)
+    assert not info["is_success_strict"]
+    marked = PandaPushEnv(PushEnvConfig.named("marked"))
+    _, info = marked.reset(options={"start": turned, "goal": goal})
+    assert info["angle_error"] == pytest.approx(math.pi / 2 + 0.05, abs=1e-6)
+    assert not info["is_success_strict"]
+    marked.close()
+
+
+def test_wrap_angle_periods():
+    assert wrap_angle(3 * math.pi / 4, math.pi / 2) == pytest.approx(math.pi / 4)
+    assert wrap_angle(-math.pi / 4, math.pi / 2) == pytest.approx(math.pi / 4)  # (-p/2, p/2]
+    assert wrap_angle(-math.pi) == pytest.approx(math.pi)
+    assert wrap_angle(1.2 + 4 * math.pi) == pytest.approx(1.2)
+
+
+def test_marked_block_shows_its_orientation(env):
+    marked = PandaPushEnv(PushEnvConfig.named("marked"))
+    pose = (0.5, 0.05, 0.3)
+    turned = (0.5, 0.05, 0.3 + math.pi / 2)
+    half = (0.5, 0.05, 0.3 + math.pi)
+    assert not np.array_equal(marked.observe(pose), marked.observe(turned))
+    assert not np.array_equal(marked.observe(pose), marked.observe(half))
+    assert np.array_equal(env.observe(pose), env.observe(turned))
+    # the same block otherwise: same place, same size on the picture
+    dark = (marked.observe(pose)[0] < 150).sum()
+    assert dark == (env.observe(pose)[0] < 150).sum()
+    marked.close()

@@ -132,3 +132,39 @@ def test_channels_must_match_recorded_environment():
     t = make_trajectories(channels=1)
     with pytest.raises(UserError, match="recorded environment"):
         Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig(channels=3))
+
+
+# ---------------------------------------------------------------- the world owns the action box
+def test_file_without_push_setting_reads_as_the_paper_world(tmp_path, trajectories):
+    """Files written before the env config had `push` were collected in the paper's world."""
+    import json
+
+    path = tmp_path / "old.h5"
+    write_trajectories(path, trajectories)
+    with h5py.File(path, "a") as f:
+        old = json.loads(f.attrs["env_config"])
+        del old["push"], old["block_look"]
+        f.attrs["env_config"] = json.dumps(old)
+    back = read_trajectories(path)
+    assert back.env_config.push == "paper"
+    assert back.env_config == PushEnvConfig.named("paper")
+    with h5py.File(path, "a") as f:
+        f.attrs["env_config"] = json.dumps({**old, "gravity": 3})
+    assert "env_config: unknown settings ['gravity']" in _error(path)
+
+
+def test_actions_are_checked_against_the_recorded_worlds_box(tmp_path):
+    t = make_trajectories()
+    t.actions[0, 1, 1] = 2.0  # a push direction beyond +-pi/2: any direction is fine ...
+    Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig())
+    with pytest.raises(UserError, match=r"action 1 \(phi\) of step 1 of trajectory 0 is 2") as e:
+        # ... but not in the paper's world, where phi is relative to the block within +-pi/2
+        Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig.named("paper"))
+    assert "'paper' world" in str(e.value)
+
+
+def test_actions_must_have_the_worlds_size():
+    t = make_trajectories()
+    wide = np.concatenate([t.actions, np.zeros((*t.actions.shape[:2], 1), np.float32)], axis=2)
+    with pytest.raises(UserError, match=r"expected \(6, 4, 3\) \(p, psi, ell"):
+        Trajectories(t.images, wide, t.poses, t.split_ids, PushEnvConfig())

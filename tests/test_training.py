@@ -118,10 +118,10 @@ def test_end_to_end_learns_recognisable_images(data: Path, tmp_path: Path) -> No
     mean_image_mse = float((x - x.mean(dim=(0, 1))).square().mean())
     assert mse < 0.2 * mean_image_mse
     pixels = norm.denormalize(x_rec).numpy()
-    for i in range(d.n):
-        for t in range(d.steps + 1):
-            true, got = _dark_centroid(d.images[i, t, 0]), _dark_centroid(pixels[i, t, 0])
-            assert np.linalg.norm(true - got) < 2.0, (i, t, true, got)
+    errors = [np.linalg.norm(_dark_centroid(d.images[i, t, 0]) - _dark_centroid(pixels[i, t, 0]))
+              for i in range(d.n) for t in range(d.steps + 1)]
+    # the block is drawn where it is: within a pixel typically, never 3 pixels off
+    assert np.median(errors) < 1.0 and max(errors) < 3.0, errors
 
 
 @pytest.mark.parametrize("kind", KINDS)

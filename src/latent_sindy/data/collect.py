@@ -30,7 +30,7 @@ import tyro
 from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 
 MAX_ATTEMPTS = 50
@@ -81,12 +81,16 @@ class CollectionPlan:
 
 # --------------------------------------------------------------------------- one trajectory
 def collect_one(env, index: int, plan: CollectionPlan) -> dict[str, np.ndarray]:
-    """Roll out trajectory `index` of `plan` in `env` (a PandaPushEnv)."""
-    low, high = np.array(ACTION_LOW), np.array(ACTION_HIGH)
+    """Roll out trajectory `index` of `plan` in `env` (a PandaPushEnv built from `plan.env`).
+
+    Actions are uniform in the world's own action box (`plan.env.action_low` ..
+    `action_high`, `action_dim` components).
+    """
+    low, high = np.array(plan.env.action_low), np.array(plan.env.action_high)
     for attempt in range(MAX_ATTEMPTS):
         rng = np.random.default_rng([plan.seed, index, attempt])
         obs, info = env.reset(seed=int(rng.integers(2**31)))
-        actions = rng.uniform(low, high, size=(plan.steps, 3)).astype(np.float32)
+        actions = rng.uniform(low, high, size=(plan.steps, plan.env.action_dim)).astype(np.float32)
         images, poses = [obs], [info["pose"]]
         for a in actions:
             obs, _, terminated, _, info = env.step(a)
@@ -135,7 +139,8 @@ def _load_done(partial: Path, plan: CollectionPlan) -> dict[int, dict]:
             i = int(f.stem.split("_")[1])
             with np.load(f, allow_pickle=False) as z:
                 item = {k: z[k] for k in z.files}
-            ok = (0 <= i < plan.trajectories and item["actions"].shape == (plan.steps, 3)
+            ok = (0 <= i < plan.trajectories
+                  and item["actions"].shape == (plan.steps, plan.env.action_dim)
                   and item["images"].shape[0] == plan.steps + 1)
         except (ValueError, OSError, KeyError, IndexError, zipfile.BadZipFile):
             ok = False

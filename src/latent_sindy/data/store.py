@@ -3,11 +3,15 @@
 Layout (format ``latent-sindy-trajectories``, version 1)::
 
     /images    (N, T+1, C, S, S) uint8    camera images x_0..x_T, channels first
-    /actions   (N, T, 3)         float32  pushes u_0..u_{T-1} = [p, phi, ell]
+    /actions   (N, T, nu)        float32  pushes u_0..u_{T-1} (nu and box: the env config's)
     /poses     (N, T+1, 3)       float32  true block poses (x, y, theta)
     /split     (N,)              uint8    0 train, 1 validation, 2 test
     attributes: format, format_version, package_version, created, seed, steps,
                 env_config (JSON), collection (JSON), pixel_mean, pixel_std (train split)
+
+The recorded environment config owns the action box (`action_low`, `action_high`,
+`action_dim`): actions are checked against it. A file recorded before the config had a
+`push` setting means the paper's world (see :meth:`PushEnvConfig.from_record`).
 
 A file is only ever written whole, to a temporary name that is renamed into place, so a
 reader sees either nothing or a complete file.
@@ -29,16 +33,13 @@ import h5py
 import numpy as np
 
 from latent_sindy.atomic import atomic_path
-from latent_sindy.configs import from_json, to_json
-from latent_sindy.envs import config as C
+from latent_sindy.configs import to_json
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 
 FORMAT = "latent-sindy-trajectories"
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
-ACTION_LOW = np.array(C.ACTION_LOW)
-ACTION_HIGH = np.array(C.ACTION_HIGH)
 _SLACK = 1e-4
 
 
@@ -47,7 +48,7 @@ class Trajectories:
     """Trajectories held in memory, with what is needed to interpret them."""
 
     images: np.ndarray  # (N, T+1, C, S, S) uint8
-    actions: np.ndarray  # (N, T, 3) float32
+    actions: np.ndarray  # (N, T, nu) float32, nu = env_config.action_dim
     poses: np.ndarray  # (N, T+1, 3) float32
     split_ids: np.ndarray  # (N,) uint8, index into SPLITS
     env_config: PushEnvConfig = field(default_factory=PushEnvConfig)
@@ -111,8 +112,10 @@ def _check_arrays(t: Trajectories, where: str) -> None:
         raise bad(f"images must have 1 or 3 channels and square frames, got {t.images.shape}")
     if t1 < 2:
         raise bad(f"trajectories need at least one step, images have {t1} frame(s)")
-    if t.actions.shape != (n, t1 - 1, 3):
-        raise bad(f"actions have shape {t.actions.shape}, expected {(n, t1 - 1, 3)}")
+    nu = t.env_config.action_dim
+    if t.actions.shape != (n, t1 - 1, nu):
+        raise bad(f"actions have shape {t.actions.shape}, expected {(n, t1 - 1, nu)} "
+                  f"({', '.join(t.env_config.action_names)} in the recorded world)")
     if t.poses.shape != (n, t1, 3):
         raise bad(f"poses have shape {t.poses.shape}, expected {(n, t1, 3)}")
     if t.split_ids.shape != (n,):
@@ -123,11 +126,13 @@ def _check_arrays(t: Trajectories, where: str) -> None:
         if not np.all(np.isfinite(arr)):
             i = int(np.argwhere(~np.isfinite(arr))[0][0])
             raise bad(f"{name} of trajectory {i} contain NaN or inf values; re-collect it")
-    out = (t.actions < ACTION_LOW - _SLACK) | (t.actions > ACTION_HIGH + _SLACK)
+    low, high = np.array(t.env_config.action_low), np.array(t.env_config.action_high)
+    out = (t.actions < low - _SLACK) | (t.actions > high + _SLACK)
     if np.any(out):
         i, k, j = (int(v) for v in np.argwhere(out)[0])
-        raise bad(f"action {j} of step {k} of trajectory {i} is {float(t.actions[i, k, j]):.4g}, "
-                  f"outside [{ACTION_LOW[j]:.4g}, {ACTION_HIGH[j]:.4g}]")
+        raise bad(f"action {j} ({t.env_config.action_names[j]}) of step {k} of trajectory {i} "
+                  f"is {float(t.actions[i, k, j]):.4g}, outside [{low[j]:.4g}, {high[j]:.4g}] "
+                  f"of the recorded {t.env_config.push!r} world")
     if (not np.issubdtype(t.split_ids.dtype, np.integer) or np.any(t.split_ids < 0)
             or np.any(t.split_ids >= len(SPLITS))):
         raise bad(f"split labels must be the integers 0 (train), 1 (val) or 2 (test), found "
@@ -189,8 +194,8 @@ def read_trajectories(path: str | os.PathLike) -> Trajectories:
             if missing:
                 raise UserError(f"{path} lacks dataset(s) {', '.join(missing)}; re-collect it")
             arrays = {k: f[k][()] for k in ("images", "actions", "poses", "split")}
-            env_config = from_json(PushEnvConfig, json.loads(f.attrs["env_config"]),
-                                   f"{path}: env_config")
+            env_config = PushEnvConfig.from_record(json.loads(f.attrs["env_config"]),
+                                                   f"{path}: env_config")
             seed = int(f.attrs.get("seed", -1))
             collection = json.loads(f.attrs.get("collection", "{}"))
     except UserError:

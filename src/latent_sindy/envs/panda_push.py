@@ -1,11 +1,14 @@
 """`PandaPushEnv`: the planar pushing task as a gymnasium environment.
 
-One `step` is one whole push u = [p, phi, ell] (docs/design.md); the observation is the 32x32
-overhead camera image, uint8, channels first. `info` carries the block's true pose and the
-errors to the goal.
+One `step` is one whole push u = [p, angle, ell]; the config's `push` style says what the
+angle means and owns the action box (``config.action_low`` .. ``action_high``). The
+observation is the 32x32 overhead camera image, uint8, channels first. `info` carries the
+block's true pose and the errors to the goal, the orientation error taken modulo the
+block's visible symmetry (``config.angle_period``).
 
     import gymnasium as gym, latent_sindy
-    env = gym.make("latent_sindy/PandaPush-v0")
+    env = gym.make("latent_sindy/PandaPush-v0")              # the default (symmetric) world
+    env = gym.make("latent_sindy/PandaPush-v0", push="paper")  # the paper's world
     obs, info = env.reset(seed=0, options={"task": "paper"})
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 """
@@ -19,12 +22,9 @@ import gymnasium as gym
 import numpy as np
 
 from latent_sindy.configs import from_json, to_json
-from latent_sindy.envs import config as C
 from latent_sindy.envs.config import PAPER_GOAL, PAPER_START, PushEnvConfig
 from latent_sindy.envs.world import PushWorld, wrap_angle
 
-ACTION_LOW = np.array(C.ACTION_LOW, dtype=np.float32)
-ACTION_HIGH = np.array(C.ACTION_HIGH, dtype=np.float32)
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
 
 
@@ -49,7 +49,9 @@ class PandaPushEnv(gym.Env):
         self.render_mode = render_mode
         s = cfg.image_size
         self.observation_space = gym.spaces.Box(0, 255, (cfg.channels, s, s), np.uint8)
-        self.action_space = gym.spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        self._a_low = np.array(cfg.action_low, dtype=np.float32)
+        self._a_high = np.array(cfg.action_high, dtype=np.float32)
+        self.action_space = gym.spaces.Box(self._a_low, self._a_high, dtype=np.float32)
         self._world = PushWorld(cfg)
         self._low = np.array(cfg.workspace_low)
         self._high = np.array(cfg.workspace_high)
@@ -79,14 +81,17 @@ class PandaPushEnv(gym.Env):
         return self._world.observe(), self._info()
 
     def step(self, action):
+        cfg = self.config
+        low, high = self._a_low, self._a_high
         a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise ValueError(f"action {action!r} must be 3 finite numbers [p, phi, ell]")
-        if np.any(a < ACTION_LOW - _ACTION_SLACK) or np.any(a > ACTION_HIGH + _ACTION_SLACK):
+        if a.shape != (cfg.action_dim,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action {action!r} must be {cfg.action_dim} finite numbers "
+                             f"[{', '.join(cfg.action_names)}]")
+        if np.any(a < low - _ACTION_SLACK) or np.any(a > high + _ACTION_SLACK):
             raise ValueError(
                 f"action {a.tolist()} is outside the action box "
-                f"[{ACTION_LOW.tolist()}, {ACTION_HIGH.tolist()}]; clip it first")
-        a = np.clip(a, ACTION_LOW, ACTION_HIGH)
+                f"[{low.tolist()}, {high.tolist()}]; clip it first")
+        a = np.clip(a, low, high)
         self._world.push(*a)  # a push out of the arm's reach is skipped: info["push_executed"]
         info = self._info()
         terminated = not info["in_bounds"]
@@ -130,7 +135,7 @@ class PandaPushEnv(gym.Env):
         pose = self._world.block_pose()
         goal = self._world.goal_pose
         dist = float(np.hypot(*(pose[:2] - goal[:2])))
-        dth = wrap_angle(float(pose[2] - goal[2]))
+        dth = wrap_angle(float(pose[2] - goal[2]), cfg.angle_period)
         angle_ok = cfg.success_angle_deg is None or abs(math.degrees(dth)) < cfg.success_angle_deg
         in_bounds = bool(np.all(pose[:2] >= cfg.bounds_low) and np.all(pose[:2] <= cfg.bounds_high))
         return {

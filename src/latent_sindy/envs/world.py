@@ -45,6 +45,9 @@ PUSH_DECEL = 0.5  # m/s^2 slowing down: below the block's friction deceleration 
 #                   the block stops with the pusher instead of sliding on
 IK_EVERY = 4  # simulation steps between IK solutions (joint targets interpolated between)
 RETREAT = (0.02, 0.06)  # back off (m along -push) and lift (m) before leaving
+HAND_TILTS = (0.0, 0.15)  # rad the hand may lean outwards to reach far push starts (more
+#                           lean lets the fingers pass over the block or throw it)
+JOINT_MARGIN = 0.1  # rad a push's start must keep from every joint limit
 START_TOLERANCE = 0.005  # m: IK error beyond which a push start counts as out of reach
 SETTLE_STEPS = 240  # at most one simulated second for the block to come to rest
 DT = 1.0 / 240.0
@@ -53,13 +56,14 @@ TABLE_HALF = (0.6, 0.6, 0.02)
 TABLE_CENTRE = (0.55, 0.0, -0.02)
 TABLE_RGBA = (0.82, 0.80, 0.74, 1.0)
 BLOCK_RGBA = (0.30, 0.45, 0.85, 1.0)
+MARK_RGBA = (0.55, 0.10, 0.10, 1.0)  # the marked block's +x half: darker in grayscale too
 GOAL_RGBA = (0.10, 0.90, 0.10, 0.4)
 PARKED = (0.0, 0.0, -5.0)  # far below the table: out of every view
 
 
-def wrap_angle(a: float) -> float:
-    """Map an angle to (-pi, pi]."""
-    return -((-a + math.pi) % (2 * math.pi) - math.pi)
+def wrap_angle(a: float, period: float = 2 * math.pi) -> float:
+    """Map an angle to (-period/2, period/2] (default: (-pi, pi])."""
+    return -((-a + period / 2) % period - period / 2)
 
 
 def _profile(travel: float, speed: float = PUSH_SPEED, accel: float = PUSH_ACCEL,
@@ -84,6 +88,26 @@ def _profile(travel: float, speed: float = PUSH_SPEED, accel: float = PUSH_ACCEL
     return np.minimum(s, travel)
 
 
+def contact_frame(style: str, theta: float, angle: float
+                  ) -> tuple[float, float, tuple[float, float]]:
+    """Where a push starts: (frame, phi, half extents) for a block at orientation `theta`.
+
+    The push is made from the -x face of a frame at world angle `frame`, at angle `phi` to
+    that frame's x axis; the half extents are the block's along the frame's (x, y) axes.
+    "paper": the block's own frame and `angle` = phi. "symmetric": `angle` = psi is the push
+    direction in the world, and the frame is the block's turned by the quarter turn that
+    brings it nearest psi, so the pushed face is the one whose outward normal is most
+    opposite to psi and |phi| <= pi/4. Turning the block by a quarter turn picks the same
+    face in the world: equal pictures, equal pushes.
+    """
+    hx, hy = BLOCK_SIZE[0] / 2, BLOCK_SIZE[1] / 2
+    if style == "paper":
+        return theta, angle, (hx, hy)
+    k = round((angle - theta) / (math.pi / 2))
+    frame = theta + k * math.pi / 2
+    return frame, angle - frame, ((hy, hx) if k % 2 else (hx, hy))
+
+
 def _quat(theta: float) -> list[float]:
     return [0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2)]
 
@@ -97,10 +121,19 @@ def _add_table_and_block(c: BulletClient, cfg: PushEnvConfig) -> int:
         basePosition=TABLE_CENTRE,
     )
     half = [s / 2 for s in BLOCK_SIZE]
+    if cfg.block_look == "marked":
+        # two half-blocks side by side: the +x half light, so a quarter turn shows
+        quarter = [half[0] / 2, half[1], half[2]]
+        visual = c.createVisualShapeArray(
+            [pb.GEOM_BOX, pb.GEOM_BOX], halfExtents=[quarter, quarter],
+            visualFramePositions=[[-quarter[0], 0, 0], [quarter[0], 0, 0]],
+            rgbaColors=[BLOCK_RGBA, MARK_RGBA])
+    else:
+        visual = c.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=BLOCK_RGBA)
     block = c.createMultiBody(
         cfg.block_mass,
         c.createCollisionShape(pb.GEOM_BOX, halfExtents=half),
-        c.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=BLOCK_RGBA),
+        visual,
         basePosition=[0.5, 0.0, half[2]],
     )
     c.changeDynamics(block, -1, lateralFriction=cfg.block_friction)
@@ -125,6 +158,10 @@ class PushWorld:
         self.goal_pose = np.array([0.0, 0.0, 0.0])
         self.last_push_executed = True
         self.sim_steps = 0  # simulated steps since construction, for benchmarks
+        # Symmetric pushes of the uniform block simulate it turned into (-pi/4, pi/4] (see
+        # push); `_turned` (a multiple of pi/2) is added back so its pose stays continuous.
+        self._canonical = self.cfg.push == "symmetric" and self.cfg.block_look == "uniform"
+        self._turned = 0.0
 
     def _build(self) -> None:
         """(Re)create the simulated scene from nothing.
@@ -148,6 +185,8 @@ class PushWorld:
         self._lower = [i[8] for i in info]
         self._upper = [i[9] for i in info]
         self._ranges = [u - lo for lo, u in zip(self._lower, self._upper, strict=True)]
+        self._lower_margin = np.array(self._lower) + JOINT_MARGIN
+        self._upper_margin = np.array(self._upper) - JOINT_MARGIN
         for j, q in zip(ARM_JOINTS, HOME, strict=True):
             c.resetJointState(self.arm, j, q)
         for j in FINGER_JOINTS:
@@ -160,6 +199,7 @@ class PushWorld:
         """Rebuild the world with the block resting at `start` and the goal marker at `goal`."""
         self._build()
         self.last_push_executed = True
+        self._turned = 0.0
         self._set_pose(self.sim, self.block, start)
         self.goal_pose = np.asarray(goal, dtype=float)
         self._set_pose(self.sim, self.goal, goal)
@@ -167,7 +207,8 @@ class PushWorld:
     def block_pose(self) -> np.ndarray:
         """The block's planar pose (x, y, theta), theta in (-pi, pi]."""
         pos, orn = self.sim.getBasePositionAndOrientation(self.block)
-        return np.array([pos[0], pos[1], self.sim.getEulerFromQuaternion(orn)[2]])
+        th = self.sim.getEulerFromQuaternion(orn)[2]
+        return np.array([pos[0], pos[1], wrap_angle(th + self._turned) if self._turned else th])
 
     def close(self) -> None:
         with quiet_c_output():
@@ -182,20 +223,25 @@ class PushWorld:
         c.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
 
     # ------------------------------------------------------------------ motion
-    def push(self, p: float, phi: float, ell: float) -> None:
-        """Execute one push u = [p, phi, ell] (docs/design.md) and let the block come to rest."""
+    def push(self, p: float, angle: float, ell: float) -> None:
+        """Execute one push u = [p, angle, ell] and let the block come to rest.
+
+        The config's `push` style says what the angle means (see :func:`contact_frame`).
+        """
         x, y, th = self.block_pose()
-        hx, hy = BLOCK_SIZE[0] / 2, BLOCK_SIZE[1] / 2
-        cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the block frame
-        rot = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        if self._canonical:
+            th = self._turn_to_canonical(th)
+        frame, phi, (hx, hy) = contact_frame(self.cfg.push, th, angle)
+        cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the face's frame
+        rot = np.array([[math.cos(frame), -math.sin(frame)],
+                        [math.sin(frame), math.cos(frame)]])
         contact = np.array([x, y]) + rot @ cl
-        psi = th + phi
+        psi = frame + phi
         d = np.array([math.cos(psi), math.sin(psi)])
-        orn = self.sim.getQuaternionFromEuler([math.pi, 0.0, psi])  # fingers across the push
-        # Start just behind the contact point; at steep angles a finger's side would be
-        # inside the block there, so back off along the push line until the arm is clear.
-        for gap in APPROACH_GAPS:
+        for gap, orn, seed in self._start_candidates(contact, psi):
             start = contact - d * (PUSHER_RADIUS + gap)
+            if seed is not None:
+                self._teleport_joints(seed)
             self._teleport([*start, PUSH_HEIGHT], orn)
             if self._can_start_at(start):
                 break
@@ -217,9 +263,77 @@ class PushWorld:
         self._teleport_joints(HOME)
         self._settle()
 
+    def _turn_to_canonical(self, th: float) -> float:
+        """Turn the simulated block by whole quarter turns into (-pi/4, pi/4]; returns its
+        new orientation.
+
+        A uniform square block turned by a quarter turn is the same object, but Bullet's box
+        contacts depend on which box axis is which: pushed alike, two poses that look alike
+        ended up to 5 mm apart. Simulating both from one representative (rounded to 1e-9
+        rad so that both round to it) makes them end up alike to the last bit.
+        """
+        quarter = math.pi / 2
+        canonical = round(wrap_angle(th, quarter), 9)
+        self._turned = round((th - canonical) / quarter) * quarter
+        pos, _ = self.sim.getBasePositionAndOrientation(self.block)
+        self.sim.resetBasePositionAndOrientation(self.block, pos, _quat(canonical))
+        self.sim.resetBaseVelocity(self.block, [0, 0, 0], [0, 0, 0])
+        return canonical
+
+    def _start_candidates(self, contact: np.ndarray, psi: float):
+        """(approach gap, hand orientation, IK seed or None) to try in turn for a push along
+        `psi`.
+
+        First the hand pointing straight down with the fingers across the push, backing off
+        along the push line (at steep angles a finger's side would be inside the block just
+        behind the contact point); then the hand turned round (the closed fingers are
+        symmetric, and the wrist's joint range may only allow one of the two); then, for
+        starts beyond the straight-down reach (about 0.8 m from the base), the hand leaning
+        away from the base, which reaches further. The first candidate is the only one the
+        world had before, so a push it could start is made exactly as before; IK for the
+        others starts from a posture that already points the hand their way, because IK
+        from the last attempt keeps winding the wrist past its limit.
+        """
+        r = float(np.hypot(*contact))
+        radial = contact / r if r > 0 else np.array([1.0, 0.0])
+        axis = [-radial[1], radial[0], 0.0]  # horizontal, across the radial direction
+        first = True
+        for tilt in HAND_TILTS:
+            lean = self.sim.getQuaternionFromAxisAngle(axis, -tilt)
+            for yaw in (psi, psi + math.pi):
+                down = self.sim.getQuaternionFromEuler([math.pi, 0.0, yaw])  # fingers across
+                orn = (down if tilt == 0.0  # as before to the last bit
+                       else self.sim.multiplyTransforms([0, 0, 0], lean, [0, 0, 0], down)[1])
+                seed = None if first else self._posture_towards(radial, yaw)
+                first = False
+                for gap in APPROACH_GAPS:
+                    yield gap, orn, seed
+                    seed = None  # the next gap starts from this one's solution
+
+    def _posture_towards(self, radial: np.ndarray, yaw: float) -> list[float]:
+        """HOME turned to face `radial` with the wrist giving the hand about `yaw`.
+
+        With the hand pointing down its yaw is about q1 - q7 + HOME's q7; of the wrist
+        angles that give it (2 pi apart) take the one furthest inside the joint's range.
+        """
+        q1 = math.atan2(radial[1], radial[0])
+        q7 = q1 - yaw + HOME[6]
+        lo, hi = self._lower[6], self._upper[6]
+        mid = (lo + hi) / 2
+        q7 = mid + wrap_angle(q7 - mid)
+        return [q1, *HOME[1:6], float(np.clip(q7, lo, hi))]
+
     def _can_start_at(self, start: np.ndarray) -> bool:
-        """Did the teleport reach the push's start, with the arm clear of the block?"""
+        """Did the teleport reach the push's start, with the arm clear of the block and its
+        joints inside their limits (with a margin for the push itself)?
+
+        IK does not keep to the limits and a teleport does not enforce them, but the
+        simulation does: a start beyond them twists the hand as soon as the push begins.
+        """
         if np.linalg.norm(self.ee_position()[:2] - start) > START_TOLERANCE:
+            return False
+        q = np.array([s[0] for s in self.sim.getJointStates(self.arm, ARM_JOINTS)])
+        if np.any(q < self._lower_margin) or np.any(q > self._upper_margin):
             return False
         self.sim.performCollisionDetection()
         return all(c[8] > -1e-3 for c in self.sim.getContactPoints(self.arm, self.block))

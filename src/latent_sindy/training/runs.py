@@ -211,7 +211,7 @@ class RunDir:
             config = self.train_config(record)
             model_cfg = from_json(ModelConfig, record["model"], f"{where}: model")
             norm = Normalizer.from_dict(record["normalizer"])
-            env_config = from_json(PushEnvConfig, record["env"], f"{where}: env")
+            env_config = PushEnvConfig.from_record(record["env"], f"{where}: env")
         except (KeyError, TypeError, ValueError) as e:
             raise UserError(f"{where} is damaged ({type(e).__name__}: {e}); retrain the "
                             "run") from e
