@@ -53,6 +53,7 @@ from latent_sindy.configs import to_json
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
+from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import BASELINES, Stat, aggregate, baseline_errors
@@ -122,7 +123,8 @@ def collect_stage(cfg: ReproduceConfig, say: Say) -> Path:
     if cfg.data is not None and path.exists():
         say(f"[1/4] data: using {path} as given")
         return path
-    plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed)
+    plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed,
+                          env=PushEnvConfig.named(cfg.world))
     if path.exists():
         say(f"[1/4] data: reusing {path}")
     else:
@@ -189,7 +191,7 @@ def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
                 say(f"  [{elapsed:5.0f} s] {result['status']} {job.name} (seed {job.seed})"
                     f" in {result['seconds']:.0f} s")
                 spec = study.spec(job.name)
-                controls = tuple((c, scale.control_config(c, job.seed))
+                controls = tuple((c, scale.control_config(c, job.seed, study.config.world))
                                  for c in scale.conditions(spec))
                 ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
                 pending[pool.submit(eval_job, ev)] = ("eval", ev)
@@ -328,7 +330,7 @@ def summary_record(study: Study, data: Trajectories, data_path: Path) -> dict[st
         "data": {"path": str(data_path), "trajectories": data.n, "steps": data.steps,
                  "splits": data.split_counts(), "seed": data.seed,
                  "fingerprint": data.fingerprint()},
-        "control": {s.name: {c.name: to_json(scale.control_config(c, 0))
+        "control": {s.name: {c.name: to_json(scale.control_config(c, 0, study.config.world))
                              for c in scale.conditions(s)} for s in study.specs},
         "versions": versions(),
         "machine": {"cpus": os.cpu_count(), "load_average": list(os.getloadavg()),

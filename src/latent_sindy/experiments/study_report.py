@@ -138,6 +138,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     train_s = sum(m.get("train/seconds") or 0.0 for d in study.per_seed.values()
                   for m in d.values())
     load = ", ".join(f"{v:.1f}" for v in summary["machine"]["load_average"])
+    planner = scale.planner(cfg.world)
     headline = ", ".join(s.label for s in study.specs if s.headline)
     image = ", ".join(s.label for s in study.specs if s.image_space)
     control_note = (f"closed loop per model and seed, on one fixed list of random tasks: "
@@ -146,8 +147,16 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                     f"{scale.other_random_episodes} for the other rows (at most "
                     f"{scale.max_steps} pushes); {scale.image_paper_episodes} + "
                     f"{scale.image_random_episodes} with image-space MPPI for {image} (at most "
-                    f"{scale.image_max_steps}); MPPI K={scale.mppi.samples}, "
-                    f"H={scale.mppi.horizon}")
+                    f"{scale.image_max_steps}); MPPI K={planner.samples}, "
+                    f"H={planner.horizon}, Σ={planner.sigma}")
+    world = {"symmetric": "symmetric pushes: the push direction is a world angle, pushed from "
+                          "the face most opposite to it",
+             "paper": "the paper's world: pushes from the block's −x face, angle relative to "
+                      "its x axis",
+             "marked": "the paper's push on a block whose +x half is marked"}[cfg.world]
+    r.paragraph(f"World: {cfg.world} ({world}). The strict criterion compares orientations "
+                "modulo the block's visible symmetry (90° for the uniform block, 360° for the "
+                "marked one).")
     r.paragraph(
         f"Data: {data['trajectories']} trajectories of {data['steps']} pushes (splits "
         f"{data['splits']}). Every model trained {scale.epochs} epochs, batch "

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Annotated, Any, ClassVar, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import torch
 import tyro
@@ -35,6 +35,7 @@ from latent_sindy.sindy.library import (
     LibrarySpec,
     LibrarySubset,
     SindyLibrary,
+    push_library,
     spec_from_dict,
 )
 from latent_sindy.sindy.optimizers import STLSQ
@@ -493,16 +494,29 @@ class SindyConfig:
     include_sine: bool = True
     """Add sin(z_i) candidates."""
     include_cosine: bool = False
-    """Add cos(z_i) candidates."""
+    """Add cos(z_i) candidates ("poly" library only)."""
+    library: Literal["poly", "push"] = "poly"
+    """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
+    length times the sine and cosine of the push angle, alone and times each state (what a
+    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
 
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
+        if self.library not in ("poly", "push"):
+            raise UserError(f"--library {self.library!r}: use poly or push")
+        if self.library == "push" and self.include_cosine:
+            raise UserError("--include-cosine is for the poly library only")
         _check_scale("SINDy", self.init_scale)
 
     def build(self, nz: int, nu: int) -> SindyDynamics:
+        if self.library == "push":
+            if nu < 3:
+                raise UserError(f"the push library needs actions [p, angle, length], got {nu}")
+            spec = push_library(self.order, angle=1, length=2, include_sine=self.include_sine)
+            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec)
         return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
                              include_cosine=self.include_cosine, init_scale=self.init_scale)
 
