@@ -101,7 +101,7 @@ def test_every_figure_equation_and_summary_is_written(study):
     gifs = {p.name for p in (fig / "gifs").glob("*.gif")}
     assert gifs == {f"{m}_{c.task}-{c.space}.gif" for m, conds in CONDITIONS.items()
                     for c in conds}
-    assert {c.space for c in CONDITIONS["state_sindy2"]} == {"latent"}
+    assert {c.space for c in CONDITIONS["state_sindy"]} == {"latent"}
     assert {c.space for c in CONDITIONS["sindy2"]} == {"latent", "image"}
     for m in MODELS:
         assert (out / f"equations_{m}.txt").read_text().startswith("# seed 0")

@@ -148,7 +148,7 @@ def run_stage(study: Study, data: Path, say: Say) -> None:
     for seed in cfg.seeds:
         for spec in study.specs:
             tc = TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
-                             window=spec.window, epochs=scale.epochs,
+                             loss=spec.loss, window=spec.window, epochs=scale.epochs,
                              batch_size=scale.batch_size, threshold=scale.threshold,
                              threshold_every=scale.threshold_every, seed=seed)
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
