@@ -125,8 +125,10 @@ class Train:
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
         default_factory=TrainConfig)
-    threads: int = 1
-    """torch CPU threads (1 is fastest when other jobs share the cores)."""
+    # 2 threads trained 1.7x faster than 1 on 2 cores (BENCHMARKS.md); 1 can be faster while
+    # other jobs load the cores. The bits of a CPU result depend on the thread count.
+    threads: int = 0
+    """torch CPU threads; 0: one per core (results are bit-identical per seed and thread count)."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -134,11 +136,11 @@ class Train:
         import torch
 
         from latent_sindy.progress import TqdmProgress
-        from latent_sindy.training import train
+        from latent_sindy.training import default_threads, train
 
-        if self.threads < 1:
-            raise UserError(f"--threads {self.threads}: use 1 or more")
-        torch.set_num_threads(self.threads)
+        if self.threads < 0:
+            raise UserError(f"--threads {self.threads}: use 1 or more, or 0 for every core")
+        torch.set_num_threads(self.threads or default_threads())
         out = train(self.config, TqdmProgress() if self.progress else None)
         print(f"wrote {out} (config.json, model.pt, metrics.csv, loss.png)")
 
