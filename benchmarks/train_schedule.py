@@ -11,7 +11,9 @@ each to the row above:
   * eval_every N: validation every N epochs and at the last (``--eval-every``);
   * malloc keeps memory: glibc's malloc keeps freed blocks for reuse instead of returning
     them to the OS and page-faulting them back at every step (the trainer's code now);
-  * threads T: T torch threads (the CLI's ``--threads``).
+  * threads T: T torch threads (the CLI's ``--threads``), first with libgomp's default wait
+    policy (idle OpenMP threads spin), then with ``OMP_WAIT_POLICY=PASSIVE`` (they sleep; the
+    CLI sets it).
 
 Every variant runs in a fresh process and trains ``2 * --epochs`` epochs (``--epochs`` a
 multiple of ``--eval-every``) from the same seed; the first half warms up (memory, oneDNN's
@@ -98,15 +100,18 @@ class Variant:
     eval_every: int
     inference_mode: bool
     keep_memory: bool
+    omp_passive: bool = False
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
+    t, n = args.threads, args.eval_every
     return [
         Variant("before (no_grad eval every epoch, 1 thread)", 1, 1, False, False),
         Variant("+ inference_mode validation", 1, 1, True, False),
-        Variant(f"+ eval_every {args.eval_every}", 1, args.eval_every, True, False),
-        Variant("+ malloc keeps freed memory", 1, args.eval_every, True, True),
-        Variant(f"+ {args.threads} threads", args.threads, args.eval_every, True, True),
+        Variant(f"+ eval_every {n}", 1, n, True, False),
+        Variant("+ malloc keeps freed memory", 1, n, True, True),
+        Variant(f"+ {t} threads (OpenMP threads spin)", t, n, True, True),
+        Variant(f"+ {t} threads, OMP_WAIT_POLICY=PASSIVE", t, n, True, True, True),
     ]
 
 
@@ -137,7 +142,10 @@ def run_child(k: int, args: argparse.Namespace, data: Path, out: Path) -> dict:
     cmd = [sys.executable, __file__, "--child", str(k), "--data", str(data), "--out", str(out),
            "--epochs", str(args.epochs), "--eval-every", str(args.eval_every),
            "--threads", str(args.threads), "--decoder", args.decoder]
-    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if variants(args)[k].omp_passive:  # read when torch loads libgomp: set per process
+        env["OMP_WAIT_POLICY"] = "PASSIVE"
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     if done.returncode:
         raise SystemExit(f"variant {k} failed:\n{done.stderr}")
     return json.loads(done.stdout.strip().splitlines()[-1])

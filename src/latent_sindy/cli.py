@@ -16,6 +16,13 @@ stderr and exit status 2; set LATENT_SINDY_DEBUG=1 to see the traceback.
 from __future__ import annotations
 
 import os
+
+# Read once, when torch loads libgomp, hence before any import below: OpenMP threads waiting
+# at the end of a parallel region sleep instead of spinning on a core. Then 2 threads train
+# no slower than 1 while other jobs load the cores, where spinning made them 1.4x slower
+# (benchmarks/train_schedule.py); the arithmetic is unchanged. The environment's value wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import sys
 import time
 from dataclasses import dataclass, field
