@@ -62,8 +62,8 @@ class TrainConfig:
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
     checkpoint_every: int = 10
     """Write checkpoint.pt every this many epochs (and always at the end)."""
-    # Validation is a forward pass over 500 windows: 1/3 of an epoch's arithmetic at the
-    # paper's sizes, and it never changes the model.
+    # Validation is a forward pass over 500 windows, about a seventh of an epoch at the
+    # paper's sizes (BENCHMARKS.md), and it never changes the model.
     eval_every: int = 1
     """Validation loss every this many epochs and at the last (others' val/* stay empty)."""
     device: Literal["auto", "cpu", "cuda"] = "cpu"
