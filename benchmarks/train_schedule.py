@@ -25,6 +25,7 @@ about 5 s) is not. Minor page faults and kernel (sys) time per timed epoch are p
 
     .venv/bin/python benchmarks/train_schedule.py --rounds 3
     .venv/bin/python benchmarks/train_schedule.py --data data/push.h5 --epochs 20
+    .venv/bin/python benchmarks/train_schedule.py --only 3 5   # 1 against 2 threads
 """
 
 from __future__ import annotations
@@ -160,6 +161,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2, help="the threads variant's T")
     p.add_argument("--decoder", choices=("conv", "fc"), default="conv")
     p.add_argument("--project", type=int, default=3000, help="epochs of the projected run")
+    p.add_argument("--only", type=int, nargs="+", help="run only these rows (0 = before)")
     p.add_argument("--child", type=int, help=argparse.SUPPRESS)
     p.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = p.parse_args()
@@ -176,23 +178,25 @@ def main() -> None:
         data = args.data or synthetic_data(Path(tmp) / "synthetic.h5")
         print(f"data: {args.data or 'synthetic (random images), 100/50/50 trajectories x 10'}")
         best: dict[int, dict] = {}
+        rows = args.only or range(len(vs))
         for r in range(args.rounds):
-            for k, v in enumerate(vs):
+            for k in rows:
+                v = vs[k]
                 got = run_child(k, args, data, Path(tmp) / "run")
                 if k not in best or got["epoch_s"] < best[k]["epoch_s"]:
                     best[k] = got | {"fixed_s": min(got["fixed_s"],
                                                     best.get(k, got)["fixed_s"])}
                 print(f"  round {r + 1}: {v.name:<46} {1e3 * got['epoch_s']:7.1f} ms/epoch "
                       f"(load average {load()})", flush=True)
-    first = prev = best[0]["epoch_s"]
-    print(f"\nbest ms per epoch; x: speed-up over the row above and over 'before'; projected "
+    first = prev = best[rows[0]]["epoch_s"]
+    print(f"\nbest ms per epoch; x: speed-up over the row above and over the first row; projected "
           f"{args.project}-epoch run = {args.project} epochs + set-up and final save "
           f"(before on this machine: {BEFORE_MINUTES} min); page faults and kernel time per "
           "epoch of that best run")
-    print(f"{'variant':<46} {'ms/epoch':>9} {'x above':>8} {'x before':>9} {'projected':>10} "
+    print(f"{'variant':<46} {'ms/epoch':>9} {'x above':>8} {'x first':>9} {'projected':>10} "
           f"{'faults':>7} {'sys ms':>7}")
-    for k, v in enumerate(vs):
-        b = best[k]
+    for k in rows:
+        v, b = vs[k], best[k]
         minutes = (args.project * b["epoch_s"] + b["fixed_s"]) / 60
         print(f"{v.name:<46} {1e3 * b['epoch_s']:9.1f} {prev / b['epoch_s']:8.2f} "
               f"{first / b['epoch_s']:9.2f} {minutes:6.1f} min {b['faults']:7.0f} "

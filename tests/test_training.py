@@ -355,6 +355,19 @@ def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None
     assert train(more) == sparse
 
 
+def test_resume_with_another_thread_count_says_so(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2)
+    train(cfg)
+    progress = Recorder()
+    torch.set_num_threads(2)
+    try:
+        train(dataclasses.replace(cfg, epochs=3, resume=True), progress)
+    finally:
+        torch.set_num_threads(1)
+    notes = [c[1] for c in progress.calls if c[0] == "note"]
+    assert any("with 2 thread(s) a run trained on cpu with 1" in n for n in notes), notes
+
+
 # ----------------------------------------------------------------------------- devices
 def test_device_cuda_without_cuda_is_one_line(data: Path, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
