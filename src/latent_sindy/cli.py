@@ -18,9 +18,9 @@ from __future__ import annotations
 import os
 
 # Read once, when torch loads libgomp, hence before any import below: OpenMP threads waiting
-# at the end of a parallel region sleep instead of spinning on a core. Then 2 threads train
-# no slower than 1 while other jobs load the cores, where spinning made them 1.4x slower
-# (benchmarks/train_schedule.py); the arithmetic is unchanged. The environment's value wins.
+# at the end of a parallel region sleep instead of spinning on a core. While other jobs held
+# both cores, spinning made 2 training threads 2x slower than 1, sleeping 1.2x slower at worst
+# (BENCHMARKS.md); the arithmetic is unchanged. A value in the environment wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import sys
@@ -132,8 +132,8 @@ class Train:
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
         default_factory=TrainConfig)
-    # 2 threads trained 1.7x faster than 1 on 2 cores (BENCHMARKS.md); 1 can be faster while
-    # other jobs load the cores. The bits of a CPU result depend on the thread count.
+    # A second thread pays on a machine of one's own; while other jobs hold the cores it
+    # measured 0.86-1.06x of one (BENCHMARKS.md). A CPU result's bits depend on the count.
     threads: int = 0
     """torch CPU threads; 0: one per core (results are bit-identical per seed and thread count)."""
     progress: bool = True
