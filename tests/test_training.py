@@ -18,8 +18,10 @@ import numpy as np
 import pytest
 import torch
 
+from latent_sindy.configs import from_json
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import read_trajectories, write_trajectories
+from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LatentModel, ModelConfig
@@ -32,6 +34,8 @@ from latent_sindy.training import (
     read_metrics,
     train,
 )
+from latent_sindy.training.config import resolve_device
+from latent_sindy.training.loop import run_record
 
 KINDS = ("sindy", "linear", "mlp")
 TINY_AE = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,)}
@@ -289,6 +293,109 @@ def test_resume_with_other_settings_names_them(data: Path, tmp_path: Path) -> No
         train(dataclasses.replace(cfg, resume=True, epochs=1))
 
 
+# ----------------------------------------------------------------------------- eval_every
+def reference_model(cfg: TrainConfig) -> tuple[LatentModel, list[float]]:
+    """The training arithmetic of the trainer before eval_every and devices (commit cfda25a),
+    without its run folder: the model and the validation objective of every epoch."""
+    data = read_trajectories(cfg.data)
+    record = run_record(cfg, data)
+    norm = Normalizer.from_dict(record["normalizer"])
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.seed)
+        model = LatentModel(from_json(ModelConfig, record["model"], "model"))
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, betas=cfg.betas,
+                            weight_decay=cfg.weight_decay)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    x, u = WindowDataset(data.split("train"), cfg.window, norm).tensors()
+    xv, uv = WindowDataset(data.split("val"), cfg.window, norm).tensors()
+    val = []
+    for epoch in range(1, cfg.epochs + 1):
+        order = torch.randperm(len(x), generator=gen)
+        for b in range(0, len(x), cfg.batch_size):
+            idx = order[b : b + cfg.batch_size]
+            terms = model.loss(x[idx], u[idx], cfg.loss)
+            opt.zero_grad(set_to_none=True)
+            terms["total"].backward()
+            opt.step()
+        if cfg.threshold_every and epoch % cfg.threshold_every == 0:
+            with torch.no_grad():
+                model.dynamics.threshold(cfg.threshold)
+                for key in ("exp_avg", "exp_avg_sq"):
+                    opt.state[model.dynamics.psi][key].masked_fill_(~model.dynamics.mask, 0.0)
+        with torch.no_grad():
+            model.eval()
+            val.append(float(model.loss(xv, uv, cfg.loss)["objective"].double()))
+            model.train()
+    return model, val
+
+
+def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None:
+    """eval_every=1 gives the model and losses of the trainer as it was, bit for bit; other
+    values leave val/* empty except every N-th and the last epoch, and the same model."""
+    kw = {"epochs": 5, "threshold": 3e-3, "threshold_every": 2, "dynamics": {"init_scale": 3e-3},
+          "batch_size": 20}  # one batch per epoch: the validation loss is one batch too
+    every = train(config(data, tmp_path / "every", **kw))
+    ref, ref_val = reference_model(config(data, tmp_path / "ref", **kw))
+    states_equal(load_run(every).model, ref)
+    assert [r["val/objective"] for r in read_metrics(every)] == ref_val
+    sparse = train(config(data, tmp_path / "sparse", eval_every=2, **kw))
+    states_equal(load_run(sparse).model, ref)
+    rows, full = read_metrics(sparse), read_metrics(every)
+    evaluated = [r["epoch"] for r in rows if r["val/objective"] is not None]
+    assert evaluated == [2, 4, 5]  # every 2nd and the last
+    for a, b in zip(rows, full, strict=True):
+        for k in METRIC_COLUMNS:
+            if k != "time_s" and (not k.startswith("val/") or a["epoch"] in evaluated):
+                assert a[k] == b[k], (a["epoch"], k)
+            elif k.startswith("val/"):
+                assert a[k] is None
+    # Changing eval_every on resume is allowed: it does not change the model.
+    more = dataclasses.replace(config(data, tmp_path / "sparse", eval_every=3, **kw),
+                               epochs=6, resume=True)
+    assert train(more) == sparse
+
+
+def test_resume_with_another_thread_count_says_so(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2)
+    train(cfg)
+    progress = Recorder()
+    torch.set_num_threads(2)
+    try:
+        train(dataclasses.replace(cfg, epochs=3, resume=True), progress)
+    finally:
+        torch.set_num_threads(1)
+    notes = [c[1] for c in progress.calls if c[0] == "note"]
+    assert any("with 2 thread(s) a run trained on cpu with 1" in n for n in notes), notes
+
+
+# ----------------------------------------------------------------------------- devices
+def test_device_cuda_without_cuda_is_one_line(data: Path, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == "cpu"
+    with pytest.raises(UserError, match=r"--device cuda: .*no CUDA device") as e:
+        train(config(data, tmp_path / "run", device="cuda"))
+    assert "\n" not in str(e.value)
+    assert not (tmp_path / "run").exists()  # refused before anything was written
+    run = train(config(data, tmp_path / "auto", device="auto", epochs=1))
+    assert load_run(run).config.device == "auto"
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_training_writes_cpu_files(data: Path, tmp_path: Path) -> None:
+    kw = {"threshold": 3e-3, "threshold_every": 1, "dynamics": {"init_scale": 3e-3}}
+    run = train(config(data, tmp_path / "run", device="cuda", epochs=2, **kw))
+    ckpt = torch.load(run / "checkpoint.pt", weights_only=True)  # no map_location needed
+    assert all(t.device.type == "cpu" for t in ckpt["model"].values())
+    assert ckpt["device"] == "cuda"
+    cpu = train(config(data, tmp_path / "cpu", epochs=2, **kw))
+    a, b = load_run(run).model.state_dict(), load_run(cpu).model.state_dict()
+    for k in a:  # the same mini-batches and initial weights: close, not bit-identical
+        assert torch.allclose(a[k].float(), b[k].float(), atol=1e-4), k
+    resumed = train(dataclasses.replace(config(data, run, device="cpu", epochs=3, **kw),
+                                        resume=True))
+    assert len(read_metrics(resumed)) == 3
+
+
 def test_finished_run_is_not_overwritten(data: Path, tmp_path: Path) -> None:
     cfg = config(data, tmp_path / "run", epochs=1)
     train(cfg)
@@ -336,6 +443,8 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
         ({"lr": -1.0}, "--lr"),
         ({"threshold_every": -1}, "--threshold-every"),
         ({"resume": True, "overwrite": True}, "contradict"),
+        ({"eval_every": 0}, "--eval-every 0"),
+        ({"device": "tpu"}, "--device 'tpu' is unknown"),
     ],
 )
 def test_bad_settings(tmp_path: Path, kwargs: dict, message: str) -> None:

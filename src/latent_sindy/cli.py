@@ -16,6 +16,13 @@ stderr and exit status 2; set LATENT_SINDY_DEBUG=1 to see the traceback.
 from __future__ import annotations
 
 import os
+
+# Read once, when torch loads libgomp, hence before any import below: OpenMP threads waiting
+# at the end of a parallel region sleep instead of spinning on a core. While other jobs held
+# both cores, spinning made 2 training threads 2x slower than 1, sleeping 1.2x slower at worst
+# (BENCHMARKS.md); the arithmetic is unchanged. A value in the environment wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import sys
 import time
 from dataclasses import dataclass, field
@@ -125,8 +132,10 @@ class Train:
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
         default_factory=TrainConfig)
-    threads: int = 1
-    """torch CPU threads (1 is fastest when other jobs share the cores)."""
+    # A second thread pays on a machine of one's own; while other jobs hold the cores it
+    # measured 0.86-1.06x of one (BENCHMARKS.md). A CPU result's bits depend on the count.
+    threads: int = 0
+    """torch CPU threads; 0: one per core (results are bit-identical per seed and thread count)."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -134,11 +143,11 @@ class Train:
         import torch
 
         from latent_sindy.progress import TqdmProgress
-        from latent_sindy.training import train
+        from latent_sindy.training import default_threads, train
 
-        if self.threads < 1:
-            raise UserError(f"--threads {self.threads}: use 1 or more")
-        torch.set_num_threads(self.threads)
+        if self.threads < 0:
+            raise UserError(f"--threads {self.threads}: use 1 or more, or 0 for every core")
+        torch.set_num_threads(self.threads or default_threads())
         out = train(self.config, TqdmProgress() if self.progress else None)
         print(f"wrote {out} (config.json, model.pt, metrics.csv, loss.png)")
 

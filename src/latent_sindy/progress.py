@@ -66,6 +66,7 @@ class TqdmProgress:
     def __init__(self, desc: str = "train") -> None:
         self.desc = desc
         self.bar: Any = None
+        self.val: float | None = None  # the last validation loss (not every epoch has one)
 
     def start(self, total: int, initial: int) -> None:
         from tqdm import tqdm
@@ -74,7 +75,9 @@ class TqdmProgress:
                         dynamic_ncols=True, file=sys.stderr)
 
     def update(self, epoch: int, metrics: Mapping[str, float | None]) -> None:
-        shown = {"train": metrics.get("train/objective"), "val": metrics.get("val/objective"),
+        if metrics.get("val/objective") is not None:
+            self.val = metrics["val/objective"]
+        shown = {"train": metrics.get("train/objective"), "val": self.val,
                  "active": metrics.get("sindy/active")}
         self.bar.set_postfix({k: f"{v:.4g}" for k, v in shown.items() if v is not None},
                              refresh=False)

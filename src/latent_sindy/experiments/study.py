@@ -77,6 +77,8 @@ class Scale:
     """SINDy: prune |Ψ| below this ..."""
     threshold_every: int = 6
     """... every this many epochs."""
+    eval_every: int = 1
+    """Validation loss every this many epochs (and at the last); it does not change the model."""
     multistep_window: int = 4
     """Training window H of the multi-step SINDy model."""
     paper_episodes: int = 5
@@ -146,7 +148,7 @@ SCALES: dict[str, Scale] = {
     # The paper's settings: 3000 epochs, batch 500, thresholding every 300 epochs; 10
     # paper-task runs (as its image-space test) and 20 random tasks per model and planner.
     "paper": dataclasses.replace(_DEMO, epochs=3000, batch_size=500, threshold_every=300,
-                                 paper_episodes=10, random_episodes=100,
+                                 eval_every=10, paper_episodes=10, random_episodes=100,
                                  other_random_episodes=50, image_paper_episodes=10,
                                  image_random_episodes=50),
     # Seconds: only checks that the pipeline runs end to end (tests).

@@ -8,7 +8,7 @@ so the same latent model, loss (its reconstruction term is then 0) and trainer f
 dynamics directly on states. These models are the upper bound the image models are measured
 against; they never see an image.
 
-    latent-sindy train sindy --order 1 --library push --lambda-l1 1e-4 state --data d.h5 --out runs/s
+    latent-sindy train sindy --order 1 --library push --lambda-l1 1e-4 state --out runs/s
 """
 
 from __future__ import annotations

@@ -9,9 +9,9 @@ its schedule (:func:`train`).
     model, normalizer, cfg, env_config = load_run(run)
 """
 
-from latent_sindy.training.config import RESUMABLE, TrainConfig
+from latent_sindy.training.config import RESUMABLE, TrainConfig, default_threads
 from latent_sindy.training.loop import TrainingDiverged, evaluate, train
 from latent_sindy.training.runs import METRIC_COLUMNS, Run, RunDir, load_run, read_metrics
 
 __all__ = ["METRIC_COLUMNS", "RESUMABLE", "Run", "RunDir", "TrainConfig", "TrainingDiverged",
-           "evaluate", "load_run", "read_metrics", "train"]
+           "default_threads", "evaluate", "load_run", "read_metrics", "train"]

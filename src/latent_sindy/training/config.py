@@ -10,19 +10,26 @@ weights; on the command line every field is a flag named like the field.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
+import torch
 import tyro
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 
-__all__ = ["RESUMABLE", "TrainConfig"]
+__all__ = ["DEVICES", "RESUMABLE", "TrainConfig", "default_threads", "resolve_device"]
 
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
-RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "out", "data"})
+RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "eval_every",
+                       "device", "out", "data"})
+
+#: Values of :attr:`TrainConfig.device`.
+DEVICES = ("auto", "cpu", "cuda")
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,12 @@ class TrainConfig:
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
     checkpoint_every: int = 10
     """Write checkpoint.pt every this many epochs (and always at the end)."""
+    # Validation is a forward pass over 500 windows, about a seventh of an epoch at the
+    # paper's sizes (BENCHMARKS.md), and it never changes the model.
+    eval_every: int = 1
+    """Validation loss every this many epochs and at the last (others' val/* stay empty)."""
+    device: Literal["auto", "cpu", "cuda"] = "cpu"
+    """cpu (bit-identical per seed and threads), cuda (not bit-identical), auto: cuda if present."""
     seed: int = 0
     """Seeds the initial weights and the mini-batch order."""
     resume: bool = False
@@ -81,6 +94,9 @@ class TrainConfig:
              f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
             (self.checkpoint_every >= 1,
              f"--checkpoint-every {self.checkpoint_every}: use 1 or more"),
+            (self.eval_every >= 1, f"--eval-every {self.eval_every}: use 1 or more"),
+            (self.device in DEVICES,
+             f"--device {self.device!r} is unknown: use one of {', '.join(DEVICES)}"),
             (self.seed >= 0, f"--seed {self.seed}: seeds are non-negative integers"),
             (not (self.resume and self.overwrite),
              "--resume and --overwrite contradict each other: choose one"),
@@ -90,3 +106,20 @@ class TrainConfig:
                 raise UserError(message)
         if not isinstance(self.model, ModelConfig):
             raise TypeError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+
+
+def resolve_device(device: str) -> str:
+    """The torch device a :attr:`TrainConfig.device` setting trains on ("cpu" or "cuda");
+    UserError for "cuda" on a machine without a usable CUDA device."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise UserError(f"--device cuda: this torch ({torch.__version__}) sees no CUDA device; "
+                        "use --device cpu or auto")
+    return device
+
+
+def default_threads() -> int:
+    """torch CPU threads for training: one per core this process may run on, at most torch's
+    own default (which honours OMP_NUM_THREADS)."""
+    return max(1, min(torch.get_num_threads(), len(os.sched_getaffinity(0))))
