@@ -36,19 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
+from latent_sindy.control.closed_loop import wilson_interval
+
 DESIGNS = ("symmetric", "marked", "paper")
 N_BINS = 8
 
 
 # --------------------------------------------------------------------------- statistics
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a binomial rate k/n."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
+wilson = wilson_interval  # 95 % Wilson score interval of a binomial rate k/n
 
 
 def rate(k: int, n: int) -> str:
