@@ -42,6 +42,16 @@ from latent_sindy.training.config import TrainConfig
 Flat = tyro.conf.OmitArgPrefixes
 
 
+MAX_THREADS = 1024
+
+
+def _check_threads(n: int, auto: bool) -> None:
+    """UserError unless ``n`` is a usable torch thread count (0 = one per core, if ``auto``)."""
+    if not (0 if auto else 1) <= n <= MAX_THREADS:
+        raise UserError(f"--threads {n}: use 1 to {MAX_THREADS}"
+                        + (", or 0 for one per core" if auto else ""))
+
+
 def _bar(desc: str, unit: str):
     def wrap(iterable, total: int, initial: int = 0):
         return bar(iterable, total, initial, desc=desc, unit=unit)
@@ -145,8 +155,7 @@ class Train:
         from latent_sindy.progress import TqdmProgress
         from latent_sindy.training import default_threads, train
 
-        if self.threads < 0:
-            raise UserError(f"--threads {self.threads}: use 1 or more, or 0 for every core")
+        _check_threads(self.threads, auto=True)
         torch.set_num_threads(self.threads or default_threads())
         out = train(self.config, TqdmProgress() if self.progress else None)
         print(f"wrote {out} (config.json, model.pt, metrics.csv, loss.png)")
@@ -197,8 +206,7 @@ class Control:
         from latent_sindy.training import RunDir
 
         s = self.settings
-        if self.threads < 1:
-            raise UserError(f"--threads {self.threads}: use 1 or more")
+        _check_threads(self.threads, auto=False)
         torch.set_num_threads(self.threads)
         run_dir = RunDir(self.run_dir)
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")

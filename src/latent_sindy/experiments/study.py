@@ -194,9 +194,9 @@ class ReproduceConfig:
             raise UserError(f"--scale {self.scale}: use one of {', '.join(SCALES)}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
             raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
-        if self.workers < 1 or self.threads < 1:
+        if self.workers < 1 or not 1 <= self.threads <= 1024:
             raise UserError(f"--workers {self.workers} and --threads {self.threads}: use 1 or "
-                            "more")
+                            "more workers and 1 to 1024 threads")
         if self.data_seed < 0:
             raise UserError(f"--data-seed {self.data_seed}: seeds are non-negative integers")
 
