@@ -21,7 +21,6 @@ would each need adapters for the same rules and add a dependency to every instal
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from pathlib import Path
@@ -154,15 +153,9 @@ def _union(args: tuple, value: Any, where: str) -> Any:
         if kind not in tagged:
             raise _fail(where, f"kind {kind!r} is unknown: use one of {sorted(map(str, tagged))}")
         return _dataclass(tagged[kind], value, where)
-    errors = []
     for a in members:  # the first member that accepts the value (int before float)
         try:
             return _convert(a, value, where)
-        except UserError as e:
-            errors.append(str(e))
-    raise _fail(where, f"{value!r} fits none of the allowed types") from None
-
-
-def finite(value: float) -> bool:
-    """True for a finite float (NaN and ±inf are not)."""
-    return isinstance(value, int | float) and math.isfinite(value)
+        except UserError:
+            continue
+    raise _fail(where, f"{value!r} fits none of the allowed types")
