@@ -16,7 +16,7 @@ from typing import Any
 
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.experiments.report import Report
-from latent_sindy.experiments.study import Study
+from latent_sindy.experiments.study import SCALES, Study
 from latent_sindy.experiments.table import format_stat, table1_rows
 
 __all__ = ["findings", "write_report"]
@@ -170,8 +170,9 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
         r.paragraph(
             f"This is the {cfg.scale} scale: {scale.trajectories} trajectories (the paper: "
             f"100/50/50), {scale.epochs} epochs (the paper: 3000) and fewer control episodes "
-            "than the 20 random tasks of the full comparison; the numbers show the pipeline "
-            "and the trends, not the paper-scale result. Run --scale paper for that.")
+            f"than the paper scale's ({SCALES['paper'].random_episodes} random tasks for the "
+            "headline rows); the numbers show the pipeline and the trends, not the "
+            "paper-scale result. Run --scale paper for that.")
     if study.failures:
         r.paragraph("Failed runs (left out of the averages): " + "; ".join(study.failures))
 
