@@ -228,11 +228,6 @@ class ModelSpec:
     """Also plan with image-space MPPI (the paper's variant; needs an image model). The study
     runs it for SINDy-2 only: a step decodes K·H images (about 0.3 s at K = 300, H = 8)."""
 
-    @property
-    def observation(self) -> str:
-        """What the model sees: "image" or "state"."""
-        return self.model.encoder.kind
-
 
 #: What the study keeps of each closed-loop summary (control/<task>/<space>/<key>).
 CONTROL_METRICS = ("episodes", "success_rate", "success_ci_low", "success_ci_high",
