@@ -28,6 +28,7 @@ import numpy as np
 
 from latent_sindy.envs._bullet import BulletClient, pybullet_data, quiet_c_output
 from latent_sindy.envs._bullet import pybullet as pb
+from latent_sindy.envs.camera import Camera
 from latent_sindy.envs.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
 
 EE_LINK = 11  # panda_grasptarget: between the fingertips
@@ -151,10 +152,7 @@ class PushWorld:
         self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
         self.cam_block = _add_table_and_block(self.cam, self.cfg)
         self._build()
-        c = self.cfg.camera
-        self._view = self.sim.computeViewMatrixFromYawPitchRoll(
-            c.target, c.distance, c.yaw, c.pitch, 0.0, 2)
-        self._proj = self.sim.computeProjectionMatrixFOV(c.fov, 1.0, c.near, c.far)
+        self.camera = Camera(self.cfg)
         self.goal_pose = np.array([0.0, 0.0, 0.0])
         self.last_push_executed = True
         self.sim_steps = 0  # simulated steps since construction, for benchmarks
@@ -430,16 +428,12 @@ class PushWorld:
 
     def world_to_pixel(self, xyz) -> np.ndarray:
         """(row, col) of a world point in the observation image (float, pixel units)."""
-        view = np.array(self._view).reshape(4, 4).T  # PyBullet matrices are column-major
-        proj = np.array(self._proj).reshape(4, 4).T
-        clip = proj @ view @ np.array([*xyz, 1.0])
-        ndc = clip[:3] / clip[3]
-        s = self.cfg.image_size
-        return np.array([(1 - ndc[1]) / 2 * s - 0.5, (ndc[0] + 1) / 2 * s - 0.5])
+        return self.camera.world_to_pixel(xyz)
 
     def _render(self, c: BulletClient, size: int) -> np.ndarray:
         _, _, rgba, _, _ = c.getCameraImage(
-            size, size, self._view, self._proj, renderer=pb.ER_TINY_RENDERER, shadow=0,
+            size, size, self.camera.view, self.camera.projection,
+            renderer=pb.ER_TINY_RENDERER, shadow=0,
             flags=pb.ER_NO_SEGMENTATION_MASK)
         return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[..., :3]
 

@@ -1,0 +1,63 @@
+"""The overhead camera's geometry: world points to image pixels and back.
+
+PyBullet's own view and projection matrices of a :class:`~latent_sindy.envs.config.
+CameraConfig` (pure functions: no physics client), so the mapping is the one the renderer
+uses. Pixel coordinates are (row, col), pixel (0, 0) the top-left one, each pixel at its
+integer coordinates. TinyRenderer samples pixel (row, col) at viewport point (col, S - 1 -
+row), not at the pixel's centre (col + 1/2, S - 1/2 - row): measured, the block's top face
+rendered at 32 and at 128 pixels lies half a pixel from where the centre convention puts it,
+in both axes, and where this one puts it (tests/test_probe.py).
+
+    >>> cam = Camera(PushEnvConfig())
+    >>> rc = cam.world_to_pixel([0.5, 0.1, 0.0])
+    >>> cam.pixel_to_world(rc, height=0.0)  # back on the table: [0.5, 0.1]
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from latent_sindy.envs._bullet import pybullet as pb
+from latent_sindy.envs.config import PushEnvConfig
+
+__all__ = ["Camera"]
+
+
+class Camera:
+    """The observation camera of one world (its config's camera and image size)."""
+
+    def __init__(self, cfg: PushEnvConfig) -> None:
+        c = cfg.camera
+        self.size = cfg.image_size
+        #: PyBullet's view and projection matrices (column-major 16-tuples), for rendering
+        self.view = pb.computeViewMatrixFromYawPitchRoll(c.target, c.distance, c.yaw, c.pitch,
+                                                         0.0, 2)
+        self.projection = pb.computeProjectionMatrixFOV(c.fov, 1.0, c.near, c.far)
+        view = np.array(self.view).reshape(4, 4).T
+        proj = np.array(self.projection).reshape(4, 4).T
+        self._m = proj @ view  # world -> clip
+        self._inv = np.linalg.inv(self._m)
+
+    def world_to_pixel(self, xyz) -> np.ndarray:
+        """World points (..., 3) -> (row, col) (..., 2), float pixel units."""
+        p = np.asarray(xyz, dtype=float)
+        clip = np.concatenate([p, np.ones((*p.shape[:-1], 1))], -1) @ self._m.T
+        ndc = clip[..., :3] / clip[..., 3:]
+        s = self.size
+        return np.stack([(1 - ndc[..., 1]) / 2 * s - 1, (ndc[..., 0] + 1) / 2 * s], -1)
+
+    def pixel_to_world(self, rc, height: float) -> np.ndarray:
+        """(row, col) (..., 2) -> (x, y) (..., 2) where each pixel's ray meets the plane
+        z = ``height`` (m)."""
+        rc = np.asarray(rc, dtype=float)
+        s = self.size
+        nx = rc[..., 1] * 2 / s - 1
+        ny = 1 - (rc[..., 0] + 1) * 2 / s
+        ends = []
+        for nz in (-1.0, 1.0):  # the near and far plane
+            ndc = np.stack([nx, ny, np.full_like(nx, nz), np.ones_like(nx)], -1)
+            w = ndc @ self._inv.T
+            ends.append(w[..., :3] / w[..., 3:])
+        a, b = ends
+        t = (height - a[..., 2]) / (b[..., 2] - a[..., 2])
+        return (a + t[..., None] * (b - a))[..., :2]

@@ -1,0 +1,191 @@
+"""What the latent knows: a linear probe to the block's pose, and where predicted images put
+the block.
+
+* :func:`latent_probe`: R² of a ridge regression from the latent z = enc(x) to the block's
+  pose features (x, y and the symmetry-respecting angle features cos(2πθ/P), sin(2πθ/P) of
+  :func:`~latent_sindy.data.windows.pose_features`), fitted on the training split's images
+  and scored on the held-out ones;
+* :func:`block_position`: the block's (x, y) in metres read from images: the centroid of the
+  pixels darker than the table, back-projected through the camera of the world's config
+  (:class:`~latent_sindy.envs.camera.Camera`) onto the plane of the block's centre;
+* :func:`position_errors`: the block position error (cm) of the model's decoded open-loop
+  predictions h = 1..T pushes ahead against the true pose, beside reading the true images
+  (the reader's own error) and "nothing moves" (the block where the first image shows it).
+
+    run = load_run("results/runs/seed0/sindy2")
+    data = read_trajectories("results/data.h5")
+    latent_probe(run.model, data, run.normalizer)   # {"x": 0.97, "y": 0.98, ...}
+    position_errors(run.model, data, run.normalizer)["model"][0]  # cm, 1 push ahead
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import torch
+
+from latent_sindy.data.store import Trajectories
+from latent_sindy.data.windows import Normalizer, pose_features
+from latent_sindy.envs.camera import Camera
+from latent_sindy.envs.config import BLOCK_SIZE, PushEnvConfig
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LatentModel
+
+__all__ = ["FEATURES", "GRAY", "block_levels", "block_position", "latent_probe",
+           "position_errors"]
+
+#: The probe's targets, in :func:`pose_features` order.
+FEATURES = ("x", "y", "cos", "sin")
+#: Grayscale weights of R, G, B (the environment's own conversion).
+GRAY = (0.2989, 0.587, 0.114)
+#: Pixels count as block where their darkness (table − pixel, in units of the table−block
+#: contrast) exceeds this, or half the image's darkest pixel's where that is fainter (a
+#: fading predicted block); a ground-truth image's block is at least 1.
+DARK_FLOOR = 0.25
+#: Ridge strength relative to the number of training samples (on standardised latents).
+RIDGE = 1e-3
+
+
+def _gray(images: np.ndarray) -> np.ndarray:
+    """(..., C, S, S) pixel values -> (..., S, S) float64 gray."""
+    x = np.asarray(images, dtype=np.float64)
+    if x.shape[-3] == 1:
+        return x[..., 0, :, :]
+    return np.tensordot(x, np.array(GRAY), axes=([-3], [0]))
+
+
+@functools.cache
+def block_levels(cfg: PushEnvConfig) -> tuple[float, float]:
+    """(table, block) gray levels the world renders: the table's, and the lightest of the
+    block's faces (so that every block pixel of a true image is at least that dark).
+
+    Rendered once per config with the block at the centre of the workspace.
+    """
+    from latent_sindy.envs.world import PushWorld
+
+    world = PushWorld(cfg)
+    try:
+        centre = [(lo + hi) / 2 for lo, hi in zip(cfg.workspace_low, cfg.workspace_high,
+                                                   strict=True)]
+        img = _gray(world.observe((centre[0], centre[1], 0.0)))
+    finally:
+        world.close()
+    values, counts = np.unique(img, return_counts=True)
+    table = float(values[np.argmax(counts)])
+    block = img[img < table - 1.0]
+    if block.size == 0:
+        raise UserError("the world renders no block darker than its table: block positions "
+                        "cannot be read from its images")
+    return table, float(block.max())
+
+
+def block_position(images: np.ndarray | torch.Tensor, env_config: PushEnvConfig,
+                   levels: tuple[float, float] | None = None) -> np.ndarray:
+    """The block's (x, y) in metres (..., 2) in images (..., C, S, S) of pixel values.
+
+    The table level is each image's median (the block covers about 2 % of it); a pixel's
+    darkness is (table − pixel) / (table − block) with the world's levels
+    (:func:`block_levels`, or ``levels``). The centroid of the pixels darker than
+    :data:`DARK_FLOOR` (or than half the image's darkest, for a faded block), weighted by
+    darkness clipped to 1, is back-projected through the camera onto the plane of the
+    block's centre: the silhouette of top and visible sides is about centred on it. An
+    image with no pixel darker than its median gives NaN.
+    """
+    x = _gray(images.numpy() if isinstance(images, torch.Tensor) else images)
+    s = env_config.image_size
+    if x.shape[-2:] != (s, s):
+        raise UserError(f"images of {x.shape[-2]}x{x.shape[-1]} pixels, but the world renders "
+                        f"{s}x{s}")
+    table_ref, block_ref = levels if levels is not None else block_levels(env_config)
+    flat = x.reshape(-1, s, s)
+    table = np.median(flat.reshape(len(flat), -1), axis=1)[:, None, None]
+    dark = (table - flat) / (table_ref - block_ref)  # (M, S, S)
+    peak = dark.max(axis=(1, 2), keepdims=True)
+    floor = np.minimum(DARK_FLOOR, peak / 2)
+    w = np.where((dark > floor) & (peak > 0), np.minimum(dark, 1.0), 0.0)
+    total = w.sum(axis=(1, 2))
+    rows, cols = np.mgrid[0:s, 0:s]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rc = np.stack([(w * rows).sum(axis=(1, 2)) / total,
+                       (w * cols).sum(axis=(1, 2)) / total], -1)
+    xy = Camera(env_config).pixel_to_world(rc, BLOCK_SIZE[2] / 2)
+    return xy.reshape(*x.shape[:-2], 2)
+
+
+def _cm(xy: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    return 100 * np.linalg.norm(xy - poses[..., :2], axis=-1)
+
+
+@torch.no_grad()
+def _latents(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> np.ndarray:
+    x = normalizer.normalize(data.images).flatten(0, 1)  # (N (T+1), C, S, S)
+    return model.encode(x).double().numpy()
+
+
+def latent_probe(model: LatentModel, data: Trajectories, normalizer: Normalizer,
+                 held_out: str = "test") -> dict[str, float]:
+    """R² per pose feature (:data:`FEATURES`) of a ridge regression from the latent, fitted
+    on every image of the training split, scored on every image of ``held_out``.
+
+    R² = 1 − SSE / SST on the held-out images (SST about their own mean): 1 is perfect, 0
+    no better than a constant, negative worse.
+    """
+    train, test = data.split("train"), data.split(held_out)
+    if train.n == 0 or test.n == 0:
+        raise UserError(f"{data.source}: the probe needs training and {held_out} trajectories "
+                        f"(splits {data.split_counts()})")
+    model.eval()
+    period = data.env_config.angle_period
+    z_tr, z_te = _latents(model, train, normalizer), _latents(model, test, normalizer)
+    y_tr = pose_features(train.poses, period).double().numpy().reshape(len(z_tr), -1)
+    y_te = pose_features(test.poses, period).double().numpy().reshape(len(z_te), -1)
+    mu, sd = z_tr.mean(0), z_tr.std(0) + 1e-12
+    a_tr = np.column_stack([(z_tr - mu) / sd, np.ones(len(z_tr))])
+    a_te = np.column_stack([(z_te - mu) / sd, np.ones(len(z_te))])
+    reg = RIDGE * len(a_tr) * np.eye(a_tr.shape[1])
+    reg[-1, -1] = 0.0  # the intercept is not shrunk
+    beta = np.linalg.solve(a_tr.T @ a_tr + reg, a_tr.T @ y_tr)
+    sse = ((a_te @ beta - y_te) ** 2).sum(0)
+    sst = ((y_te - y_te.mean(0)) ** 2).sum(0)
+    r2 = np.where(sst > 0, 1 - sse / np.maximum(sst, 1e-300), np.nan)
+    return {f: float(v) for f, v in zip(FEATURES, r2, strict=True)}
+
+
+@torch.no_grad()
+def position_errors(model: LatentModel | None, data: Trajectories, normalizer: Normalizer,
+                    levels: tuple[float, float] | None = None) -> dict[str, list[float] | float]:
+    """Block position error (cm, mean over every start t with t + h <= T of every
+    trajectory of ``data``) at horizon h = 1..T (index h − 1).
+
+    Returns ``reader`` (reading the true images; the measure's own floor, over all frames),
+    ``still`` per h ("nothing moves": the block where image t shows it, against the true pose
+    at t + h), and, given a model, ``recon`` (its reconstructions dec(enc(x_t))) and
+    ``model`` per h (its decoded open-loop predictions from x_t with the true actions).
+    """
+    cfg = data.env_config
+    levels = levels if levels is not None else block_levels(cfg)
+    seen = block_position(data.images, cfg, levels)  # (N, T+1, 2)
+    steps = data.steps
+    still = [float(np.nanmean(_cm(seen[:, :-h], data.poses[:, h:]))) for h in range(1, steps + 1)]
+    out: dict[str, list[float] | float] = {
+        "reader": float(np.nanmean(_cm(seen, data.poses))), "still": still}
+    if model is None:
+        return out
+    model.eval()
+    x = normalizer.normalize(data.images)  # (N, T+1, C, S, S)
+    u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
+    sums, counts = np.zeros(steps), np.zeros(steps)
+    recon = []
+    for t in range(steps):
+        pred = normalizer.denormalize(model.predict(x[:, t], u[:, t:])).numpy()  # (N, T-t+1,..)
+        xy = block_position(pred, cfg, levels)  # (N, T-t+1, 2)
+        err = _cm(xy[:, 1:], data.poses[:, t + 1:])  # (N, T-t)
+        sums[: steps - t] += np.nansum(err, axis=0)
+        counts[: steps - t] += np.isfinite(err).sum(axis=0)
+        recon.append(_cm(xy[:, 0], data.poses[:, t]))
+    last = normalizer.denormalize(model.decode(model.encode(x[:, steps]))).numpy()
+    recon.append(_cm(block_position(last, cfg, levels), data.poses[:, steps]))
+    out["recon"] = float(np.nanmean(np.concatenate(recon)))
+    out["model"] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).tolist()
+    return out

@@ -1,0 +1,202 @@
+"""What the latent knows: the camera geometry, reading the block's position from images, the
+linear probe and the position error of predictions, on rendered images with known poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.data.store import Trajectories
+from latent_sindy.data.windows import Normalizer, pose_features
+from latent_sindy.envs.config import PushEnvConfig
+from latent_sindy.envs.world import PushWorld
+from latent_sindy.errors import UserError
+from latent_sindy.experiments.probe import block_position, latent_probe, position_errors
+
+HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
+
+
+@pytest.fixture(scope="module")
+def world():
+    w = PushWorld(PushEnvConfig())
+    yield w
+    w.close()
+
+
+def in_view(world: PushWorld, pose) -> bool:
+    """Is the whole block (every corner, top and bottom) inside the image?"""
+    corners = [(pose[0] + dx, pose[1] + dy, z) for dx in (-HALF_DIAGONAL, HALF_DIAGONAL)
+               for dy in (-HALF_DIAGONAL, HALF_DIAGONAL) for z in (0.0, 0.05)]
+    rc = world.camera.world_to_pixel(np.array(corners))
+    return bool(rc.min() >= 0 and rc.max() <= world.cfg.image_size - 1)
+
+
+def random_poses(world: PushWorld, n: int, seed: int) -> np.ndarray:
+    cfg, rng, out = world.cfg, np.random.default_rng(seed), []
+    while len(out) < n:
+        p = rng.uniform(cfg.workspace_low, cfg.workspace_high)
+        if in_view(world, p):
+            out.append(p)
+    return np.array(out)
+
+
+def test_world_to_pixel_is_where_the_renderer_draws_the_block():
+    """The block's top face (its own gray level) is centred where the camera projects the
+    top's centre, to a tenth of a pixel at 128 pixels (the pixel-centre convention was half
+    a pixel off in both axes)."""
+    w = PushWorld(PushEnvConfig(image_size=128))
+    try:
+        offsets = []
+        for pose in random_poses(w, 12, seed=3):
+            img = w.observe(pose)[0]
+            values, counts = np.unique(img, return_counts=True)
+            top = img == values[np.argsort(counts)[-2]]  # the table's, then the top face's
+            rows, cols = np.nonzero(top)
+            offsets.append([rows.mean(), cols.mean()]
+                           - w.world_to_pixel((pose[0], pose[1], 0.05)))
+    finally:
+        w.close()
+    assert np.abs(np.mean(offsets, axis=0)).max() < 0.15
+    assert np.abs(np.median(offsets, axis=0)).max() < 0.15
+
+
+def test_pixel_to_world_inverts_world_to_pixel(world):
+    pts = np.array([[0.5, 0.1, 0.0], [0.7, -0.3, 0.025], [0.3, 0.35, 0.05]])
+    for p in pts:
+        back = world.camera.pixel_to_world(world.camera.world_to_pixel(p), height=p[2])
+        np.testing.assert_allclose(back, p[:2], atol=1e-9)
+
+
+def test_block_position_reads_true_images_to_a_few_millimetres(world):
+    poses = random_poses(world, 60, seed=0)
+    images = np.stack([world.observe(p) for p in poses])  # (60, 1, 32, 32)
+    err_cm = 100 * np.linalg.norm(block_position(images, world.cfg) - poses[:, :2], axis=1)
+    assert err_cm.mean() < 0.5  # measured 0.38 cm at 32x32 (a pixel is about 2.5 cm)
+    assert err_cm.max() < 1.5
+
+
+def test_block_position_reads_rgb_images_alike(world):
+    rgb = PushWorld(PushEnvConfig(channels=3))
+    try:
+        poses = random_poses(world, 10, seed=1)
+        xy_rgb = block_position(np.stack([rgb.observe(p) for p in poses]), rgb.cfg)
+    finally:
+        rgb.close()
+    xy = block_position(np.stack([world.observe(p) for p in poses]), world.cfg)
+    np.testing.assert_allclose(xy_rgb, xy, atol=1e-3)
+
+
+def test_a_faint_blurred_block_is_still_found(world):
+    """Predicted images fade: a block at a fifth of its contrast, blurred, reads near where
+    it is; the position follows the blob, not the image's centre."""
+    pose = np.array([0.45, -0.2, 0.3])
+    img = world.observe(pose)[0].astype(float)
+    table = np.median(img)
+    faint = table - 0.2 * (table - img)
+    blurred = faint.copy()
+    for axis in (0, 1):  # a 3-tap box blur
+        blurred = (np.roll(blurred, 1, axis) + blurred + np.roll(blurred, -1, axis)) / 3
+    xy = block_position(blurred[None, None], world.cfg)[0]
+    assert np.linalg.norm(xy - pose[:2]) < 0.015
+
+
+def test_block_position_refuses_images_of_another_size(world):
+    with pytest.raises(UserError, match="16x16 pixels, but the world renders 32x32"):
+        block_position(np.zeros((2, 1, 16, 16), np.uint8), world.cfg)
+
+
+# ------------------------------------------------------------------ probe and predictions
+class LookupModel(torch.nn.Module):
+    """A stand-in latent model: frame k of the data (its pixel (0, 0) holds k) encodes to
+    ``latents[k]``."""
+
+    def __init__(self, latents: np.ndarray) -> None:
+        super().__init__()
+        self.latents = torch.as_tensor(latents, dtype=torch.float32)
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        return self.latents[x[..., 0, 0, 0].round().long()]
+
+
+def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> Trajectories:
+    """Frames numbered in pixel (0, 0), random poses; splits train / val / test in turn."""
+    rng = np.random.default_rng(seed)
+    images = np.zeros((n, steps + 1, 1, 32, 32), np.uint8)
+    images[..., 0, 0, 0] = np.arange(n * (steps + 1)).reshape(n, steps + 1) % 256
+    images[..., 0, 1, 1] = 1  # a non-constant image for the pixel statistics
+    poses = rng.uniform((0.35, -0.35, -np.pi), (0.7, 0.35, np.pi), (n, steps + 1, 3))
+    actions = np.zeros((n, steps, 3), np.float32)
+    return Trajectories(images, actions, poses.astype(np.float32),
+                        (np.arange(n) % 3).astype(np.uint8), PushEnvConfig(), seed=seed)
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.05])
+def test_probe_finds_a_latent_that_holds_the_pose(noise):
+    data = indexed_trajectories()
+    frames = data.n * (data.steps + 1)
+    features = pose_features(data.poses, data.env_config.angle_period).numpy().reshape(frames, 4)
+    rng = np.random.default_rng(1)
+    mixing = rng.normal(size=(4, 16))  # the pose, linearly mixed into 16 latent coordinates
+    z = features @ mixing + noise * rng.normal(size=(frames, 16))
+    r2 = latent_probe(LookupModel(z), data, Normalizer(0.0, 1.0))
+    assert set(r2) == {"x", "y", "cos", "sin"}
+    assert min(r2.values()) > (0.999 if noise == 0 else 0.9)
+
+
+def test_probe_gives_no_credit_to_a_latent_without_the_angle():
+    data = indexed_trajectories(n=48)  # 240 frames: numbered below 256
+    frames = data.n * (data.steps + 1)
+    rng = np.random.default_rng(2)
+    xy = data.poses.reshape(frames, 3)[:, :2]
+    z = np.column_stack([xy, rng.normal(size=(frames, 14))])  # position, then noise
+    r2 = latent_probe(LookupModel(z), data, Normalizer(0.0, 1.0))
+    assert r2["x"] > 0.99 and r2["y"] > 0.99
+    assert r2["cos"] < 0.2 and r2["sin"] < 0.2
+
+
+class ReplayModel(torch.nn.Module):
+    """A stand-in image model: its "prediction" from x_t is the true images x_t.. (perfect),
+    or x_t repeated (nothing moves); its reconstruction is the image itself."""
+
+    def __init__(self, truth: torch.Tensor, still: bool) -> None:
+        super().__init__()
+        self.truth, self.still = truth, still
+
+    def encode(self, x):
+        return x
+
+    def decode(self, z):
+        return z
+
+    def predict(self, x0: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        h = u.shape[1]
+        if self.still:
+            return x0[:, None].expand(-1, h + 1, *x0.shape[1:])
+        t = self.truth.shape[1] - 1 - h
+        return self.truth[:, t:]
+
+
+@pytest.fixture(scope="module")
+def moving(world) -> Trajectories:
+    """Three blocks, each pushed 3 cm along x per step for 4 steps, rendered."""
+    poses = np.array([[(0.4 + 0.03 * t, y, 0.2 * t) for t in range(5)]
+                      for y in (-0.2, 0.0, 0.2)], np.float32)
+    images = np.stack([[world.observe(p) for p in traj] for traj in poses])
+    return Trajectories(images, np.zeros((3, 4, 3), np.float32), poses,
+                        np.array([0, 2, 2], np.uint8), world.cfg, seed=0)
+
+
+def test_position_errors_of_a_perfect_and_a_still_predictor(moving):
+    norm = Normalizer(0.0, 1.0)
+    truth = norm.normalize(moving.images)
+    perfect = position_errors(ReplayModel(truth, still=False), moving, norm)
+    still = position_errors(ReplayModel(truth, still=True), moving, norm)
+    steps = moving.steps
+    assert len(perfect["model"]) == len(perfect["still"]) == steps
+    assert perfect["reader"] < 0.5 and perfect["recon"] == pytest.approx(perfect["reader"])
+    assert max(perfect["model"]) < 1.0  # reading true images, a few millimetres
+    # "nothing moves" is off by the distance travelled: 3 cm per push, give or take reading
+    for h, e in enumerate(perfect["still"], start=1):
+        assert abs(e - 3.0 * h) < 1.0
+    np.testing.assert_allclose(still["model"], perfect["still"], rtol=1e-9)
