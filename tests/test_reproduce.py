@@ -88,13 +88,21 @@ def test_table1_has_paper_values_and_ours_for_every_model(study):
             if row.key.startswith("pred_err/") and not m.startswith("state"):
                 # inf would be a diverged rollout
                 assert not math.isnan(float(r["ours_mean"])), (row.label, m)
+            if row.key.startswith(("probe/", "pos_err/")):  # what the latent knows
+                if m.startswith("state"):
+                    assert r["ours"] == "n/a", (row.label, m)  # its latent is the pose
+                elif row.key.rsplit("/h", 1)[-1] in ("5", "10"):
+                    assert r["ours"] == "n/a", (row.label, m)  # tiny trajectories: 3 pushes
+                else:
+                    assert math.isfinite(float(r["ours_mean"])), (row.label, m)
     assert {r["model"] for r in rows} == set(MODELS)
 
 
 def test_every_figure_equation_and_summary_is_written(study):
     out = study["out"]
     fig = out / "figures"
-    expected = ["loss_histories.png", "prediction_error.png", "rollouts.png", "control.png",
+    expected = ["loss_histories.png", "prediction_error.png", "position_error.png",
+                "rollouts.png", "control.png",
                 *(f"coefficients_{m}.png" for m in MODELS if "sindy" in m)]
     for name in expected:
         assert (fig / name).stat().st_size > 1000, name
@@ -112,7 +120,14 @@ def test_every_figure_equation_and_summary_is_written(study):
     assert set(summary["aggregate"]) == set(MODELS)
     assert summary["aggregate"]["sindy4"]["control/discarded_total"]["mean"] == 0
     assert set(summary["baselines"]["pred_err"]) == {"still", "mean_image"}
-    assert "nothing moves scores" in (out / "report.html").read_text()
+    position = summary["baselines"]["position_cm"]
+    assert len(position["still"]) == SCALES["tiny"].steps and 0 < position["reader"] < 2
+    report = (out / "report.html").read_text()
+    assert "nothing moves scores" in report and "What the latent knows" in report
+    record = json.loads((out / "runs/seed0/sindy2/evaluation.json").read_text())
+    assert set(record["probe"]) == {"x", "y", "cos", "sin"}
+    assert len(record["position"]["model"]) == SCALES["tiny"].steps
+    assert json.loads((out / "runs/seed0/state_mlp/evaluation.json").read_text())["probe"] is None
 
 
 def test_baseline_errors_equal_the_definitions_by_hand(trajectories):

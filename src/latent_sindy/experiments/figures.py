@@ -6,7 +6,8 @@ Drawn with matplotlib's object API (no pyplot, so no global backend or open figu
 * :func:`rollout_strip` (Fig. 8): ground truth, single-step and multi-step model rollouts from
   the same first image and actions;
 * :func:`coefficient_map` (Fig. 9/10): M ⊙ Ψ, rows latent states, columns candidate terms;
-* :func:`horizon_plot`: prediction error against horizon, a line per model;
+* :func:`horizon_plot`: prediction error against horizon, a line per model (image MSE, or
+  the block position error);
 * :func:`control_bars`: closed-loop success rates and planning time per model.
 
     from latent_sindy.experiments import figures
@@ -105,13 +106,16 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
 
 def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
                  labels: Mapping[str, str], path: Path,
-                 references: Mapping[str, list[float]] | None = None) -> Path:
-    """Prediction error against horizon, log scale: {model: (means, stds)} per horizon 1..T.
+                 references: Mapping[str, list[float]] | None = None, *,
+                 ylabel: str = "image MSE (normalised pixels)",
+                 title: str = "open-loop prediction error on test trajectories",
+                 yscale: str = "log") -> Path:
+    """Prediction error against horizon: {model: (means, stds)} per horizon 1..T.
 
     ``references`` ({label: errors per horizon}) are drawn dashed in grey, for scale (e.g.
-    the model-free baselines). The y axis stops at 100x the largest one-step error, so that
-    one exploding rollout does not flatten the others; a model that leaves the plot (or
-    diverges) says where.
+    the model-free baselines); a reference of one value is a constant. The y axis stops at
+    100x the largest one-step error, so that one exploding rollout does not flatten the
+    others; a model that leaves the plot (or diverges) says where.
     """
     fig, ax = _figure()
     ax = ax[0, 0]
@@ -128,10 +132,12 @@ def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
         ok = np.isfinite(m)
         ax.plot(h[ok], m[ok], marker="o", ms=3, label=label)
         ax.fill_between(h[ok], np.maximum(m[ok] - s[ok], m[ok] * 0.5), m[ok] + s[ok], alpha=0.15)
+    steps = max((len(m) for m, _ in curves.values()), default=1)
     for (label, errors), style in zip((references or {}).items(), ("--", ":", "-."), strict=False):
+        if np.ndim(errors) == 0:
+            errors = [float(errors)] * steps
         ax.plot(np.arange(1, len(errors) + 1), errors, style, color="0.4", label=label)
-    ax.set(xlabel="prediction horizon (pushes)", ylabel="image MSE (normalised pixels)",
-           title="open-loop prediction error on test trajectories", yscale="log")
+    ax.set(xlabel="prediction horizon (pushes)", ylabel=ylabel, title=title, yscale=yscale)
     if np.isfinite(top):
         ax.set_ylim(top=top)
     ax.grid(alpha=0.3)

@@ -2,9 +2,9 @@
 
 A :class:`TrainJob` trains one (model, seed) or reuses its finished run folder (resumes an
 interrupted one); an :class:`EvalJob` measures one trained run (losses, prediction error,
-model statistics, cached in RUN/evaluation.json) and runs its closed-loop conditions (cached
-per condition in RUN/control-<task>-<space>/results.json). Jobs run in fresh worker
-processes, or in this process when there is one worker.
+model statistics, what the latent knows: cached in RUN/evaluation.json) and runs its
+closed-loop conditions (cached per condition in RUN/control-<task>-<space>/results.json).
+Jobs run in fresh worker processes, or in this process when there is one worker.
 
     latent-sindy reproduce --scale demo --out results   # schedules these jobs
 """
@@ -27,16 +27,17 @@ from latent_sindy.configs import to_json
 from latent_sindy.control.closed_loop import ControlConfig, run_control
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.errors import UserError
-from latent_sindy.experiments import evaluation
+from latent_sindy.experiments import evaluation, probe
 from latent_sindy.experiments.study import Condition, RunResult
 from latent_sindy.progress import Milestones
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
 from latent_sindy.training.loop import run_record
 
 __all__ = ["EvalJob", "Inline", "Pool", "TrainJob", "ensure_trained", "eval_job", "executor",
-           "held_out", "train_job"]
+           "held_out", "held_out_split", "train_job"]
 
-EVAL_VERSION = 1
+#: Version of evaluation.json's contents: 2 added the latent probe and position errors.
+EVAL_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -91,10 +92,25 @@ def train_job(job: TrainJob) -> dict[str, Any]:
     return {"status": status, "error": None, "seconds": time.perf_counter() - t0}
 
 
-def held_out(data: Trajectories) -> Trajectories:
-    """The trajectories predictions are judged on: test, else validation, else training."""
+def held_out_split(data: Trajectories) -> str:
+    """The split predictions are judged on: test, else validation, else training."""
     counts = data.split_counts()
-    return data.split(next((s for s in ("test", "val") if counts[s]), "train"))
+    return next((s for s in ("test", "val") if counts[s]), "train")
+
+
+def held_out(data: Trajectories) -> Trajectories:
+    """The trajectories of :func:`held_out_split`."""
+    return data.split(held_out_split(data))
+
+
+def _what_the_latent_knows(loaded: Any, data: Trajectories) -> dict[str, Any]:
+    """The latent probe and the block position errors of an image model (None for a state
+    model: its latent is the pose)."""
+    if loaded.model.config.encoder.kind != "image":
+        return {"probe": None, "position": None}
+    return {"probe": probe.latent_probe(loaded.model, data, loaded.normalizer,
+                                        held_out_split(data)),
+            "position": probe.position_errors(loaded.model, held_out(data), loaded.normalizer)}
 
 
 def _eval_key(run: RunDir, data: Path) -> dict[str, Any]:
@@ -139,13 +155,15 @@ def eval_job(job: EvalJob) -> RunResult:
                                                     loaded.config.loss),
                   "horizon": evaluation.horizon_errors(loaded.model, held_out(data),
                                                        loaded.normalizer),
-                  "stats": evaluation.model_stats(loaded.model)}
+                  "stats": evaluation.model_stats(loaded.model),
+                  **_what_the_latent_knows(loaded, data)}
         write_atomic(cache, lambda f: f.write(json.dumps(record, indent=1)), binary=False)
     control = {cond.name: _control(loaded, run, cond, s) for cond, s in job.controls}
     train_s = sum(r["time_s"] or 0.0 for r in run.read_metrics())
     return RunResult(losses=record["losses"], horizon=record["horizon"], stats=record["stats"],
                      control=control, train_seconds=train_s, seconds=time.perf_counter() - t0,
-                     observation=loaded.model.config.encoder.kind)
+                     observation=loaded.model.config.encoder.kind, probe=record["probe"],
+                     position=record["position"])
 
 
 class Inline:

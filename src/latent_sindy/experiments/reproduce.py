@@ -67,6 +67,7 @@ from latent_sindy.experiments.jobs import (
     held_out,
     train_job,
 )
+from latent_sindy.experiments.probe import position_errors
 from latent_sindy.experiments.study import ReproduceConfig, Study, model_specs
 from latent_sindy.experiments.study_report import write_report
 from latent_sindy.experiments.table import write_table1
@@ -222,6 +223,11 @@ def baseline_stage(data: Trajectories) -> dict[str, list[float]]:
                            Normalizer.from_trajectories(data))
 
 
+def position_baseline_stage(data: Trajectories) -> dict[str, Any]:
+    """Block position error of reading the true held-out images and of "nothing moves"."""
+    return position_errors(None, held_out(data), Normalizer.from_trajectories(data))
+
+
 # ----------------------------------------------------------------------------- stage 4
 def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
     """Figures, equations and tables of a finished study; returns what the report shows."""
@@ -240,17 +246,18 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
                    for s in study.specs}
     files["loss"] = figures.loss_histories(histories, loss_labels, fig_dir / "loss_histories.png")
 
-    curves = {}
-    for m in study.models:
-        hs = [study.per_seed[s][m] for s in cfg.seeds if m in study.per_seed.get(s, {})]
-        if hs:
-            keys = sorted((k for k in hs[0] if k.startswith("pred_err/h") and k[10:].isdigit()),
-                          key=lambda k: int(k[10:]))
-            st = [study.stats[m][k] for k in keys]
-            curves[m] = ([s.mean for s in st], [s.std for s in st])
+    curves = _curves(study, "pred_err/h")
     references = {BASELINES[k]: v for k, v in study.baselines.items()}
     files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png",
                                             references)
+    position = _curves(study, "pos_err/h")
+    if position and study.position_baselines:
+        files["position"] = figures.horizon_plot(
+            position, study.labels, fig_dir / "position_error.png",
+            {"nothing moves": study.position_baselines["still"],
+             "reading the true image": study.position_baselines["reader"]},
+            ylabel="block position error (cm)", yscale="linear",
+            title="block position in decoded open-loop predictions, test trajectories")
 
     single, multi = study.single_step, study.multistep
     if single and multi and single.name in ok and multi.name in ok:
@@ -304,6 +311,21 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
     return files
 
 
+def _curves(study: Study, prefix: str) -> dict[str, tuple[list[float], list[float]]]:
+    """{model: (means, stds)} of the metrics ``<prefix>1``, ``<prefix>2``, ... over seeds."""
+    curves = {}
+    for m in study.models:
+        hs = [study.per_seed[s][m] for s in study.config.seeds
+              if m in study.per_seed.get(s, {})]
+        keys = sorted((k for k in (hs[0] if hs else {})
+                       if k.startswith(prefix) and k[len(prefix):].isdigit()),
+                      key=lambda k: int(k[len(prefix):]))
+        if keys:
+            st = [study.stats[m][k] for k in keys]
+            curves[m] = ([s.mean for s in st], [s.std for s in st])
+    return curves
+
+
 @torch.no_grad()
 def _rollout_figure(models: list[tuple[Path, Any]], test: Trajectories, path: Path) -> Path:
     """Fig. 8: a test trajectory, and each model's open-loop rollout from its first image."""
@@ -339,7 +361,8 @@ def summary_record(study: Study, data: Trajectories, data_path: Path) -> dict[st
         "timings_s": study.timings,
         "train_status": study.train_status,
         "failures": study.failures,
-        "baselines": {"labels": BASELINES, "pred_err": study.baselines},
+        "baselines": {"labels": BASELINES, "pred_err": study.baselines,
+                      "position_cm": study.position_baselines},
         "aggregate": {m: {k: _stat_dict(s) for k, s in st.items()}
                       for m, st in study.stats.items()},
         "per_seed": {str(s): v for s, v in study.per_seed.items()},
@@ -378,6 +401,7 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
         t = time.perf_counter()
         data = read_trajectories(data_path)
         study.baselines = baseline_stage(data)
+        study.position_baselines = position_baseline_stage(data)
         files = output_stage(study, data, say)
         study.timings["outputs"] = time.perf_counter() - t
         study.timings["total"] = time.perf_counter() - t_start

@@ -290,6 +290,10 @@ class RunResult:
     seconds: float
     observation: str = "image"
     """What the model saw; the prediction error is in that space ("state_err/*" for states)."""
+    probe: dict[str, float] | None = None
+    """R² of the linear probe from the latent to each pose feature (image models)."""
+    position: dict[str, Any] | None = None
+    """Block position errors in cm (image models; :func:`.probe.position_errors`)."""
 
     def metrics(self, conditions: tuple[Condition, ...]) -> dict[str, float | None]:
         """One flat {metric: value} dictionary (the keys of table.ROWS and more)."""
@@ -300,6 +304,14 @@ class RunResult:
         err = "pred_err" if self.observation == "image" else "state_err"
         m.update({f"{err}/h{h}": v for h, v in enumerate(self.horizon, start=1)})
         m[f"{err}/hmax"] = self.horizon[-1]
+        if self.probe is not None:
+            m.update({f"probe/{k}": v for k, v in self.probe.items()})
+            m["probe/angle"] = (self.probe["cos"] + self.probe["sin"]) / 2
+        if self.position is not None:
+            m["pos_err/recon"] = self.position["recon"]
+            for name, key in (("model", "pos_err"), ("still", "pos_err/still")):
+                m.update({f"{key}/h{h}": v
+                          for h, v in enumerate(self.position[name], start=1)})
         plan_ms: dict[str, list[float]] = {"latent": [], "image": []}
         discarded = nonfinite = 0
         for cond in conditions:
@@ -336,6 +348,9 @@ class Study:
     failures: list[str] = field(default_factory=list)
     baselines: dict[str, list[float]] = field(default_factory=dict)
     """Prediction error against horizon of the model-free predictors (evaluation.BASELINES)."""
+    position_baselines: dict[str, Any] = field(default_factory=dict)
+    """Block position error (cm) of reading the true held-out images ("reader") and of
+    "nothing moves" per horizon ("still"): :func:`.probe.position_errors` without a model."""
     timings: dict[str, float] = field(default_factory=dict)
     train_status: dict[str, str] = field(default_factory=dict)
 

@@ -85,12 +85,43 @@ def findings(study: Study) -> list[str]:
                 f"Planning time per control step with latent MPPI (K, H as configured): linear "
                 f"{lin:.2f} ms; " + ", ".join(parts) + ". SINDy steps evaluate only the active "
                 "library terms (the paper's stated future work was a faster SINDy model).")
+    knows = _latent_knows(study)
+    if knows:
+        out.append(knows)
     image = [f"{study.labels[m]} {_fmt(study, m, 'control/paper/image/success_rate', 'pct')}"
              for m in study.models if _get(study, m, "control/paper/image/success_rate")]
     if image:
         out.append("Image-space MPPI on the paper task (the paper: 7 of 10 runs succeeded): "
                    + ", ".join(image) + ".")
     return out
+
+
+def _latent_knows(study: Study) -> str | None:
+    """What the image models' latents know of the pose, and where their predictions put the
+    block, against "nothing moves"; None without image models."""
+    models = [m for m in study.models if _get(study, m, "probe/x") is not None]
+    if not models:
+        return None
+
+    def probe(m: str) -> str:
+        return "/".join(_fmt(study, m, f"probe/{k}", "r2") for k in ("x", "y", "angle"))
+
+    def cm(m: str, key: str) -> str:
+        return _fmt(study, m, key, "num2")
+
+    horizons = [h for h in (1, 5, 10) if _get(study, models[0], f"pos_err/h{h}") is not None]
+    parts = [f"{study.labels[m]} " + " / ".join(cm(m, f"pos_err/h{h}") for h in horizons)
+             for m in models]
+    still = " / ".join(cm(models[0], f"pos_err/still/h{h}") for h in horizons)
+    reader = study.position_baselines.get("reader")
+    floor = (f" Reading the true test images gives {reader:.2f} cm (the measure's own error)."
+             if reader is not None else "")
+    return ("What the latent knows (image models, test images): a linear probe from the latent "
+            "to the block's pose reaches R² (x / y / angle features) "
+            + ", ".join(f"{study.labels[m]} {probe(m)}" for m in models)
+            + ". Block position read from the decoded open-loop predictions after "
+            + " / ".join(map(str, horizons)) + " pushes, error in cm: " + "; ".join(parts)
+            + f"; nothing moves: {still}." + floor)
 
 
 def _control_rows(study: Study) -> list[list[str]]:
@@ -217,6 +248,11 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
             f"{still[0]:.4f} one push ahead and {still[-1]:.4f} at the longest horizon; the "
             f"mean training image scores {mean[0]:.4f} (so about {2 * mean[0]:.2f} on the "
             "objective's reconstruction plus image prediction).")
+    if "position" in files:
+        r.image(files["position"], "Block position error of the decoded open-loop predictions "
+                "against horizon on the test trajectories (mean ± std over seeds): the centroid "
+                "of the block's pixels, back-projected through the camera; dashed: nothing "
+                "moves; dotted: reading the true images (the measure's own error)")
     for m, p in files["coefficients"].items():
         r.image(p, f"Fig. 9/10: active coefficients of {study.labels[m]} (rows latent states, "
                 "columns candidate terms; grey: pruned)")

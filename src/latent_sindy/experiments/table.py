@@ -41,7 +41,8 @@ class Row:
 
     key: str
     label: str
-    fmt: str  # "loss", "pct" (a fraction shown in %), "pct100" (already in %), "num", "int"
+    fmt: str  # "loss", "pct" (a fraction shown in %), "pct100" (already in %), "num", "num2"
+    #           (2 decimals), "int", "r2" (3 decimals)
     in_paper: bool = False
     ci: str | None = None
     """Metric prefix of a 95% interval (``<ci>_ci_low``, ``_ci_high``) shown with one seed."""
@@ -79,6 +80,15 @@ ROWS: tuple[Row, ...] = (
     Row("pred_err/hmax", "prediction error, last horizon (test, image MSE)", "loss"),
     Row("state_err/h1", "prediction error, 1 step (test, state MSE)", "loss"),
     Row("state_err/hmax", "prediction error, last horizon (test, state MSE)", "loss"),
+    Row("probe/x", "latent probe R², block x (test, linear)", "r2"),
+    Row("probe/y", "latent probe R², block y (test, linear)", "r2"),
+    Row("probe/angle", "latent probe R², block angle (cos, sin of 2πθ/period; mean)", "r2"),
+    Row("pos_err/recon", "block position error, reconstruction (test, cm)", "num2"),
+    *(Row(f"pos_err/h{h}", f"block position error after {h} push{'es' * (h > 1)} (test, cm)",
+          "num2") for h in (1, 5, 10)),
+    *(Row(f"pos_err/still/h{h}",
+          f"block position error after {h} push{'es' * (h > 1)}, nothing moves (test, cm)",
+          "num2") for h in (1, 5, 10)),
 )
 
 
@@ -94,6 +104,10 @@ def _num(v: float, fmt: str) -> str:
         return f"{v:.{digits}f}%"
     if fmt == "int":
         return f"{v:.0f}"
+    if fmt == "r2":
+        return f"{v:.3f}"
+    if fmt == "num2":
+        return f"{v:.2f}"
     return f"{v:.1f}"
 
 
