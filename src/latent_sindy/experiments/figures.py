@@ -109,18 +109,18 @@ def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
                  references: Mapping[str, list[float]] | None = None, *,
                  ylabel: str = "image MSE (normalised pixels)",
                  title: str = "open-loop prediction error on test trajectories",
-                 yscale: str = "log") -> Path:
+                 yscale: str = "log", cap: float = 100.0) -> Path:
     """Prediction error against horizon: {model: (means, stds)} per horizon 1..T.
 
     ``references`` ({label: errors per horizon}) are drawn dashed in grey, for scale (e.g.
     the model-free baselines); a reference of one value is a constant. The y axis stops at
-    100x the largest one-step error, so that one exploding rollout does not flatten the
+    ``cap`` times the largest one-step error, so that one exploding rollout does not flatten the
     others; a model that leaves the plot (or diverges) says where.
     """
     fig, ax = _figure()
     ax = ax[0, 0]
     first = [m[0] for m, _ in curves.values() if m and np.isfinite(m[0])]
-    top = 100 * max(first) if first else np.inf
+    top = cap * max(first) if first else np.inf
     for name, (mean, std) in curves.items():
         m = np.asarray(mean, dtype=float)
         s = np.nan_to_num(np.asarray(std, dtype=float))
@@ -140,6 +140,8 @@ def horizon_plot(curves: Mapping[str, tuple[list[float], list[float]]],
     ax.set(xlabel="prediction horizon (pushes)", ylabel=ylabel, title=title, yscale=yscale)
     if np.isfinite(top):
         ax.set_ylim(top=top)
+    if yscale == "linear":
+        ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

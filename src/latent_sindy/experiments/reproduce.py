@@ -256,7 +256,7 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
             position, study.labels, fig_dir / "position_error.png",
             {"nothing moves": study.position_baselines["still"],
              "reading the true image": study.position_baselines["reader"]},
-            ylabel="block position error (cm)", yscale="linear",
+            ylabel="block position error (cm)", yscale="linear", cap=10.0,
             title="block position in decoded open-loop predictions, test trajectories")
 
     single, multi = study.single_step, study.multistep
