@@ -81,6 +81,40 @@ def test_conv_decoder_rejects_sizes_it_cannot_draw() -> None:
         ModelConfig(encoder=AutoencoderConfig(decoder="conv")).resolve(1, 30, 3)
 
 
+@pytest.mark.parametrize(("channels", "size"), [(1, 32), (3, 32), (1, 20)])
+def test_keypoints_encoder_shapes_and_range(channels: int, size: int) -> None:
+    cfg = AutoencoderConfig(channels=channels, image_size=size, latent_dim=6,
+                            encoder="keypoints", keypoint_channels=4)
+    ae = Autoencoder(cfg)
+    x = 5 * torch.randn(2, 3, channels, size, size)
+    z = ae.encode(x)
+    assert z.shape == (2, 3, 6) and ae.decode(z).shape == x.shape
+    assert z.abs().max() <= 1.0  # expected positions on a [-1, 1] grid
+    torch.testing.assert_close(z[1, 2], ae.encode(x[1, 2][None])[0])
+
+
+def test_keypoints_are_where_their_feature_maps_peak() -> None:
+    """A map peaked at (row 5, col 12) of 17 puts its keypoint at x = 0.5, y = -0.375; the
+    keypoint moves with the peak (x with the column, y with the row)."""
+    ae = Autoencoder(AutoencoderConfig(channels=1, image_size=17, latent_dim=4,
+                                       encoder="keypoints"))
+    enc = ae.encoder
+    enc.net = torch.nn.Identity()  # the image itself is the feature map of keypoint 1 ...
+    enc.log_temperature.data.fill_(-3.0)  # ... sharpened by a low temperature
+    x = torch.zeros(1, 2, 17, 17)
+    x[0, 0, 5, 12] = 1.0
+    x[0, 1, 16, 0] = 1.0
+    z = enc(x)[0]
+    torch.testing.assert_close(z, torch.tensor([0.5, -0.375, -1.0, 1.0]), atol=1e-3, rtol=0)
+
+
+def test_keypoints_encoder_needs_an_even_latent() -> None:
+    with pytest.raises(UserError, match="even latent_dim"):
+        AutoencoderConfig(latent_dim=5, encoder="keypoints")
+    with pytest.raises(UserError, match="unknown"):
+        AutoencoderConfig(encoder="vit")
+
+
 def test_course_encoder_sizes() -> None:
     cfg = AutoencoderConfig(channels=1, image_size=32)
     assert cfg.conv_size() == 5  # 32 -> 28 -> 14 -> 10 -> 5: 4 maps x 5 x 5 = 100 features

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 import time
 from dataclasses import replace
 
@@ -164,6 +165,23 @@ def test_a_finished_run_with_other_settings_is_refused(study):
     assert ensure_trained(same) == "reused"
     with pytest.raises(UserError, match="epochs"):
         ensure_trained(replace(same, epochs=same.epochs + 1))
+
+
+def test_a_run_recorded_before_a_setting_existed_is_reused(study, tmp_path):
+    """A setting added since a run was recorded takes its default, which keeps the old
+    behaviour: the run is reused, not refused; a different value is still refused."""
+    src = study["out"] / "runs" / "seed0" / "sindy1"
+    run = tmp_path / "sindy1"
+    shutil.copytree(src, run)
+    record = json.loads((run / "config.json").read_text())
+    for key in ("encoder", "keypoint_channels"):  # added with the keypoints encoder
+        del record["train"]["model"]["encoder"][key]
+    (run / "config.json").write_text(json.dumps(record))
+    cfg = replace(RunDir(src).train_config(), out=run)
+    assert ensure_trained(cfg) == "reused"
+    keypoints = replace(cfg.model.encoder, encoder="keypoints")
+    with pytest.raises(UserError, match=r"encoder\.encoder"):
+        ensure_trained(replace(cfg, model=replace(cfg.model, encoder=keypoints)))
 
 
 def test_mean_std_over_seeds():

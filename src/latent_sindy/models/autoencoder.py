@@ -1,7 +1,9 @@
 """Image encoder and decoder between normalised camera images and the latent state.
 
-The encoder is the course's: two stages of 5×5 convolution + ReLU + 2×2 max-pool followed by
-a fully connected layer of 100 units and a linear map to the latent size. Two decoders:
+The encoder is the course's by default: two stages of 5×5 convolution + ReLU + 2×2 max-pool
+followed by a fully connected layer of 100 units and a linear map to the latent size; or
+``"keypoints"``, a spatial softmax whose latent is the image positions of learned feature
+maps (:class:`KeypointEncoder`). Two decoders:
 
 * ``"fc"``, the course's: fully connected, latent → 500 → 500 → C·S·S;
 * ``"conv"``: latent → 256 → a c × S/4 × S/4 feature map, then two 4×4 transposed
@@ -30,7 +32,7 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 
-__all__ = ["Autoencoder", "AutoencoderConfig", "Decoder", "Encoder"]
+__all__ = ["Autoencoder", "AutoencoderConfig", "Decoder", "Encoder", "KeypointEncoder"]
 
 _KERNEL = 5
 
@@ -60,6 +62,12 @@ class AutoencoderConfig:
     """fc decoder: widths of the hidden layers (the course: 500, 500)."""
     decoder_channels: int = 16
     """conv decoder: feature maps of its convolutions."""
+    encoder: Literal["conv", "keypoints"] = "conv"
+    """Encoder kind: "conv" (the course's: conv + pool stages, then fully connected) or
+    "keypoints" (a spatial softmax: the latent is the expected image position of
+    latent_dim / 2 learned feature maps, so it is a position by construction)."""
+    keypoint_channels: int = 16
+    """keypoints encoder: feature maps of its two hidden 5×5 convolutions."""
 
     def __post_init__(self) -> None:
         if self.latent_dim < 1 or (self.channels is not None and self.channels < 1):
@@ -79,6 +87,12 @@ class AutoencoderConfig:
             )
         if self.decoder not in ("fc", "conv"):
             raise UserError(f"decoder {self.decoder!r} is unknown: use 'fc' or 'conv'")
+        if self.encoder not in ("conv", "keypoints"):
+            raise UserError(f"encoder {self.encoder!r} is unknown: use 'conv' or 'keypoints'")
+        if self.encoder == "keypoints" and (self.latent_dim % 2 or self.keypoint_channels < 1):
+            raise UserError(f"the keypoints encoder gives two coordinates per keypoint: use an "
+                            f"even latent_dim (got {self.latent_dim}) and keypoint_channels "
+                            f">= 1 (got {self.keypoint_channels})")
         if self.decoder_channels < 1:
             raise UserError(f"decoder_channels {self.decoder_channels}: use 1 or more")
         if self.decoder == "conv" and self.image_size is not None and self.image_size % 4:
@@ -140,6 +154,36 @@ class Encoder(nn.Module):
         return self.net(x.contiguous(memory_format=torch.channels_last))
 
 
+class KeypointEncoder(nn.Module):
+    """x (B, C, S, S) -> z (B, nz): nz / 2 keypoints (x_1, y_1, x_2, y_2, ...) in [-1, 1].
+
+    Three 5×5 convolutions at full resolution give one feature map per keypoint; a softmax
+    over each map's pixels (with a learned temperature) weights the pixel coordinates, whose
+    expectation is the keypoint (the spatial autoencoder of Finn et al., 2016). A block that
+    moves moves its keypoints with it, by construction rather than learnt.
+    """
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        c, k, s = cfg.keypoint_channels, cfg.latent_dim // 2, cfg.image_size
+        pad = _KERNEL // 2
+        self.net = nn.Sequential(
+            nn.Conv2d(cfg.channels, c, _KERNEL, padding=pad), nn.ReLU(),
+            nn.Conv2d(c, c, _KERNEL, padding=pad), nn.ReLU(),
+            nn.Conv2d(c, k, _KERNEL, padding=pad))
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+        coords = torch.linspace(-1.0, 1.0, s)
+        rows, cols = torch.meshgrid(coords, coords, indexing="ij")
+        self.register_buffer("grid", torch.stack([cols.flatten(), rows.flatten()], -1),
+                             persistent=False)  # (S·S, 2): x right, y down
+        self.net.to(memory_format=torch.channels_last)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        f = self.net(x.contiguous(memory_format=torch.channels_last))  # (B, K, S, S)
+        p = torch.softmax(f.flatten(2) / self.log_temperature.exp(), dim=-1)  # (B, K, S·S)
+        return (p @ self.grid).flatten(1)  # (B, K, 2) -> (B, 2K)
+
+
 class Decoder(nn.Module):
     """z (..., nz) -> x̂ (..., C, S, S) normalised images (the config's decoder kind)."""
 
@@ -181,7 +225,7 @@ class Autoencoder(nn.Module):
         if not cfg.resolved:
             raise ValueError("AutoencoderConfig needs channels and image_size: resolve() first")
         self.config = cfg
-        self.encoder = Encoder(cfg)
+        self.encoder = KeypointEncoder(cfg) if cfg.encoder == "keypoints" else Encoder(cfg)
         self.decoder = Decoder(cfg)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:

@@ -35,7 +35,7 @@ from typing import Any, Literal, NamedTuple
 import torch
 
 from latent_sindy.atomic import write_atomic
-from latent_sindy.configs import from_json
+from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
@@ -250,7 +250,10 @@ class RunDir:
 
         def flat(r: Mapping[str, Any]) -> dict[str, Any]:
             data = {k: v for k, v in r["data"].items() if k != "path"}
-            return _flatten({"train": r["train"], "normalizer": r["normalizer"], "data": data})
+            # through the dataclass: a setting added since the run was recorded takes its
+            # default (which keeps the old behaviour) on both sides
+            train = json.loads(json.dumps(to_json(self.train_config(r))))
+            return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
 
         was, now = flat(old), flat(record)
         if "fingerprint" not in old["data"]:  # recorded before fingerprints existed
