@@ -10,7 +10,7 @@ import torch
 from latent_sindy.data.store import Trajectories
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.envs.config import PushEnvConfig
-from latent_sindy.envs.world import PushWorld
+from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import block_position, latent_probe, position_errors
 
@@ -19,12 +19,12 @@ HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
 
 @pytest.fixture(scope="module")
 def world():
-    w = PushWorld(PushEnvConfig())
+    w = CameraView(PushEnvConfig())
     yield w
     w.close()
 
 
-def in_view(world: PushWorld, pose) -> bool:
+def in_view(world: CameraView, pose) -> bool:
     """Is the whole block (every corner, top and bottom) inside the image?"""
     corners = [(pose[0] + dx, pose[1] + dy, z) for dx in (-HALF_DIAGONAL, HALF_DIAGONAL)
                for dy in (-HALF_DIAGONAL, HALF_DIAGONAL) for z in (0.0, 0.05)]
@@ -32,7 +32,7 @@ def in_view(world: PushWorld, pose) -> bool:
     return bool(rc.min() >= 0 and rc.max() <= world.cfg.image_size - 1)
 
 
-def random_poses(world: PushWorld, n: int, seed: int) -> np.ndarray:
+def random_poses(world: CameraView, n: int, seed: int) -> np.ndarray:
     cfg, rng, out = world.cfg, np.random.default_rng(seed), []
     while len(out) < n:
         p = rng.uniform(cfg.workspace_low, cfg.workspace_high)
@@ -45,7 +45,7 @@ def test_world_to_pixel_is_where_the_renderer_draws_the_block():
     """The block's top face (its own gray level) is centred where the camera projects the
     top's centre, to a tenth of a pixel at 128 pixels (the pixel-centre convention was half
     a pixel off in both axes)."""
-    w = PushWorld(PushEnvConfig(image_size=128))
+    w = CameraView(PushEnvConfig(image_size=128))
     try:
         offsets = []
         for pose in random_poses(w, 12, seed=3):
@@ -54,7 +54,7 @@ def test_world_to_pixel_is_where_the_renderer_draws_the_block():
             top = img == values[np.argsort(counts)[-2]]  # the table's, then the top face's
             rows, cols = np.nonzero(top)
             offsets.append([rows.mean(), cols.mean()]
-                           - w.world_to_pixel((pose[0], pose[1], 0.05)))
+                           - w.camera.world_to_pixel((pose[0], pose[1], 0.05)))
     finally:
         w.close()
     assert np.abs(np.mean(offsets, axis=0)).max() < 0.15
@@ -77,7 +77,7 @@ def test_block_position_reads_true_images_to_a_few_millimetres(world):
 
 
 def test_block_position_reads_rgb_images_alike(world):
-    rgb = PushWorld(PushEnvConfig(channels=3))
+    rgb = CameraView(PushEnvConfig(channels=3))
     try:
         poses = random_poses(world, 10, seed=1)
         xy_rgb = block_position(np.stack([rgb.observe(p) for p in poses]), rgb.cfg)

@@ -141,6 +141,52 @@ def _add_table_and_block(c: BulletClient, cfg: PushEnvConfig) -> int:
     return block
 
 
+def _place(c: BulletClient, body: int, pose) -> None:
+    """Put `body` at rest on the table at planar pose (x, y, theta)."""
+    x, y, th = (float(v) for v in pose)
+    c.resetBasePositionAndOrientation(body, [x, y, BLOCK_SIZE[2] / 2], _quat(th))
+    c.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+
+
+class CameraView:
+    """The camera world: table and block only, and the observation camera.
+
+    What :meth:`PushWorld.observe` renders, and cheap to build alone (no arm to load): e.g.
+    for images of the block at given poses.
+    """
+
+    def __init__(self, cfg: PushEnvConfig | None = None) -> None:
+        self.cfg = cfg or PushEnvConfig()
+        with quiet_c_output():
+            self.client = BulletClient(connection_mode=pb.DIRECT)
+        self.block = _add_table_and_block(self.client, self.cfg)
+        self.camera = Camera(self.cfg)
+
+    def observe(self, pose) -> np.ndarray:
+        """The camera's image (C, S, S) uint8 with the block at `pose` (x, y, theta)."""
+        _place(self.client, self.block, pose)
+        return self.to_obs(self.render(self.client, self.cfg.image_size))
+
+    def render(self, c: BulletClient, size: int) -> np.ndarray:
+        """An (S, S, 3) RGB frame of client `c`'s scene through the camera."""
+        _, _, rgba, _, _ = c.getCameraImage(
+            size, size, self.camera.view, self.camera.projection,
+            renderer=pb.ER_TINY_RENDERER, shadow=0,
+            flags=pb.ER_NO_SEGMENTATION_MASK)
+        return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[..., :3]
+
+    def to_obs(self, rgb: np.ndarray) -> np.ndarray:
+        """RGB frame -> observation (C, S, S) uint8 (grayscale unless the config says 3)."""
+        if self.cfg.channels == 3:
+            return np.ascontiguousarray(rgb.transpose(2, 0, 1))
+        gray = rgb.astype(np.float32) @ np.array([0.2989, 0.587, 0.114], dtype=np.float32)
+        return np.clip(np.rint(gray), 0, 255).astype(np.uint8)[None]
+
+    def close(self) -> None:
+        with quiet_c_output(), contextlib.suppress(pb.error):
+            self.client.disconnect()
+
+
 class PushWorld:
     """Panda, table, block and goal marker, simulated and rendered headless."""
 
@@ -148,11 +194,10 @@ class PushWorld:
         self.cfg = cfg or PushEnvConfig()
         with quiet_c_output():
             self.sim = BulletClient(connection_mode=pb.DIRECT)
-            self.cam = BulletClient(connection_mode=pb.DIRECT)
         self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
-        self.cam_block = _add_table_and_block(self.cam, self.cfg)
+        self.view = CameraView(self.cfg)
+        self.camera = self.view.camera
         self._build()
-        self.camera = Camera(self.cfg)
         self.goal_pose = np.array([0.0, 0.0, 0.0])
         self.last_push_executed = True
         self.sim_steps = 0  # simulated steps since construction, for benchmarks
@@ -209,16 +254,11 @@ class PushWorld:
         return np.array([pos[0], pos[1], wrap_angle(th + self._turned) if self._turned else th])
 
     def close(self) -> None:
-        with quiet_c_output():
-            for c in (self.sim, self.cam):
-                with contextlib.suppress(pb.error):
-                    c.disconnect()
+        with quiet_c_output(), contextlib.suppress(pb.error):
+            self.sim.disconnect()
+        self.view.close()
 
-    @staticmethod
-    def _set_pose(c: BulletClient, body: int, pose) -> None:
-        x, y, th = (float(v) for v in pose)
-        c.resetBasePositionAndOrientation(body, [x, y, BLOCK_SIZE[2] / 2], _quat(th))
-        c.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+    _set_pose = staticmethod(_place)
 
     # ------------------------------------------------------------------ motion
     def push(self, p: float, angle: float, ell: float) -> None:
@@ -407,9 +447,7 @@ class PushWorld:
         Rendered in the camera world, so it never disturbs the simulation: `observe(goal)`
         is the goal image used by control.
         """
-        pose = self.block_pose() if pose is None else pose
-        self._set_pose(self.cam, self.cam_block, pose)
-        return self._to_obs(self._render(self.cam, self.cfg.image_size))
+        return self.view.observe(self.block_pose() if pose is None else pose)
 
     def observe_full_scene(self) -> np.ndarray:
         """The same image rendered in the simulation (arm included, goal marker hidden).
@@ -418,27 +456,14 @@ class PushWorld:
         """
         self.sim.resetBasePositionAndOrientation(self.goal, PARKED, [0, 0, 0, 1])
         try:
-            return self._to_obs(self._render(self.sim, self.cfg.image_size))
+            return self.view.to_obs(self.view.render(self.sim, self.cfg.image_size))
         finally:
             self._set_pose(self.sim, self.goal, self.goal_pose)
 
     def render_rgb(self) -> np.ndarray:
         """A larger (S, S, 3) RGB frame of the whole scene with the goal marker, for people."""
-        return self._render(self.sim, self.cfg.render_size)
+        return self.view.render(self.sim, self.cfg.render_size)
 
     def world_to_pixel(self, xyz) -> np.ndarray:
         """(row, col) of a world point in the observation image (float, pixel units)."""
         return self.camera.world_to_pixel(xyz)
-
-    def _render(self, c: BulletClient, size: int) -> np.ndarray:
-        _, _, rgba, _, _ = c.getCameraImage(
-            size, size, self.camera.view, self.camera.projection,
-            renderer=pb.ER_TINY_RENDERER, shadow=0,
-            flags=pb.ER_NO_SEGMENTATION_MASK)
-        return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[..., :3]
-
-    def _to_obs(self, rgb: np.ndarray) -> np.ndarray:
-        if self.cfg.channels == 3:
-            return np.ascontiguousarray(rgb.transpose(2, 0, 1))
-        gray = rgb.astype(np.float32) @ np.array([0.2989, 0.587, 0.114], dtype=np.float32)
-        return np.clip(np.rint(gray), 0, 255).astype(np.uint8)[None]

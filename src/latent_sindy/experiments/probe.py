@@ -29,6 +29,7 @@ from latent_sindy.data.store import Trajectories
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.envs.camera import Camera
 from latent_sindy.envs.config import BLOCK_SIZE, PushEnvConfig
+from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 
@@ -62,15 +63,13 @@ def block_levels(cfg: PushEnvConfig) -> tuple[float, float]:
 
     Rendered once per config with the block at the centre of the workspace.
     """
-    from latent_sindy.envs.world import PushWorld
-
-    world = PushWorld(cfg)
+    view = CameraView(cfg)
     try:
         centre = [(lo + hi) / 2 for lo, hi in zip(cfg.workspace_low, cfg.workspace_high,
                                                    strict=True)]
-        img = _gray(world.observe((centre[0], centre[1], 0.0)))
+        img = _gray(view.observe((centre[0], centre[1], 0.0)))
     finally:
-        world.close()
+        view.close()
     values, counts = np.unique(img, return_counts=True)
     table = float(values[np.argmax(counts)])
     block = img[img < table - 1.0]
