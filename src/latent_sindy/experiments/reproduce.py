@@ -148,10 +148,11 @@ def run_stage(study: Study, data: Path, say: Say) -> None:
     for seed in cfg.seeds:
         for spec in study.specs:
             tc = TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
-                             loss=spec.loss, window=spec.window, epochs=scale.epochs,
+                             loss=spec.loss, window=spec.window,
+                             epochs=scale.epochs * spec.epochs_factor,
                              batch_size=scale.batch_size, threshold=scale.threshold,
-                             threshold_every=scale.threshold_every,
-                             eval_every=scale.eval_every, seed=seed)
+                             threshold_every=scale.threshold_every * spec.epochs_factor,
+                             eval_every=scale.eval_every * spec.epochs_factor, seed=seed)
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in study.specs for c in scale.conditions(spec))
