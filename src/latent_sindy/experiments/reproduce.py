@@ -9,7 +9,9 @@ A re-run reuses every finished piece (data, trained runs, evaluations, control e
 an interrupted training run resumes from its checkpoint.
 
     latent-sindy reproduce --scale demo --out results
-    latent-sindy reproduce --scale paper --out results-paper --seeds 0 1 2
+    latent-sindy reproduce --scale paper --out results-paper --seeds 0..2
+    latent-sindy reproduce --scale paper --out /shared/paper --executor ray --ray-address auto
+    latent-sindy reproduce --scale demo --out results/l1 --models sindy2 --sweep lambda_l1=1e-3,1e-2
 
     from latent_sindy.experiments.study import ReproduceConfig
     from latent_sindy.experiments.reproduce import reproduce
@@ -20,16 +22,18 @@ OUT holds::
     data.h5                      trajectories (collected if missing)
     runs/seed<S>/<model>/        training run folders, with evaluation.json and
                                  control-<task>-<latent|image>/ (results.json, GIFs)
-
-The pipeline reads as stages, each a function of what the earlier ones returned:
-data (collect) -> train + evaluate + control (a process pool) -> baselines -> outputs
-(figures, equations, tables) -> summary.json and report.html.
     table1.md, table1.csv        the paper's Table I beside ours
     figures/                     loss histories, rollouts, coefficient maps, prediction error,
                                  control, gifs/
     equations_<model>.txt        discovered equations (every seed)
     summary.json                 every number, the config, versions, seeds, timings
     report.html                  all of it in one self-contained page
+    sweep.md                     with --sweep: a row per variant (mean ± std, Wilson intervals)
+
+The pipeline reads as stages, each a function of what the earlier ones returned:
+data (collect) -> train + evaluate + control -> baselines -> outputs
+(figures, equations, tables) -> summary.json and report.html. Collection shards and the
+(model, seed) jobs run on the study's executor (latent_sindy.executors: local processes or Ray).
 """
 
 from __future__ import annotations

@@ -296,7 +296,8 @@ class ReproduceConfig:
     """Decoder of every model: "conv" (transposed convolutions; generalises better) or "fc"
     (the course's fully connected one)."""
     workers: int = 2
-    """Processes for collection, training and control (1: everything in this process)."""
+    """Processes for collection, training and control (1: everything in this process); with
+    --executor ray and no --ray-address, the CPUs of the Ray started here."""
     threads: int = 1
     """torch CPU threads per process."""
     models: tuple[str, ...] = ()
