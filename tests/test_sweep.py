@@ -11,7 +11,14 @@ import pytest
 from latent_sindy.control.closed_loop import wilson_interval
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.study import ReproduceConfig, Sweep, parse_seeds, study_specs
+from latent_sindy.experiments.study import (
+    SCALES,
+    ReproduceConfig,
+    Sweep,
+    model_specs,
+    parse_seeds,
+    study_specs,
+)
 from latent_sindy.experiments.table import sweep_rows
 from latent_sindy.training import RunDir
 
@@ -36,7 +43,7 @@ def test_a_sweep_makes_one_variant_per_value_of_the_models_it_applies_to(tmp_pat
     assert s.label == "SINDy-2, λ3=0.01, order=3"
     assert specs["linear.lambda_l1=0.001"].loss.lambda_l1 == 0.001
     plain = ReproduceConfig(scale="tiny", out=tmp_path)
-    assert len(study_specs(plain)) == 10  # no sweep, no --models: the study as it was
+    assert study_specs(plain) == model_specs(SCALES["tiny"])  # no sweep or --models: as it was
 
 
 def test_sweep_input_is_checked():
