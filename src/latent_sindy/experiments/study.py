@@ -381,8 +381,9 @@ SINGLE_STEP = "sindy2"
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
                 ) -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows and SINDy
-    order 2 with the push library, all with the same autoencoder architecture; then SINDy-2, linear and MLP on the true state
-    (the reference rows the image models are measured against)."""
+    order 2 with the push library, all with the same autoencoder architecture; then SINDy
+    (push library), linear and MLP on the true state (the reference rows the image models are
+    measured against)."""
     h = scale.multistep_window
     auto = AutoencoderConfig(decoder=decoder)
 
