@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from latent_sindy.cli import main
 from latent_sindy.data.store import write_trajectories
 from synthetic import make_trajectories
 
@@ -123,3 +124,43 @@ def test_train_equations_control_smoke(tmp_path):
 )
 def test_learning_commands_reject_bad_input(tmp_path, args, needle):
     assert_one_line_error(run(*args, cwd=tmp_path), needle)
+
+
+
+def main_error(capsys, *args: str) -> str:
+    """Run the command in this process (fast); the one line it printed on stderr."""
+    code = main(list(args))
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("latent-sindy: error:"), err
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--seeds", "0..x"], "--seeds '0..x'"),
+        (["--seeds", "5..2"], "--seeds 5..2"),
+        (["--seeds", "0", "0"], "distinct"),
+        (["--sweep", "lambda_l1"], "SETTING=V1,V2"),
+        (["--sweep", "colour=1,2"], "unknown setting 'colour'"),
+        (["--sweep", "order=1,x"], "'x' is not an int"),
+        (["--sweep", "order=2,5"], "order 5"),
+        (["--sweep", "lambda_l1=1e-3,1e-3"], "distinct values"),
+        (["--sweep", "lambda_l1=-1"], "--lambda-l1 -1.0"),
+        (["--sweep", "order=1,2", "--models", "linear"], "none of the chosen models"),
+        (["--models", "sindy9"], "--models sindy9"),
+        (["--gpus", "-1"], "--gpus -1.0"),
+    ],
+)
+def test_reproduce_rejects_bad_seeds_sweeps_and_models(tmp_path, capsys, args, needle):
+    out = tmp_path / "study"
+    assert needle in main_error(capsys, "reproduce", "--scale", "tiny", "--out", str(out), *args)
+    assert not out.exists()  # refused before anything was written
+
+
+def test_ray_executor_without_ray_names_the_extra(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    line = main_error(capsys, "reproduce", "--scale", "tiny", "--out", str(tmp_path / "s"),
+                      "--executor", "ray")
+    assert "--executor ray needs Ray" in line and "pip install 'latent-sindy[ray]'" in line

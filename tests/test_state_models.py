@@ -102,3 +102,49 @@ def test_sindy_on_simulated_poses_prints_the_push_kinematics(symmetric_pushes) -
         err_still = (Zv - Znv)[:, :2].norm(dim=1).mean()
     assert err_sindy < 0.5 * err_still
     assert err_sindy <= 1.2 * err_mlp, (float(err_sindy), float(err_mlp))
+
+
+def test_the_state_cost_is_one_at_the_strict_tolerances() -> None:
+    """MPPI's cost of a state error: 2 cm of position, or 10° of orientation modulo the
+    block's symmetry, cost 1 (metres would cost 4e-4, which λ = 0.01 cannot tell apart)."""
+    from latent_sindy.control.costs import LatentCost
+    from latent_sindy.models.state import StateConfig
+
+    for period in (math.pi / 2, 2 * math.pi):
+        goal = pose_features(np.array([0.5, 0.1, 0.3]), period)
+        cost = LatentCost(goal, StateConfig().build().cost_weights(period))
+        for pose in ([0.52, 0.1, 0.3], [0.5, 0.08, 0.3], [0.5, 0.1, 0.3 + math.radians(10)],
+                     [0.5, 0.1, 0.3 - math.radians(10) + period]):
+            assert float(cost(pose_features(np.array(pose), period)[None])) == pytest.approx(
+                1.0, rel=1e-4)
+        far = pose_features(np.array([0.6, 0.1, 0.3]), period)[None]
+        assert float(cost(far)) == pytest.approx(25.0, rel=1e-4)
+
+
+def test_angle_harmonics_let_the_mlp_learn_what_turns_four_times_per_revolution(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """z' = z + 0.1 sin(4 u1): the same MLP and budget fit it with the harmonics, not without;
+    models without harmonics keep their old parameters (no new state-dict entries)."""
+    from latent_sindy.models.dynamics import MlpDynamics
+
+    gen = torch.Generator().manual_seed(0)
+    u = (torch.rand(512, 3, generator=gen) * 2 - 1) * torch.tensor([1.0, math.pi, 1.0])
+    z = torch.randn(512, 2, generator=gen)
+    target = z + 0.1 * torch.sin(4 * u[:, 1:2])
+    errors = {}
+    for harmonics in (0, 4):
+        torch.manual_seed(0)
+        model = MlpDynamics(2, 3, hidden=32, layers=2, harmonics=harmonics)
+        opt = torch.optim.Adam(model.parameters(), 1e-2)
+        for _ in range(300):
+            loss = ((model.step(z, u) - target) ** 2).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        errors[harmonics] = loss.item()
+    assert errors[4] < 1e-4 < errors[0], errors
+    assert set(MlpDynamics(2, 3).state_dict()) == set(
+        MlpDynamics(2, 3, harmonics=4).state_dict())
+    assert main(["train", "mlp", "--harmonics", "-1", "state", "--data", "x.h5", "--out",
+                 "y"]) != 0
+    assert "--harmonics -1: use 0 to 64" in capsys.readouterr().err

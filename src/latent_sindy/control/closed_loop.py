@@ -139,7 +139,7 @@ class Controller:
             cost = ImageCost(self.model.decode, self.observe(goal_image, goal_pose))
         else:
             cost = LatentCost(self.encode(goal_image, goal_pose),
-                              self.model.autoencoder.cost_weights())
+                              self.model.autoencoder.cost_weights(self._period))
         self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
 
     def act(self, image: np.ndarray, pose: np.ndarray):

@@ -32,6 +32,7 @@ from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
+from latent_sindy.executors import Executor
 
 MAX_ATTEMPTS = 50
 
@@ -121,6 +122,17 @@ def _worker_run(job: tuple[int, CollectionPlan]) -> tuple[int, dict]:
     return index, collect_one(_worker_env, index, plan)
 
 
+def collect_shard(plan: CollectionPlan, indices: tuple[int, ...]) -> list[tuple[int, dict]]:
+    """Trajectories ``indices`` of ``plan`` in one environment: one job of an executor."""
+    from latent_sindy.envs.panda_push import PandaPushEnv
+
+    env = PandaPushEnv(plan.env)
+    try:
+        return [(i, collect_one(env, i, plan)) for i in indices]
+    finally:
+        env.close()
+
+
 # --------------------------------------------------------------------------- the journal
 def _partial_dir(out: Path) -> Path:
     return out.with_name(out.name + ".partial")
@@ -170,11 +182,14 @@ def _open_journal(out: Path, plan: CollectionPlan) -> Path:
 
 # --------------------------------------------------------------------------- the command
 def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
-            progress: Callable[[Iterable, int, int], Iterable] | None = None) -> Path:
+            progress: Callable[[Iterable, int, int], Iterable] | None = None,
+            executor: Executor | None = None) -> Path:
     """Collect `plan` into the trajectory file `out`, resuming an interrupted run.
 
     `progress(iterable, total, initial)` wraps the stream of finished trajectories (a
-    progress bar); None shows nothing. Returns the path of the finished file.
+    progress bar); None shows nothing. With an `executor` (the study's), the trajectories
+    are cut into shards, one job each, and `workers` is not used. Returns the path of the
+    finished file.
     """
     out = Path(out)
     if workers < 1:
@@ -199,7 +214,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
     done = _load_done(partial, plan)
     todo = [i for i in range(plan.trajectories) if i not in done]
 
-    results = _run(todo, plan, workers)
+    results = _run(todo, plan, workers) if executor is None else _run_on(executor, todo, plan)
     if progress is not None:
         results = progress(results, plan.trajectories, len(done))
     for i, item in results:
@@ -241,3 +256,23 @@ def _run(todo: list[int], plan: CollectionPlan, workers: int):
     with ctx.Pool(min(workers, len(todo)), initializer=_worker_init,
                   initargs=(to_json(plan.env),)) as pool:
         yield from pool.imap_unordered(_worker_run, [(i, plan) for i in todo])
+
+
+#: Shards per slot of an executor: small enough that the slots finish together, large
+#: enough that building an environment (a fraction of one trajectory) stays negligible.
+SHARDS_PER_SLOT = 4
+
+
+def _run_on(executor: Executor, todo: list[int], plan: CollectionPlan):
+    """Yield (index, trajectory) as the shards of ``todo`` finish on ``executor``."""
+    n = min(len(todo), SHARDS_PER_SLOT * executor.slots)
+    shards = [tuple(todo[k::n]) for k in range(n)]
+    pending = {executor.submit(collect_shard, plan, shard): shard for shard in shards}
+    try:
+        while pending:
+            for fut in executor.wait_one(pending):
+                del pending[fut]
+                yield from fut.result()
+    finally:
+        for fut in pending:
+            fut.cancel()

@@ -4,7 +4,9 @@ A :class:`TrainJob` trains one (model, seed) or reuses its finished run folder (
 interrupted one); an :class:`EvalJob` measures one trained run (losses, prediction error,
 model statistics, what the latent knows: cached in RUN/evaluation.json) and runs its
 closed-loop conditions (cached per condition in RUN/control-<task>-<space>/results.json).
-Jobs run in fresh worker processes, or in this process when there is one worker.
+Jobs run on the study's executor (:mod:`latent_sindy.executors`: local processes, this
+process, or Ray tasks); each may run again after its worker died, and then reuses or resumes
+what the lost attempt wrote.
 
     latent-sindy reproduce --scale demo --out results   # schedules these jobs
 """
@@ -14,8 +16,6 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Mapping
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -33,8 +33,8 @@ from latent_sindy.progress import Milestones
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
 from latent_sindy.training.loop import run_record
 
-__all__ = ["EvalJob", "Inline", "Pool", "TrainJob", "ensure_trained", "eval_job", "executor",
-           "held_out", "held_out_split", "train_job"]
+__all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "held_out_split",
+           "train_job"]
 
 #: Version of evaluation.json's contents: 2 added the latent probe and position errors.
 EVAL_VERSION = 2
@@ -164,48 +164,3 @@ def eval_job(job: EvalJob) -> RunResult:
                      control=control, train_seconds=train_s, seconds=time.perf_counter() - t0,
                      observation=loaded.model.config.encoder.kind, probe=record["probe"],
                      position=record["position"])
-
-
-class Inline:
-    """workers=1: jobs run in this process one at a time, newest first (so an evaluation
-    follows its training at once), when :meth:`wait_one` is called."""
-
-    def __init__(self) -> None:
-        self._queue: list[tuple[Future, Callable, tuple]] = []
-
-    def submit(self, fn: Callable, *args: Any) -> Future:
-        fut: Future = Future()
-        self._queue.append((fut, fn, args))
-        return fut
-
-    def wait_one(self, pending: Mapping[Future, Any]) -> set[Future]:
-        fut, fn, args = self._queue.pop()
-        try:
-            fut.set_result(fn(*args))
-        except Exception as e:  # re-raised by fut.result(), as a process pool would
-            fut.set_exception(e)
-        return {fut}
-
-    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
-        self._queue.clear()
-
-    def __enter__(self) -> Inline:
-        return self
-
-    def __exit__(self, *exc: object) -> None: ...
-
-
-class Pool(ProcessPoolExecutor):
-    """Worker processes started fresh (spawn: no inherited PyBullet or torch state)."""
-
-    def __init__(self, workers: int) -> None:
-        import multiprocessing as mp
-
-        super().__init__(workers, mp_context=mp.get_context("spawn"))
-
-    def wait_one(self, pending: Mapping[Future, Any]) -> set[Future]:
-        return wait(pending, return_when=FIRST_COMPLETED).done
-
-
-def executor(workers: int, jobs: int) -> Inline | Pool:
-    return Inline() if workers == 1 or jobs <= 1 else Pool(min(workers, jobs))

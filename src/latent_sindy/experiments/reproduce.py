@@ -9,7 +9,9 @@ A re-run reuses every finished piece (data, trained runs, evaluations, control e
 an interrupted training run resumes from its checkpoint.
 
     latent-sindy reproduce --scale demo --out results
-    latent-sindy reproduce --scale paper --out results-paper --seeds 0 1 2
+    latent-sindy reproduce --scale paper --out results-paper --seeds 0..2
+    latent-sindy reproduce --scale paper --out /shared/paper --executor ray --ray-address auto
+    latent-sindy reproduce --scale demo --out results/l1 --models sindy2 --sweep lambda_l1=1e-3,1e-2
 
     from latent_sindy.experiments.study import ReproduceConfig
     from latent_sindy.experiments.reproduce import reproduce
@@ -20,16 +22,18 @@ OUT holds::
     data.h5                      trajectories (collected if missing)
     runs/seed<S>/<model>/        training run folders, with evaluation.json and
                                  control-<task>-<latent|image>/ (results.json, GIFs)
-
-The pipeline reads as stages, each a function of what the earlier ones returned:
-data (collect) -> train + evaluate + control (a process pool) -> baselines -> outputs
-(figures, equations, tables) -> summary.json and report.html.
     table1.md, table1.csv        the paper's Table I beside ours
     figures/                     loss histories, rollouts, coefficient maps, prediction error,
                                  control, gifs/
     equations_<model>.txt        discovered equations (every seed)
     summary.json                 every number, the config, versions, seeds, timings
     report.html                  all of it in one self-contained page
+    sweep.md                     with --sweep: a row per variant (mean ± std, Wilson intervals)
+
+The pipeline reads as stages, each a function of what the earlier ones returned:
+data (collect) -> train + evaluate + control -> baselines -> outputs
+(figures, equations, tables) -> summary.json and report.html. Collection shards and the
+(model, seed) jobs run on the study's executor (latent_sindy.executors: local processes or Ray).
 """
 
 from __future__ import annotations
@@ -55,22 +59,14 @@ from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
+from latent_sindy.executors import Executor, ExecutorOptions, Resources, make_executor
 from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import BASELINES, Stat, aggregate, baseline_errors
-from latent_sindy.experiments.jobs import (
-    EvalJob,
-    Inline,
-    Pool,
-    TrainJob,
-    eval_job,
-    executor,
-    held_out,
-    train_job,
-)
+from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
 from latent_sindy.experiments.probe import position_errors
-from latent_sindy.experiments.study import ReproduceConfig, Study, model_specs
+from latent_sindy.experiments.study import ReproduceConfig, Study, study_specs
 from latent_sindy.experiments.study_report import write_report
-from latent_sindy.experiments.table import write_table1
+from latent_sindy.experiments.table import write_sweep_table, write_table1
 from latent_sindy.progress import bar, say_stderr
 from latent_sindy.training import RunDir, TrainConfig, load_run, read_metrics
 
@@ -118,7 +114,7 @@ def versions() -> dict[str, str | None]:
 
 
 # ----------------------------------------------------------------------------- stage 1: data
-def collect_stage(cfg: ReproduceConfig, say: Say) -> Path:
+def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     """The trajectory file of the study: as given, reused, or collected for the scale."""
     path, scale = cfg.data_path, cfg.preset
     if cfg.data is not None and path.exists():
@@ -130,17 +126,17 @@ def collect_stage(cfg: ReproduceConfig, say: Say) -> Path:
         say(f"[1/4] data: reusing {path}")
     else:
         say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
-            f"into {path} ({cfg.workers} worker(s))")
+            f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
 
     def progress(it, total, initial):
         return bar(it, total, initial, desc="collect", unit="traj", leave=False)
 
-    return collect(path, plan, cfg.workers, progress if cfg.verbose else None)
+    return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
 
 
 # ----------------------------------------------------------------------------- stage 2: runs
-def run_stage(study: Study, data: Path, say: Say) -> None:
-    """Every (seed, model): train (or reuse), then evaluate and control, on a process pool.
+def run_stage(study: Study, data: Path, pool: Executor, say: Say) -> None:
+    """Every (seed, model): train (or reuse), then evaluate and control, on the executor.
 
     Fills ``study.results``, ``per_seed``, ``stats``, ``failures`` and ``train_status``.
     """
@@ -149,35 +145,34 @@ def run_stage(study: Study, data: Path, say: Say) -> None:
     for seed in cfg.seeds:
         for spec in study.specs:
             tc = TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
-                             loss=spec.loss, window=spec.window, epochs=scale.epochs,
+                             loss=spec.loss, window=spec.window,
+                             epochs=scale.epochs * spec.epochs_factor,
                              batch_size=scale.batch_size, threshold=scale.threshold,
-                             threshold_every=scale.threshold_every,
-                             eval_every=scale.eval_every, seed=seed)
+                             threshold_every=scale.threshold_every * spec.epochs_factor,
+                             eval_every=scale.eval_every * spec.epochs_factor, seed=seed,
+                             device="auto" if cfg.gpus > 0 else "cpu")
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in study.specs for c in scale.conditions(spec))
     say(f"[2/4] training and evaluating {len(study.specs)} models x {len(cfg.seeds)} seed(s) "
-        f"({scale.epochs} epochs; {episodes} control episodes per seed) on "
-        f"{min(cfg.workers, len(jobs))} process(es)")
-    with executor(cfg.workers, len(jobs)) as pool:
-        try:
-            _drain(pool, jobs, study, data, say)
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)  # no queued job starts after an error
-            raise
+        f"({scale.epochs} epochs; {episodes} control episodes per seed), "
+        f"{cfg.executor} executor, {min(pool.slots, len(jobs))} at once")
+    _drain(pool, jobs, study, data, say)
     study.stats = {name: aggregate([study.per_seed[s][name] for s in cfg.seeds
                                     if name in study.per_seed.get(s, {})])
                    for name in study.models}
 
 
-def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
+def _drain(pool: Executor, jobs: list[TrainJob], study: Study, data: Path,
            say: Say) -> None:
     """Run the training jobs; each finished one queues its evaluation; until all are done."""
     scale, threads, n = study.scale, study.config.threads, len(jobs)
+    train_needs = Resources(cpus=threads, gpus=study.config.gpus)
+    eval_needs = Resources(cpus=threads)
     t0 = time.perf_counter()
     done_eval = 0
     pending: dict[Future, tuple[str, Any]] = {
-        pool.submit(train_job, j): ("train", j) for j in jobs}
+        pool.submit(train_job, j, resources=train_needs): ("train", j) for j in jobs}
     while pending:
         for fut in pool.wait_one(pending):
             kind, job = pending.pop(fut)
@@ -196,7 +191,7 @@ def _drain(pool: Inline | Pool, jobs: list[TrainJob], study: Study, data: Path,
                 controls = tuple((c, scale.control_config(c, job.seed, study.config.world))
                                  for c in scale.conditions(spec))
                 ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
-                pending[pool.submit(eval_job, ev)] = ("eval", ev)
+                pending[pool.submit(eval_job, ev, resources=eval_needs)] = ("eval", ev)
             else:
                 done_eval += 1
                 study.results.setdefault(job.seed, {})[job.name] = result
@@ -307,6 +302,9 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
 
     files["table_md"], files["table_csv"] = write_table1(
         out, study.models, study.labels, study.stats, len(cfg.seeds))
+    if cfg.sweep:
+        files["sweep"] = write_sweep_table(out / "sweep.md", study.models, study.labels,
+                                           study.per_seed, cfg.seeds)
     say(f"[3/4] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
     return files
 
@@ -384,17 +382,24 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     if config.data is not None and config.data.exists():
         read_trajectories(config.data)  # a foreign or damaged file is refused before any output
     out.mkdir(parents=True, exist_ok=True)
-    specs = model_specs(config.preset, config.decoder)
+    specs = study_specs(config)
     runs = {s: {m.name: out / "runs" / f"seed{s}" / m.name for m in specs} for s in config.seeds}
     study = Study(config, specs, runs)
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)  # for the in-process work; restored below
+    options = ExecutorOptions(workers=config.workers, threads=config.threads,
+                              address=config.ray_address)
     try:
-        data_path = collect_stage(config, say)
-        study.timings["collect"] = time.perf_counter() - t_start
-        t = time.perf_counter()
-        run_stage(study, data_path, say)
-        study.timings["train_evaluate_control"] = time.perf_counter() - t
+        with make_executor(config.executor, options) as pool:
+            try:
+                data_path = collect_stage(config, pool, say)
+                study.timings["collect"] = time.perf_counter() - t_start
+                t = time.perf_counter()
+                run_stage(study, data_path, pool, say)
+                study.timings["train_evaluate_control"] = time.perf_counter() - t
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)  # no queued job starts after this
+                raise
         if not study.results.get(config.seeds[0]):
             raise UserError(f"no model of seed {config.seeds[0]} finished training: "
                             + "; ".join(study.failures))

@@ -16,9 +16,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from latent_sindy.experiments.evaluation import Stat
+from latent_sindy.control.closed_loop import wilson_interval
+from latent_sindy.experiments.evaluation import Stat, mean_std
 
-__all__ = ["PAPER", "ROWS", "Row", "format_stat", "table1_rows", "write_table1"]
+__all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "sweep_rows", "table1_rows",
+           "write_sweep_table", "write_table1"]
 
 #: The paper's Table I by column (SINDy orders 1-4, E2C); sparsity in percent.
 PAPER: dict[str, dict[str, float | None]] = {
@@ -189,3 +191,67 @@ def write_table1(out: Path, models: Sequence[str], labels: Mapping[str, str],
                             "" if s is None or s.std is None else s.std,
                             0 if s is None else s.n, format_stat(s, row.fmt, seeds)])
     return out / "table1.md", out / "table1.csv"
+
+
+#: Columns of the sweep table: a metric, and for success rates the condition whose episodes
+#: are pooled over the seeds into one Wilson interval.
+SWEEP_COLUMNS: tuple[Row, ...] = (
+    Row("loss/test", "test loss", "loss"),
+    Row("sindy/sparsity", "sparsity", "pct100"),
+    Row("pred_err/h1", "prediction error, 1 step", "loss"),
+    Row("control/random/latent/success_rate", "success, random tasks", "pct",
+        ci="control/random/latent"),
+    Row("control/random/latent/strict_success_rate", "strict success, random tasks", "pct",
+        ci="control/random/latent"),
+    Row("control/paper/latent/success_rate", "success, paper task", "pct",
+        ci="control/paper/latent"),
+)
+
+
+def _pooled_interval(per_seed: Sequence[Mapping[str, float | None]], row: Row) -> str:
+    """" [lo–hi%, k/n]": the 95 % Wilson interval of all seeds' episodes together."""
+    k = n = 0
+    for m in per_seed:
+        rate, episodes = m.get(row.key), m.get(f"{row.ci}/episodes")
+        if rate is None or episodes is None or not (math.isfinite(rate)
+                                                    and math.isfinite(episodes)):
+            continue
+        k += round(rate * episodes)
+        n += int(episodes)
+    if n == 0:
+        return ""
+    lo, hi = wilson_interval(k, n)
+    return f" [{100 * lo:.0f}–{100 * hi:.0f}%, {k}/{n}]"
+
+
+def sweep_rows(models: Sequence[str], labels: Mapping[str, str],
+               per_seed: Mapping[int, Mapping[str, Mapping[str, float | None]]],
+               seeds: Sequence[int]) -> list[list[str]]:
+    """One row per model (sweep variant): mean ± std over seeds of each column, and for
+    success rates the Wilson interval of the episodes of every seed pooled."""
+    rows = []
+    for m in models:
+        runs = [per_seed[s][m] for s in seeds if m in per_seed.get(s, {})]
+        cells = [labels[m], str(len(runs))]
+        for col in SWEEP_COLUMNS:
+            stat = _ours({col.key: mean_std([r.get(col.key) for r in runs])}, col)
+            text = format_stat(stat, col.fmt, len(seeds))
+            if col.ci is not None:
+                text += _pooled_interval(runs, col)
+            cells.append(text)
+        rows.append(cells)
+    return rows
+
+
+def write_sweep_table(path: Path, models: Sequence[str], labels: Mapping[str, str],
+                      per_seed: Mapping[int, Mapping[str, Mapping[str, float | None]]],
+                      seeds: Sequence[int]) -> Path:
+    """Write the sweep's table (Markdown): a row per variant, headline metrics as columns."""
+    header = ["model", "seeds", *(c.label for c in SWEEP_COLUMNS)]
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md += ["| " + " | ".join(r) + " |" for r in sweep_rows(models, labels, per_seed, seeds)]
+    note = ("\n\nMean ± sample std over the seeds that finished; success rates also with the "
+            "95 % Wilson interval of all those seeds' episodes pooled [low–high, successes/"
+            "episodes]. n/a: does not apply; —: no value.\n")
+    path.write_text("\n".join(md) + note)
+    return path

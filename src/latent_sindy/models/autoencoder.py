@@ -240,6 +240,6 @@ class Autoencoder(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.decode(self.encode(x))
 
-    def cost_weights(self) -> torch.Tensor:
+    def cost_weights(self, angle_period: float) -> torch.Tensor:
         """Q of MPPI's latent cost: every latent coordinate alike."""
         return torch.ones(self.config.latent_dim)

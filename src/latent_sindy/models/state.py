@@ -9,10 +9,12 @@ dynamics directly on states. These models are the upper bound the image models a
 against; they never see an image.
 
     latent-sindy train sindy --order 1 --library push --lambda-l1 1e-4 state --out runs/s
+    latent-sindy train mlp --harmonics 4 state --out runs/m
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -32,13 +34,21 @@ class StateConfig:
     """The true pose as the latent state (a reference model; no image is used)."""
 
     kind: ClassVar[str] = "state"
-    angle_weight: float = 0.01
-    """Weight of the two orientation features in MPPI's latent cost, against 1 for x and y
-    (metres): small, so the planner reaches the position first."""
+    position_scale: float = 0.02
+    """Position error (m) that costs 1 in MPPI's latent cost (the strict criterion's 2 cm).
+    The cost must be on this scale, not in metres: against MPPI's temperature λ = 0.01 the
+    cost differences of metres near the goal (1e-4) weigh every sample alike, and the plan
+    becomes a random walk (the state MLP then met the strict criterion in 15 % of 20 random
+    tasks, and in 85 % with this scale)."""
+    angle_scale_deg: float = 10.0
+    """Orientation error (degrees, modulo the block's symmetry) that costs 1 (the strict
+    criterion's 10°)."""
 
     def __post_init__(self) -> None:
-        if not (0 <= self.angle_weight < float("inf")):
-            raise UserError(f"--angle-weight {self.angle_weight}: use a finite number >= 0")
+        for name, v in (("position-scale", self.position_scale),
+                        ("angle-scale-deg", self.angle_scale_deg)):
+            if not (0 < v < float("inf")):
+                raise UserError(f"--{name} {v}: use a finite number > 0")
 
     @property
     def latent_dim(self) -> int:
@@ -68,6 +78,11 @@ class StateCodec(nn.Module):
     def decode(self, z: torch.Tensor) -> torch.Tensor:
         return z
 
-    def cost_weights(self) -> torch.Tensor:
-        w = self.config.angle_weight
-        return torch.tensor([1.0, 1.0, w, w])
+    def cost_weights(self, angle_period: float) -> torch.Tensor:
+        """Q of MPPI's cost: an error of ``position_scale`` in x or y, or of
+        ``angle_scale_deg`` in orientation, costs 1 (the angle features of an error e are
+        2 - 2 cos(2π e / P) apart, squared)."""
+        p = 1.0 / self.config.position_scale**2
+        e = math.radians(self.config.angle_scale_deg) * 2 * math.pi / angle_period
+        a = 1.0 / (2.0 - 2.0 * math.cos(min(e, math.pi)))
+        return torch.tensor([p, p, a, a])

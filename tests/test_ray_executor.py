@@ -1,0 +1,112 @@
+"""The study on a real Ray cluster: two nodes on this machine, one worker process killed while it
+trains; the study still completes and its outputs equal the local executor's, bit for bit."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from latent_sindy.errors import UserError
+from latent_sindy.executors import EXECUTORS, ExecutorOptions, make_executor
+from latent_sindy.experiments.reproduce import reproduce
+from latent_sindy.experiments.study import ReproduceConfig
+from study_outputs import assert_same_study
+
+ray = pytest.importorskip("ray")
+
+
+def _parent(pid: int) -> int:
+    # /proc/PID/stat: "pid (comm) state ppid ..."; comm may hold spaces, so split after ")"
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+def _descends_from(pid: int, root: int) -> bool:
+    try:
+        while pid > 1:
+            if pid == root:
+                return True
+            pid = _parent(pid)
+    except (OSError, ValueError, IndexError):
+        return False
+    return False
+
+
+def _task_processes(task: str) -> list[int]:
+    """Ray workers started by this test that are running ``task`` now (Ray titles them so)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            title = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if title.startswith(f"ray::{task}".encode()) and _descends_from(int(entry.name),
+                                                                        os.getpid()):
+            found.append(int(entry.name))
+    return found
+
+
+def _kill_one_training_worker(stop: threading.Event, killed: list[int]) -> None:
+    while not stop.is_set():
+        for pid in _task_processes("train_job"):
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+            return
+        stop.wait(0.05)
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory) -> dict:
+    """The tiny study with the local executor, and on a two-node Ray cluster with a kill."""
+    from ray.cluster_utils import Cluster
+
+    local = tmp_path_factory.mktemp("local")
+    reproduce(ReproduceConfig(scale="tiny", out=local, workers=1, verbose=False), lambda _: None)
+
+    t0 = time.perf_counter()
+    cluster = Cluster(initialize_head=True,
+                      head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        started = time.perf_counter() - t0
+        out = tmp_path_factory.mktemp("ray")
+        stop, killed = threading.Event(), []
+        killer = threading.Thread(target=_kill_one_training_worker, args=(stop, killed))
+        killer.start()
+        lines: list[str] = []
+        t1 = time.perf_counter()
+        try:
+            reproduce(ReproduceConfig(scale="tiny", out=out, executor="ray",
+                                      ray_address=cluster.address, verbose=False),
+                      lines.append)
+        finally:
+            stop.set()
+            killer.join()
+        study_s = time.perf_counter() - t1
+        print(f"\ntwo-node Ray: started in {started:.1f} s, tiny study in {study_s:.1f} s")
+        return {"local": local, "ray": out, "killed": killed, "lines": lines}
+    finally:
+        cluster.shutdown()
+
+
+def test_a_killed_worker_is_retried_and_the_study_equals_the_local_one(studies):
+    assert len(studies["killed"]) == 1, "no training worker was seen to kill"
+    with pytest.raises(ProcessLookupError):
+        os.kill(studies["killed"][0], 0)
+    assert any(line.startswith("[4/4] report") for line in studies["lines"])
+    assert "ray executor, 2 at once" in " ".join(studies["lines"])  # both nodes' CPUs
+    assert_same_study(studies["local"], studies["ray"])
+
+
+def test_executor_registry_names_the_choices():
+    assert set(EXECUTORS) == {"local", "ray"}
+    with pytest.raises(UserError, match="--executor 'dask': use one of local, ray"):
+        make_executor("dask", ExecutorOptions())
+    assert not ray.is_initialized()  # the study shut down the Ray connection it opened
