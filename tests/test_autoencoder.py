@@ -176,6 +176,29 @@ def test_loss_terms_depend_on_the_right_parts(kind: str) -> None:
         assert nonzero(grads("l1", dyn)) and not nonzero(grads("l1", [*enc, *dec]))
 
 
+def test_foreground_weight_weights_only_the_block_pixels_in_the_trained_total() -> None:
+    model = tiny("sindy")
+    x, u = batch(b=3, h=2)
+    x = 0.1 * x  # the table: within 1 of its median everywhere
+    plain = model.loss(x, u, LossWeights())
+    weighted = model.loss(x, u, LossWeights(foreground_weight=9.0))
+    assert weighted["total"] == plain["total"]  # no block, no extra weight
+    x[..., 10:14, 10:14] = -4.0  # a block: 16 pixels far below the table
+    plain = model.loss(x, u, LossWeights())
+    weighted = model.loss(x, u, LossWeights(foreground_weight=9.0))
+    for term in ("recon", "pred_x", "pred_z", "objective"):  # reported terms stay unweighted
+        assert weighted[term] == plain[term], term
+    with torch.no_grad():
+        z = model.encode(x)
+        z_hat = model.rollout_latent(z[:, 0], u)[:, 1:]
+        err = (model.decode(torch.cat([z, z_hat], 1))
+               - torch.cat([x, x[:, 1:]], 1)).square()  # (B, 2H+1, C, S, S)
+    block = err[..., 10:14, 10:14].sum(dim=(-1, -2, -3))  # (B, 2H+1)
+    extra = 9.0 * (block[:, :3].sum() / err[:, :3].numel() + block[:, 3:].sum()
+                   / err[:, 3:].numel())
+    torch.testing.assert_close(weighted["total"] - plain["total"], extra)
+
+
 def test_loss_rejects_bad_shapes() -> None:
     x, u = batch(h=2)
     with pytest.raises(ValueError, match="loss expects"):

@@ -12,8 +12,10 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     pred_x = mean_{b,t=1..H} ‖x_t − dec(ẑ_t)‖² / (C·S·S)      ẑ rolled out from ẑ_0 = enc(x_0)
     pred_z = mean_{b,t=1..H} ‖enc(x_t) − ẑ_t‖² / nz
     l1     = ‖M ⊙ Ψ‖₁ (SINDy; 0 for the other models)
-    total  = recon + λ1 pred_x + λ2 pred_z + λ3 l1
-    objective = total − λ3 l1   (what train/val/test losses report, comparable across models)
+    objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
+                                                across models)
+    total  = objective + λ3 l1   (what training minimises; with a foreground weight, recon and
+                                  pred_x in it weight the block's pixels more)
 
 Dimensions: B batch, H horizon, C channels, S image side, nz latent size, nu action size.
 
@@ -108,15 +110,27 @@ class LossWeights:
     """λ2: weight of the latent prediction loss, ẑ_t vs enc(x_t) (latent MPPI relies on it)."""
     lambda_l1: float = 1e-2
     """λ3: weight of ‖M ⊙ Ψ‖₁, a sum over all coefficients (SINDy only)."""
+    foreground_weight: float = 0.0
+    """Image models: extra weight of the block's pixels in the trained image terms (recon,
+    pred_x): a pixel of the true image further than 1 (one training pixel std) from its
+    image's median counts 1 + this. The reported terms and objective stay unweighted."""
 
     def __post_init__(self) -> None:
-        for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1"):
+        for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "foreground_weight"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise UserError(f"--{name.replace('_', '-')} {v}: use a finite number >= 0")
 
 
 _DEFAULT_WEIGHTS = LossWeights()
+
+
+def _foreground(x: torch.Tensor) -> torch.Tensor:
+    """1 where a normalised image (..., C, S, S) differs from its median by more than 1 (one
+    training pixel std: the block against the table), else 0."""
+    flat = x.flatten(-3)
+    median = flat.median(dim=-1, keepdim=True).values
+    return ((flat - median).abs() > 1).to(x.dtype).view_as(x)
 
 
 class LatentModel(nn.Module):
@@ -181,13 +195,19 @@ class LatentModel(nn.Module):
         z_hat = self.rollout_latent(z[:, 0], u)[:, 1:]  # (B, H, nz)
         # One decoder pass for the reconstructions and the predictions.
         x_dec = self.decode(torch.cat([z, z_hat], dim=1))  # (B, 2H+1, C, S, S)
-        recon = (x_dec[:, : h + 1] - x).square().mean()
-        pred_x = (x_dec[:, h + 1 :] - x[:, 1:]).square().mean()
+        err_recon = (x_dec[:, : h + 1] - x).square()
+        err_pred = (x_dec[:, h + 1 :] - x[:, 1:]).square()
+        recon, pred_x = err_recon.mean(), err_pred.mean()
         pred_z = (z_hat - z[:, 1:]).square().mean()
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
+        trained = objective
+        if weights.foreground_weight and self.config.encoder.kind == "image":
+            w = 1 + weights.foreground_weight * _foreground(x)  # (B, H+1, C, S, S)
+            trained = ((w * err_recon).mean() + weights.lambda_pred_x * (w[:, 1:] * err_pred)
+                       .mean() + weights.lambda_pred_z * pred_z)
         return {
-            "total": objective + weights.lambda_l1 * l1,
+            "total": trained + weights.lambda_l1 * l1,
             "recon": recon,
             "pred_x": pred_x,
             "pred_z": pred_z,
