@@ -188,8 +188,8 @@ def test_unknown_dynamics_kind_is_one_clear_error() -> None:
 
 @pytest.mark.parametrize("channels", [1, 3])
 def test_conv_decoder_last_layer_is_a_transposed_convolution(channels: int) -> None:
-    """The last layer's CPU path (native forward, oneDNN backward) computes what
-    nn.ConvTranspose2d computes, values and gradients, with its parameters."""
+    """The last layer computes what nn.ConvTranspose2d computes, values and gradients, with
+    its parameters: for one channel on the CPU's native forward and oneDNN's backward."""
     torch.manual_seed(0)
     dec = Autoencoder(AutoencoderConfig(channels=channels, image_size=32, decoder="conv")).decoder
     layer = dec.conv[2]
@@ -199,6 +199,7 @@ def test_conv_decoder_last_layer_is_a_transposed_convolution(channels: int) -> N
     xa, xb = x.clone().requires_grad_(), x.clone().requires_grad_()
     ya, yb = layer(xa), plain(xb)
     assert ya.shape == yb.shape == (7, channels, 32, 32)
+    assert ("NativeForward" in type(ya.grad_fn).__name__) == (channels == 1)
     torch.testing.assert_close(ya, yb, rtol=1e-5, atol=1e-5)
     g = torch.randn_like(ya)
     ya.backward(g)
