@@ -1,8 +1,9 @@
 """The autoencoder layers the trainer changed, old against new, forward + backward, in one
 process: the conv decoder's last transposed convolution (16 -> C channels, oneDNN's forward
-against PyTorch's own forward with oneDNN's backward) and the encoder's stages (conv, ReLU,
-pool against conv, pool, in-place ReLU), at the paper's batch (500 windows of 2 frames: 1000
-images through the encoder, 1500 through the decoder).
+against PyTorch's own forward with oneDNN's backward), the encoder's stages (conv, ReLU,
+pool against conv, pool, in-place ReLU), and a whole training step of SINDy-2 with the conv
+decoder (loss + backward + AdamW) with all the old layers against the new, at the paper's
+batch (500 windows of 2 frames: 1000 images through the encoder, 1500 through the decoder).
 
 Variants are interleaved over ``--rounds`` rounds; each keeps its least wall time and its least
 CPU time of this thread (``time.thread_time``, which leaves out time spent waiting for a core
@@ -46,6 +47,35 @@ def encoder_stages() -> tuple[nn.Module, nn.Module, torch.Tensor]:
     return old, new, x
 
 
+class Step(nn.Module):
+    """One training step of a SINDy-2 conv-decoder model as a module whose output is the
+    loss; ``old``: its autoencoder with the layers as they were."""
+
+    def __init__(self, old: bool) -> None:
+        super().__init__()
+        from latent_sindy.models import LatentModel, ModelConfig, SindyConfig
+
+        torch.manual_seed(0)
+        cfg = ModelConfig(encoder=AutoencoderConfig(decoder="conv"),
+                          dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
+        self.model = LatentModel(cfg)
+        if old:
+            net = self.model.autoencoder.encoder.net
+            net[1], net[2], net[4], net[5] = nn.ReLU(), nn.MaxPool2d(2), nn.ReLU(), nn.MaxPool2d(2)
+            dec = self.model.autoencoder.decoder
+            dec.conv[2].__class__ = nn.ConvTranspose2d
+            for m in dec.modules():
+                if isinstance(m, nn.ReLU):
+                    m.inplace = False
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=1e-3)
+        self.u = torch.randn(500, 1, 3)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        self.opt.step()  # the previous step's update (timed with this one)
+        self.opt.zero_grad(set_to_none=True)
+        return self.model.loss(x, self.u)["total"]
+
+
 def timed(f: Callable[[], torch.Tensor], params: list[torch.Tensor]) -> tuple[float, float]:
     for p in params:
         p.grad = None
@@ -67,15 +97,21 @@ def main() -> None:
         old, new, x = last_layer(c)
         cases[f"last transposed conv 16->{c}"] = (old, new, x)
     cases["encoder (2 conv stages + fc)"] = encoder_stages()
+    torch.manual_seed(1)
+    cases["training step, SINDy-2 conv"] = (Step(old=True), Step(old=False),
+                                            torch.randn(500, 2, 1, 32, 32))
     best: dict[tuple[str, str], list[float]] = {}
     for name, (old, new, x) in cases.items():
+        if isinstance(old, Step):
+            continue
         with torch.no_grad():
             err = float((old(x) - new(x)).abs().max())
         print(f"{name}: largest difference old - new {err:.1e}")
     for _ in range(args.rounds):
         for name, (old, new, x) in cases.items():
             for which, m in (("old", old), ("new", new)):
-                params = [*m.parameters()] + ([x] if x.requires_grad else [])
+                params = ([] if isinstance(m, Step) else  # (a step keeps its gradients)
+                          [*m.parameters()] + ([x] if x.requires_grad else []))
                 w, c = timed(lambda m=m, x=x: m(x), params)
                 b = best.setdefault((name, which), [w, c])
                 b[0], b[1] = min(b[0], w), min(b[1], c)
