@@ -32,7 +32,7 @@ least disturbed by other jobs (it leaves out the time spent waiting for a core).
 
     .venv/bin/python benchmarks/train_schedule.py --rounds 3
     .venv/bin/python benchmarks/train_schedule.py --data data/push.h5 --epochs 20
-    .venv/bin/python benchmarks/train_schedule.py --only 5 7   # 1 against 2 threads
+    .venv/bin/python benchmarks/train_schedule.py --only 6 7   # 1 against 2 threads
 """
 
 from __future__ import annotations
