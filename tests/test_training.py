@@ -454,6 +454,20 @@ def test_the_best_so_far_survives_a_resume(data: Path, tmp_path: Path, monkeypat
     states_equal(load_run(run).model, load_run(stopped).model)
 
 
+def test_resuming_a_checkpoint_without_selection_says_so(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2)
+    train(cfg)
+    ckpt = torch.load(cfg.out / "checkpoint.pt", weights_only=True)
+    del ckpt["best"]  # as written before model selection existed
+    torch.save(ckpt, cfg.out / "checkpoint.pt")
+    progress = Recorder()
+    train(dataclasses.replace(cfg, epochs=4, resume=True), progress)
+    assert ("note", f"{cfg.out / 'checkpoint.pt'} is from before model selection: the kept "
+            "weights are chosen among epochs 3 to 4") in progress.calls
+    kept = json.loads((cfg.out / "config.json").read_text())["kept"]
+    assert kept["candidates_from"] == 3 and kept["epoch"] in (3, 4)
+
+
 # ----------------------------------------------------------------------------- devices
 def test_device_cuda_without_cuda_is_one_line(data: Path, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)

@@ -347,6 +347,9 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
                 "over with --overwrite"
             ) from e
         metrics, done = list(ckpt["metrics"]), int(ckpt["epoch"])
+        if "best" not in ckpt and cfg.keep_best:
+            progress.note(f"{run / run.CHECKPOINT} is from before model selection: the kept "
+                          f"weights are chosen among epochs {done + 1} to {cfg.epochs}")
         was = (ckpt.get("device", "cpu"), ckpt.get("threads"))
         now = (device.type, torch.get_num_threads())
         if was[1] is not None and was != now:  # older checkpoints did not record them
