@@ -11,6 +11,11 @@ each to the row above:
   * eval_every N: validation every N epochs and at the last (``--eval-every``);
   * malloc keeps memory: glibc's malloc keeps freed blocks for reuse instead of returning
     them to the OS and page-faulting them back at every step (the trainer's code now);
+  * native forward of the last transposed conv: the conv decoder's 16 -> 1 channel layer
+    computes its forward with PyTorch's own kernel (oneDNN pads the one output channel) and
+    its backward with oneDNN's (the model's code now);
+  * pool before ReLU: the encoder max-pools before its ReLUs (a quarter of the values) and
+    the ReLUs work in place (the model's code now);
   * threads T: T torch threads (the CLI's ``--threads``), first with libgomp's default wait
     policy (idle OpenMP threads spin), then with ``OMP_WAIT_POLICY=PASSIVE`` (they sleep; the
     CLI sets it).
@@ -21,11 +26,13 @@ kernels), the second half is timed from the trainer's progress callbacks. Varian
 interleaved over ``--rounds`` rounds and each keeps its fastest round, the figure least
 disturbed by other jobs on the machine. Set-up and the final save and plot are timed apart
 and added once to the projection of a ``--project``-epoch run; process start-up (imports,
-about 5 s) is not. Minor page faults and kernel (sys) time per timed epoch are printed too.
+about 5 s) is not. Minor page faults, kernel (sys) time and the process's CPU time (user +
+sys, all threads) per timed epoch are printed too: with one thread, CPU time is the figure
+least disturbed by other jobs (it leaves out the time spent waiting for a core).
 
     .venv/bin/python benchmarks/train_schedule.py --rounds 3
     .venv/bin/python benchmarks/train_schedule.py --data data/push.h5 --epochs 20
-    .venv/bin/python benchmarks/train_schedule.py --only 3 5   # 1 against 2 threads
+    .venv/bin/python benchmarks/train_schedule.py --only 6 7   # 1 against 2 threads
 """
 
 from __future__ import annotations
@@ -47,7 +54,7 @@ import torch
 
 from latent_sindy.data.store import Trajectories, write_trajectories
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
-from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
+from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig, autoencoder
 from latent_sindy.training import TrainConfig, loop, train
 
 BEFORE_MINUTES = 46  # the paper schedule's wall time on this machine before (RESULTS.md)
@@ -102,6 +109,8 @@ class Variant:
     inference_mode: bool
     keep_memory: bool
     omp_passive: bool = False
+    native_last: bool = False
+    pool_first: bool = False
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
@@ -112,8 +121,34 @@ def variants(args: argparse.Namespace) -> list[Variant]:
         Variant(f"+ eval_every {n}", 1, n, True, False),
         Variant("+ malloc keeps freed memory", 1, n, True, True),
         Variant(f"+ {t} threads (OpenMP threads spin)", t, n, True, True),
-        Variant(f"+ {t} threads, OMP_WAIT_POLICY=PASSIVE", t, n, True, True, True),
+        Variant("+ native forward, last transposed conv", 1, n, True, True, False, True),
+        Variant("+ pool before ReLU, in-place ReLUs", 1, n, True, True, False, True, True),
+        Variant(f"+ {t} threads, OMP_WAIT_POLICY=PASSIVE", t, n, True, True, True, True, True),
     ]
+
+
+def old_layers(native_last: bool, pool_first: bool) -> None:
+    """Put back the autoencoder's layers as they were before these changes (this process)."""
+    from torch import nn
+
+    if not native_last:  # oneDNN's transposed convolution forward, as nn.ConvTranspose2d
+        autoencoder._ImageConvTranspose2d.forward = nn.ConvTranspose2d.forward
+    if pool_first:
+        return
+    enc_init, dec_init = autoencoder.Encoder.__init__, autoencoder.Decoder.__init__
+
+    def encoder(self, cfg):  # the course's order: conv, ReLU, pool; ReLUs out of place
+        enc_init(self, cfg)
+        net = self.net
+        net[1], net[2], net[4], net[5] = nn.ReLU(), nn.MaxPool2d(2), nn.ReLU(), nn.MaxPool2d(2)
+
+    def decoder(self, cfg):
+        dec_init(self, cfg)
+        for m in self.modules():
+            if isinstance(m, nn.ReLU):
+                m.inplace = False
+
+    autoencoder.Encoder.__init__, autoencoder.Decoder.__init__ = encoder, decoder
 
 
 def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> dict:
@@ -124,6 +159,7 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
         loop.evaluate = torch.no_grad()(loop.evaluate.__wrapped__)
     if not v.keep_memory:  # the trainer as it was: glibc's default malloc thresholds
         loop._keep_freed_memory = lambda: None
+    old_layers(v.native_last, v.pool_first)
     model = ModelConfig(encoder=AutoencoderConfig(decoder=args.decoder),
                         dynamics=SindyConfig(order=2))
     cfg = TrainConfig(data=data, out=out, model=model, epochs=2 * args.epochs,
@@ -136,7 +172,8 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
     timed = clock.ends[-1] - clock.ends[args.epochs - 1]
     (a, b), n = clock.usage, args.epochs
     return {"epoch_s": timed / n, "fixed_s": clock.started - t0 + end - clock.ends[-1],
-            "faults": (b.ru_minflt - a.ru_minflt) / n, "sys_s": (b.ru_stime - a.ru_stime) / n}
+            "faults": (b.ru_minflt - a.ru_minflt) / n, "sys_s": (b.ru_stime - a.ru_stime) / n,
+            "cpu_s": (b.ru_utime + b.ru_stime - a.ru_utime - a.ru_stime) / n}
 
 
 def run_child(k: int, args: argparse.Namespace, data: Path, out: Path) -> dict:
@@ -185,22 +222,26 @@ def main() -> None:
                 got = run_child(k, args, data, Path(tmp) / "run")
                 if k not in best or got["epoch_s"] < best[k]["epoch_s"]:
                     best[k] = got | {"fixed_s": min(got["fixed_s"],
-                                                    best.get(k, got)["fixed_s"])}
+                                                    best.get(k, got)["fixed_s"]),
+                                     "cpu_s": min(got["cpu_s"], best.get(k, got)["cpu_s"])}
+                else:
+                    best[k]["cpu_s"] = min(got["cpu_s"], best[k]["cpu_s"])
                 print(f"  round {r + 1}: {v.name:<46} {1e3 * got['epoch_s']:7.1f} ms/epoch "
-                      f"(load average {load()})", flush=True)
+                      f"{1e3 * got['cpu_s']:7.1f} CPU ms (load average {load()})", flush=True)
     first = prev = best[rows[0]]["epoch_s"]
     print(f"\nbest ms per epoch; x: speed-up over the row above and over the first row; projected "
           f"{args.project}-epoch run = {args.project} epochs + set-up and final save "
           f"(before on this machine: {BEFORE_MINUTES} min); page faults and kernel time per "
-          "epoch of that best run")
+          "epoch of that best run; CPU ms: the least CPU time (all threads) per epoch of any "
+          "round")
     print(f"{'variant':<46} {'ms/epoch':>9} {'x above':>8} {'x first':>9} {'projected':>10} "
-          f"{'faults':>7} {'sys ms':>7}")
+          f"{'faults':>7} {'sys ms':>7} {'CPU ms':>7}")
     for k in rows:
         v, b = vs[k], best[k]
         minutes = (args.project * b["epoch_s"] + b["fixed_s"]) / 60
         print(f"{v.name:<46} {1e3 * b['epoch_s']:9.1f} {prev / b['epoch_s']:8.2f} "
               f"{first / b['epoch_s']:9.2f} {minutes:6.1f} min {b['faults']:7.0f} "
-              f"{1e3 * b['sys_s']:7.1f}")
+              f"{1e3 * b['sys_s']:7.1f} {1e3 * b['cpu_s']:7.1f}")
         prev = b["epoch_s"]
     print(f"load average at end: {load()}")
 

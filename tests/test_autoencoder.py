@@ -241,3 +241,54 @@ def test_unknown_dynamics_kind_is_one_clear_error() -> None:
     d["dynamics"]["kind"] = "transformer"
     with pytest.raises(UserError, match=r"model\.dynamics: kind 'transformer' is unknown"):
         from_json(ModelConfig, d, "model")
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_conv_decoder_last_layer_is_a_transposed_convolution(channels: int) -> None:
+    """The last layer computes what nn.ConvTranspose2d computes, values and gradients, with
+    its parameters: for one channel on the CPU's native forward and oneDNN's backward."""
+    torch.manual_seed(0)
+    dec = Autoencoder(AutoencoderConfig(channels=channels, image_size=32, decoder="conv")).decoder
+    layer = dec.conv[2]
+    plain = torch.nn.ConvTranspose2d(16, channels, 4, stride=2, padding=1)
+    plain.load_state_dict(layer.state_dict())
+    x = torch.randn(7, 16, 16, 16).contiguous(memory_format=torch.channels_last)
+    xa, xb = x.clone().requires_grad_(), x.clone().requires_grad_()
+    ya, yb = layer(xa), plain(xb)
+    assert ya.shape == yb.shape == (7, channels, 32, 32)
+    assert ("NativeForward" in type(ya.grad_fn).__name__) == (channels == 1)
+    torch.testing.assert_close(ya, yb, rtol=1e-5, atol=1e-5)
+    g = torch.randn_like(ya)
+    ya.backward(g)
+    yb.backward(g)
+    torch.testing.assert_close(xa.grad, xb.grad, rtol=1e-5, atol=1e-5)
+    for name, p in layer.named_parameters():
+        torch.testing.assert_close(p.grad, dict(plain.named_parameters())[name].grad,
+                                   rtol=1e-4, atol=1e-4)
+    with torch.inference_mode():
+        torch.testing.assert_close(layer(x), plain(x), rtol=1e-5, atol=1e-5)
+    assert set(dec.state_dict()) == {"net.0.weight", "net.0.bias", "net.2.weight",
+                                     "net.2.bias", "conv.0.weight", "conv.0.bias",
+                                     "conv.2.weight", "conv.2.bias"}
+
+
+def test_encoder_pools_before_its_relus_with_the_course_layout() -> None:
+    """Pool-then-ReLU gives the course's ReLU-then-pool values and gradients exactly, and the
+    state dict keeps the course's layer indices (older runs load)."""
+    torch.manual_seed(0)
+    enc = Autoencoder(AutoencoderConfig(channels=1, image_size=32)).encoder
+    course = torch.nn.Sequential(*enc.net)
+    course[1], course[2] = torch.nn.ReLU(), torch.nn.MaxPool2d(2)
+    course[4], course[5] = torch.nn.ReLU(), torch.nn.MaxPool2d(2)
+    assert [type(m).__name__ for m in enc.net[:6]] == ["Conv2d", "MaxPool2d", "ReLU"] * 2
+    x = torch.randn(9, 1, 32, 32).contiguous(memory_format=torch.channels_last)
+    za = enc(x)
+    zb = course(x)
+    assert torch.equal(za, zb)
+    g = torch.randn_like(za)
+    grads_a = torch.autograd.grad(za, list(enc.parameters()), g)
+    grads_b = torch.autograd.grad(zb, list(course.parameters()), g)
+    for a, b in zip(grads_a, grads_b, strict=True):
+        assert torch.equal(a, b)
+    assert {k.rsplit(".", 1)[0] for k in enc.state_dict()} == {"net.0", "net.3", "net.7",
+                                                               "net.9"}

@@ -336,10 +336,10 @@ def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None
           "batch_size": 20}  # one batch per epoch: the validation loss is one batch too
     every = train(config(data, tmp_path / "every", **kw))
     ref, ref_val = reference_model(config(data, tmp_path / "ref", **kw))
-    states_equal(load_run(every).model, ref)
+    states_equal(load_run(every, checkpoint=True).model, ref)  # the last epoch
     assert [r["val/objective"] for r in read_metrics(every)] == ref_val
     sparse = train(config(data, tmp_path / "sparse", eval_every=2, **kw))
-    states_equal(load_run(sparse).model, ref)
+    states_equal(load_run(sparse, checkpoint=True).model, ref)
     rows, full = read_metrics(sparse), read_metrics(every)
     evaluated = [r["epoch"] for r in rows if r["val/objective"] is not None]
     assert evaluated == [2, 4, 5]  # every 2nd and the last
@@ -366,6 +366,106 @@ def test_resume_with_another_thread_count_says_so(data: Path, tmp_path: Path) ->
         torch.set_num_threads(1)
     notes = [c[1] for c in progress.calls if c[0] == "note"]
     assert any("with 2 thread(s) a run trained on cpu with 1" in n for n in notes), notes
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int) -> None:
+    """Two trainings of the conv decoder (the CPU's own kernels included) from one seed give
+    the same weights, bit for bit; another seed does not."""
+    kw = {"autoencoder": {"decoder": "conv"}, "epochs": 3, "threshold": 3e-3,
+          "threshold_every": 2, "dynamics": {"init_scale": 3e-3}}
+    torch.set_num_threads(threads)
+    try:
+        a, b = (train(config(data, tmp_path / name, **kw)) for name in "ab")
+        c = train(config(data, tmp_path / "c", seed=1, **kw))
+    finally:
+        torch.set_num_threads(1)
+    states_equal(load_run(a).model, load_run(b).model)
+    states_equal(load_run(a, checkpoint=True).model, load_run(b, checkpoint=True).model)
+    assert losses(read_metrics(a)) == losses(read_metrics(b))
+    with pytest.raises(AssertionError):
+        states_equal(load_run(a).model, load_run(c).model)
+
+
+# ----------------------------------------------------------------------------- best validation
+def scripted_validation(monkeypatch, objectives: list[float]) -> None:
+    """The trainer's validation reports these objectives, one per evaluation in order (the
+    other terms are the real ones); training itself is untouched."""
+    from latent_sindy.training import loop
+
+    real, values = loop.evaluate, iter(objectives)
+
+    def scripted(*args, **kwargs):
+        return {**real(*args, **kwargs), "objective": next(values)}
+
+    monkeypatch.setattr(loop, "evaluate", scripted)
+
+
+def test_the_best_validation_epoch_is_kept(data: Path, tmp_path: Path, monkeypatch) -> None:
+    """The validation objective rises late: model.pt holds the earlier, lower epoch's weights
+    (those of a run stopped there), the checkpoint the last epoch's."""
+    scripted_validation(monkeypatch, [5.0, 4.0, 3.0, 3.5, 4.5, 6.0])
+    progress = Recorder()
+    run = train(config(data, tmp_path / "run", epochs=6), progress)
+    monkeypatch.undo()
+    stopped = train(config(data, tmp_path / "stopped", epochs=3, keep_best=False))
+    last = train(config(data, tmp_path / "last", epochs=6, keep_best=False))
+    states_equal(load_run(run).model, load_run(stopped).model)
+    states_equal(load_run(run, checkpoint=True).model, load_run(last).model)
+    with pytest.raises(AssertionError):  # the comparison can tell epochs 3 and 6 apart
+        states_equal(load_run(run).model, load_run(last).model)
+    kept = json.loads((run / "config.json").read_text())["kept"]
+    assert kept == {"epoch": 3, "selection": "best validation", "val_objective": 3.0,
+                    "candidates_from": 1}
+    assert torch.load(run / "model.pt", weights_only=True)["epoch"] == 3
+    assert ("note", "kept the weights of epoch 3 of 6: the lowest validation objective (3) "
+            "since epoch 1") in progress.calls
+    assert json.loads((last / "config.json").read_text())["kept"]["selection"] == "last epoch"
+
+
+def test_only_epochs_with_the_final_mask_are_kept(data: Path, tmp_path: Path,
+                                                   monkeypatch) -> None:
+    """Pruning at epoch 2 removes every term (threshold 10): epoch 1, the lowest, has another
+    mask and is not kept; the prunings at 4 and 6 remove nothing and change no mask."""
+    kw = {"threshold": 10.0, "threshold_every": 2}
+    scripted_validation(monkeypatch, [1.0, 5.0, 4.0, 3.0, 3.5, 6.0])
+    run = train(config(data, tmp_path / "run", epochs=6, **kw))
+    monkeypatch.undo()
+    every_term = load_run(run).model.dynamics.psi.numel()
+    assert [r["sindy/pruned"] for r in read_metrics(run)][1::2] == [every_term, 0, 0]
+    kept = json.loads((run / "config.json").read_text())["kept"]
+    assert (kept["epoch"], kept["candidates_from"]) == (4, 2)
+    stopped = train(config(data, tmp_path / "stopped", epochs=4, keep_best=False, **kw))
+    states_equal(load_run(run).model, load_run(stopped).model)
+
+
+def test_the_best_so_far_survives_a_resume(data: Path, tmp_path: Path, monkeypatch) -> None:
+    """The best epoch (2) is before the checkpoint the run resumes from (4): only the
+    checkpoint holds its weights."""
+    scripted_validation(monkeypatch, [3.0, 2.0, 2.5, 4.0])
+    cfg = config(data, tmp_path / "run", epochs=4, checkpoint_every=4)
+    train(cfg)
+    monkeypatch.undo()
+    scripted_validation(monkeypatch, [5.0, 6.0])
+    run = train(dataclasses.replace(cfg, epochs=6, resume=True))
+    monkeypatch.undo()
+    assert json.loads((run / "config.json").read_text())["kept"]["epoch"] == 2
+    stopped = train(config(data, tmp_path / "stopped", epochs=2, keep_best=False))
+    states_equal(load_run(run).model, load_run(stopped).model)
+
+
+def test_resuming_a_checkpoint_without_selection_says_so(data: Path, tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2)
+    train(cfg)
+    ckpt = torch.load(cfg.out / "checkpoint.pt", weights_only=True)
+    del ckpt["best"]  # as written before model selection existed
+    torch.save(ckpt, cfg.out / "checkpoint.pt")
+    progress = Recorder()
+    train(dataclasses.replace(cfg, epochs=4, resume=True), progress)
+    assert ("note", f"{cfg.out / 'checkpoint.pt'} is from before model selection: the kept "
+            "weights are chosen among epochs 3 to 4") in progress.calls
+    kept = json.loads((cfg.out / "config.json").read_text())["kept"]
+    assert kept["candidates_from"] == 3 and kept["epoch"] in (3, 4)
 
 
 # ----------------------------------------------------------------------------- devices

@@ -26,7 +26,7 @@ __all__ = ["DEVICES", "RESUMABLE", "TrainConfig", "default_threads", "resolve_de
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
 RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "eval_every",
-                       "device", "out", "data"})
+                       "keep_best", "device", "out", "data"})
 
 #: Values of :attr:`TrainConfig.device`.
 DEVICES = ("auto", "cpu", "cuda")
@@ -66,6 +66,10 @@ class TrainConfig:
     # paper's sizes (BENCHMARKS.md), and it never changes the model.
     eval_every: int = 1
     """Validation loss every this many epochs and at the last (others' val/* stay empty)."""
+    # Selection never changes training; the checkpoint tracks the best weights either way.
+    keep_best: bool = True
+    """Save the weights of the validated epoch with the lowest validation objective since the
+    last SINDy pruning that removed a term (so with the final mask), not the last epoch's."""
     device: Literal["auto", "cpu", "cuda"] = "cpu"
     """cpu (bit-identical per seed and threads), cuda (not bit-identical), auto: cuda if present."""
     seed: int = 0

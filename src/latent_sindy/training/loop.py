@@ -7,7 +7,10 @@ mini-batches shuffled by a generator seeded from ``seed``, and every ``threshold
 SINDy coefficients with ``|Ψ| < threshold`` are pruned for good (the mask only turns off).
 ``resume=True`` continues from the run's checkpoint to the same final model, bit for bit on
 CPU (for the same torch thread count), as an uninterrupted run with the same settings. The
-validation loss is computed every ``eval_every`` epochs (it never changes the model). On CUDA
+validation loss is computed every ``eval_every`` epochs (it never changes the training). With
+``keep_best`` (the default) the saved model is that of the validated epoch with the lowest
+validation objective among those since the last pruning that removed a term, so it has the
+final sparsity mask (:class:`BestValidation`); the checkpoint carries it. On CUDA
 (``device``) the same code runs with the data, model and optimiser on the GPU; the shuffling
 generator stays on the CPU, so both devices see the same mini-batches.
 
@@ -38,7 +41,7 @@ from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device
 from latent_sindy.training.runs import METRIC_COLUMNS, RUN_FORMAT, RUN_FORMAT_VERSION, RunDir
 
-__all__ = ["TrainingDiverged", "evaluate", "run_record", "train"]
+__all__ = ["BestValidation", "TrainingDiverged", "evaluate", "run_record", "train"]
 
 
 class TrainingDiverged(UserError):
@@ -198,6 +201,53 @@ def _prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float) -> int:
     return pruned
 
 
+class BestValidation:
+    """The weights of the validated epoch with the lowest validation objective among the
+    candidates: the epochs since the last SINDy pruning step that removed a term (pruning
+    that removes nothing leaves the mask as it was), so the kept model's mask is the final
+    one. Linear and MLP models never prune: every validated epoch is a candidate.
+
+    The weights are a copy of the state dict (on the model's device), taken when a new best
+    is seen; :meth:`to_checkpoint` / :meth:`from_checkpoint` carry it through a resume.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: int | None = None
+        self.objective = math.inf
+        self.state: dict[str, torch.Tensor] | None = None
+        self.since = 1  # the first candidate epoch (after the last mask change)
+
+    def mask_changed(self, epoch: int) -> None:
+        """A pruning at ``epoch`` removed terms: earlier epochs have another mask."""
+        self.epoch, self.objective, self.state, self.since = None, math.inf, None, epoch
+
+    def offer(self, epoch: int, objective: float, model: torch.nn.Module) -> bool:
+        """Keep ``model``'s weights if ``objective`` is the lowest so far (ties: the earlier)."""
+        if objective >= self.objective:
+            return False
+        self.epoch, self.objective = epoch, objective
+        self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        return True
+
+    def to_checkpoint(self) -> dict[str, Any]:
+        return {"epoch": self.epoch, "objective": self.objective, "since": self.since,
+                "model": None if self.state is None else _cpu(self.state)}
+
+    @classmethod
+    def from_checkpoint(cls, saved: dict[str, Any] | None, device: torch.device,
+                        resumed_at: int) -> BestValidation:
+        """Rebuilt from :meth:`to_checkpoint`; ``saved`` None (a checkpoint written before
+        selection existed): candidates start after ``resumed_at``."""
+        best = cls()
+        if saved is None:
+            best.since = resumed_at + 1
+            return best
+        best.epoch, best.objective, best.since = saved["epoch"], saved["objective"], saved["since"]
+        if saved["model"] is not None:
+            best.state = {k: v.to(device) for k, v in saved["model"].items()}
+        return best
+
+
 _MEMORY_KEPT = False
 
 
@@ -234,6 +284,17 @@ def _cpu(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return type(obj)(_cpu(v) for v in obj)
     return obj
+
+
+def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
+          ) -> dict[str, Any]:
+    """Which epoch's weights the run saves as its model, for config.json's "kept"."""
+    last = metrics[-1] if metrics else {}
+    if cfg.keep_best and best.state is not None:
+        return {"epoch": best.epoch, "selection": "best validation",
+                "val_objective": best.objective, "candidates_from": best.since}
+    return {"epoch": cfg.epochs, "selection": "last epoch",
+            "val_objective": last.get("val/objective"), "candidates_from": None}
 
 
 def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
@@ -273,17 +334,22 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     gen = torch.Generator().manual_seed(cfg.seed)  # the only randomness after the init
     metrics: list[dict[str, Any]] = []
     done = 0
+    best = BestValidation()
     if ckpt is not None:
         try:
             model.load_state_dict(ckpt["model"])
             opt.load_state_dict(ckpt["optimizer"])
             gen.set_state(ckpt["generator"])
-        except (KeyError, RuntimeError, ValueError) as e:
+            best = BestValidation.from_checkpoint(ckpt.get("best"), device, int(ckpt["epoch"]))
+        except (KeyError, RuntimeError, ValueError, TypeError) as e:
             raise UserError(
                 f"{run / run.CHECKPOINT} does not fit this model ({e}); start "
                 "over with --overwrite"
             ) from e
         metrics, done = list(ckpt["metrics"]), int(ckpt["epoch"])
+        if "best" not in ckpt and cfg.keep_best:
+            progress.note(f"{run / run.CHECKPOINT} is from before model selection: the kept "
+                          f"weights are chosen among epochs {done + 1} to {cfg.epochs}")
         was = (ckpt.get("device", "cpu"), ckpt.get("threads"))
         now = (device.type, torch.get_num_threads())
         if was[1] is not None and was != now:  # older checkpoints did not record them
@@ -319,11 +385,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             row.update({f"train/{k}": v for k, v in train_terms.items()})
             if prune and epoch % cfg.threshold_every == 0:
                 row["sindy/pruned"] = _prune(model, opt, cfg.threshold)
+                if row["sindy/pruned"]:
+                    best.mask_changed(epoch)
             if xv is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
                 val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size)
                 if not math.isfinite(val_terms["total"]):
                     raise _diverged(cfg, epoch, "the validation loss", last_ckpt)
                 row.update({f"val/{k}": v for k, v in val_terms.items()})
+                best.offer(epoch, val_terms["objective"], model)
             if sindy:
                 row["sindy/active"] = model.dynamics.n_active()
                 row["sindy/sparsity"] = model.dynamics.sparsity()
@@ -335,9 +404,15 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
                     "epoch": epoch, "model": _cpu(model.state_dict()),
                     "optimizer": _cpu(opt.state_dict()),
                     "generator": gen.get_state(), "metrics": metrics,
+                    "best": best.to_checkpoint(),
                     "device": device.type, "threads": torch.get_num_threads()})
                 last_ckpt = epoch
             progress.update(epoch, row)
+        kept = _kept(cfg, best, metrics)
+        if kept["selection"] == "best validation":
+            progress.note(f"kept the weights of epoch {kept['epoch']} of {cfg.epochs}: the "
+                          f"lowest validation objective ({kept['val_objective']:.6g}) since "
+                          f"epoch {kept['candidates_from']}")
     except TrainingDiverged:
         with contextlib.suppress(Exception):  # the plot is a convenience; the error matters
             loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
@@ -346,9 +421,12 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
         progress.close()
     from latent_sindy import __version__
 
-    run.save_torch(run.MODEL, {"epoch": cfg.epochs, "model": _cpu(model.state_dict()),
+    state = best.state if kept["selection"] == "best validation" else model.state_dict()
+    run.save_torch(run.MODEL, {"epoch": kept["epoch"], "epochs": cfg.epochs,
+                               "selection": kept["selection"], "model": _cpu(state),
                                "model_config": record["model"],
                                "normalizer": record["normalizer"],
                                "package_version": __version__})
+    run.write_record({**record, "kept": kept})
     loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
     return run.path

@@ -3,9 +3,12 @@
 A run folder describes itself; every later command needs only it::
 
     RUN/config.json         the record: TrainConfig, resolved ModelConfig, normaliser, the
-                            data's identity, the environment, versions
-    RUN/model.pt            final weights (SINDy mask included) + model config + normaliser
-    RUN/checkpoint.pt       model, optimiser, epoch, shuffle-generator state, metrics so far
+                            data's identity, the environment, versions; at the end "kept":
+                            the epoch whose weights model.pt holds and why
+    RUN/model.pt            kept weights (best validation or last epoch; SINDy mask
+                            included) + model config + normaliser
+    RUN/checkpoint.pt       model, optimiser, epoch, shuffle-generator state, metrics so far,
+                            best-validation weights so far
     RUN/metrics.csv         one row per epoch: train/*, val/*, sindy/*, time_s
     RUN/loss.png            train and validation objective per epoch
     RUN/evaluation.json     the study's measurements of this run (cached)
