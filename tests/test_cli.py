@@ -151,6 +151,8 @@ def main_error(capsys, *args: str) -> str:
         (["--sweep", "order=1,2", "--models", "linear"], "none of the chosen models"),
         (["--models", "sindy9"], "--models sindy9"),
         (["--gpus", "-1"], "--gpus -1.0"),
+        (["--gpus", "1"], "--gpus 1.0 is for --executor ray"),
+        (["--sweep", "lambda_l1=1e-7,1.0000001e-7"], "name the same run twice"),
     ],
 )
 def test_reproduce_rejects_bad_seeds_sweeps_and_models(tmp_path, capsys, args, needle):

@@ -200,3 +200,21 @@ def test_position_errors_of_a_perfect_and_a_still_predictor(moving):
     for h, e in enumerate(perfect["still"], start=1):
         assert abs(e - 3.0 * h) < 1.0
     np.testing.assert_allclose(still["model"], perfect["still"], rtol=1e-9)
+
+
+class DivergingModel(ReplayModel):
+    """Perfect, except that one trajectory's predictions blow up to NaN after one push."""
+
+    def predict(self, x0: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        out = super().predict(x0, u).clone()
+        out[0, 2:] = float("nan")
+        return out
+
+
+def test_a_diverged_prediction_counts_as_infinitely_far(moving):
+    """Left out, the NaN predictions would leave a small mean of the survivors."""
+    norm = Normalizer(0.0, 1.0)
+    errors = position_errors(DivergingModel(norm.normalize(moving.images), still=False),
+                             moving, norm)
+    assert errors["model"][0] < 1.0  # one push: every prediction finite
+    assert all(e == float("inf") for e in errors["model"][1:])

@@ -162,6 +162,10 @@ class RayExecutor:
             except ConnectionError as e:
                 raise UserError(f"--ray-address {options.address}: no Ray cluster there ({e}); "
                                 "start one with `ray start --head` or fix the address") from None
+            except (ValueError, RuntimeError) as e:
+                where = f"--ray-address {options.address}" if options.address else "a local Ray"
+                raise UserError(f"{where}: Ray did not start ({e}); check the address or run "
+                                "`ray start --head`") from None
         cpus = ray.cluster_resources().get("CPU", 1.0)
         self.slots = max(1, int(cpus // options.threads))
 

@@ -179,9 +179,12 @@ def position_errors(model: LatentModel | None, data: Trajectories, normalizer: N
     for t in range(steps):
         pred = normalizer.denormalize(model.predict(x[:, t], u[:, t:])).numpy()  # (N, T-t+1,..)
         xy = block_position(pred, cfg, levels)  # (N, T-t+1, 2)
-        err = _cm(xy[:, 1:], data.poses[:, t + 1:])  # (N, T-t)
+        err = _cm(xy[:, 1:], data.poses[:, t + 1:])  # (N, T-t); NaN: no block in the image
+        # A diverged prediction (non-finite pixels) counts as infinitely far, never left out.
+        finite = np.isfinite(pred.reshape(*pred.shape[:2], -1)).all(-1)[:, 1:]
+        err = np.where(finite, err, np.inf)
         sums[: steps - t] += np.nansum(err, axis=0)
-        counts[: steps - t] += np.isfinite(err).sum(axis=0)
+        counts[: steps - t] += (~np.isnan(err)).sum(axis=0)
         recon.append(_cm(xy[:, 0], data.poses[:, t]))
     last = normalizer.denormalize(model.decode(model.encode(x[:, steps]))).numpy()
     recon.append(_cm(block_position(last, cfg, levels), data.poses[:, steps]))

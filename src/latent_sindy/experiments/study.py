@@ -252,6 +252,10 @@ class Sweep:
             except ValueError:
                 raise UserError(f"--sweep {text}: {v!r} is not a{'n' if kind is int else ''} "
                                 f"{kind.__name__}") from None
+        names = [f"{v:g}" for v in parsed]
+        if len(set(names)) != len(names):
+            raise UserError(f"--sweep {text}: values {', '.join(values.split(','))} name the same "
+                            "run twice (6 significant digits): give distinct values")
         return Sweep(setting, tuple(parsed))
 
     def variants(self) -> list[tuple[str, Any]]:
@@ -332,6 +336,9 @@ class ReproduceConfig:
             raise UserError(f"--data-seed {self.data_seed}: seeds are non-negative integers")
         if not (math.isfinite(self.gpus) and self.gpus >= 0):
             raise UserError(f"--gpus {self.gpus}: use a number >= 0 (GPUs per training job)")
+        if self.gpus > 0 and self.executor != "ray":
+            raise UserError(f"--gpus {self.gpus} is for --executor ray (it reserves GPUs per "
+                            "job); the local executor trains on the CPU: drop --gpus")
         study_specs(self)  # unknown models, a sweep that changes none of them
 
     @property

@@ -422,11 +422,11 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     from latent_sindy import __version__
 
     state = best.state if kept["selection"] == "best validation" else model.state_dict()
+    run.write_record({**record, "kept": kept})  # before model.pt, which marks the run finished
     run.save_torch(run.MODEL, {"epoch": kept["epoch"], "epochs": cfg.epochs,
                                "selection": kept["selection"], "model": _cpu(state),
                                "model_config": record["model"],
                                "normalizer": record["normalizer"],
                                "package_version": __version__})
-    run.write_record({**record, "kept": kept})
     loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
     return run.path
