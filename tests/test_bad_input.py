@@ -290,3 +290,20 @@ def test_random_settings_get_one_clean_line_and_touch_nothing(world: Path, tmp_p
         assert len(lines) == 1, (argv, err)
     # otherwise it is the parser's own message on an unparsable value (tyro's box)
     assert snapshot(world) == before
+
+
+def test_control_plans_with_the_worlds_planner_unless_told(world: Path, tmp_path: Path) -> None:
+    """No planner option: the study's planner of the run's world (the symmetric push's here);
+    any planner option: the user's settings, course defaults for the rest."""
+    from latent_sindy.control.planners import PLANNERS
+
+    base = ["control", str(world / "run"), "--max-steps", "1", "--gif-episodes", "0",
+            "--no-progress"]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 0
+    assert main([*base, "--horizon", "2", "--out", str(tmp_path / "b")]) == 0
+    a = json.loads((tmp_path / "a" / "results.json").read_text())["settings"]["mppi"]
+    b = json.loads((tmp_path / "b" / "results.json").read_text())["settings"]["mppi"]
+    world_planner = PLANNERS["symmetric"]
+    assert (a["samples"], a["horizon"], tuple(a["sigma"])) == (
+        world_planner.samples, world_planner.horizon, world_planner.sigma)
+    assert (b["samples"], b["horizon"]) == (100, 2)

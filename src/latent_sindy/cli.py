@@ -25,7 +25,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated
 
@@ -185,7 +185,10 @@ class Control:
     """Push the block to a goal with MPPI in a trained run's latent space (closed loop).
 
     Writes RUN/control-TASK-SPACE/results.json, results.csv and episode GIFs, and prints a
-    summary: success rates (course and strict criteria), steps to goal, planning time.
+    summary: success rates (course and strict criteria), steps to goal, planning time. Without
+    a planner option (--samples, --horizon, --sigma, --lambda, ...) it plans as the study does
+    in the run's world: the course's settings for the paper's push, K=300 H=8
+    sigma=(0.2, 1.0, 0.05) for pushes in any direction.
     """
 
     run_dir: tyro.conf.Positional[Path]
@@ -203,6 +206,8 @@ class Control:
         import torch
 
         from latent_sindy.control.closed_loop import format_summary, run_control
+        from latent_sindy.control.mppi import MPPIConfig
+        from latent_sindy.control.planners import world_planner
         from latent_sindy.training import RunDir
 
         s = self.settings
@@ -211,6 +216,12 @@ class Control:
         run_dir = RunDir(self.run_dir)
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
+        if s.mppi == MPPIConfig():  # no planner option given: the planner of the run's world
+            s = replace(s, mppi=world_planner(run.env_config))
+            m = s.mppi
+            print(f"planner: the {run.env_config.push} push's default, K={m.samples} "
+                  f"H={m.horizon} sigma={m.sigma} lambda={m.lambda_} (options choose another)",
+                  file=sys.stderr)
         _, summary = run_control(run.model, run.normalizer, run.env_config, s, out,
                                  _bar("episodes", "ep") if self.progress else None)
         print(format_summary(summary, f"{self.run_dir} ({run.config.model.kind}), "

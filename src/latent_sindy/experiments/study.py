@@ -25,6 +25,8 @@ import tyro
 
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.control.planners import world_planner
+from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.models.autoencoder import AutoencoderConfig
@@ -102,7 +104,8 @@ class Scale:
     until: Literal["course", "strict"] = "strict"
     """Run episodes until the strict criterion (so both criteria are measured) or the course's."""
     mppi: MPPIConfig | None = None
-    """The planner of every condition; None: the world's (:data:`PLANNERS`)."""
+    """The planner of every condition; None: the world's
+    (:func:`~latent_sindy.control.planners.world_planner`)."""
 
     def all_conditions(self) -> tuple[Condition, ...]:
         """Every kind of closed-loop condition, in report order (episodes of a headline row)."""
@@ -124,7 +127,7 @@ class Scale:
         return tuple(out)
 
     def planner(self, world: str) -> MPPIConfig:
-        return self.mppi if self.mppi is not None else PLANNERS[world]
+        return self.mppi if self.mppi is not None else world_planner(PushEnvConfig.named(world))
 
     def control_config(self, condition: Condition, seed: int, world: str) -> ControlConfig:
         return ControlConfig(task=condition.task, space=condition.space,
@@ -133,14 +136,6 @@ class Scale:
                              mppi=self.planner(world))
 
 
-#: The planner of each named world. The paper's world keeps the course's settings; pushes in
-#: any direction need more exploration of the angle (a variance of 1.0 on ψ reached 12 of 12
-#: goals with a state model where 0.3 reached 4: benchmarks/world_designs.py).
-PLANNERS: dict[str, MPPIConfig] = {
-    "paper": MPPIConfig(),
-    "marked": MPPIConfig(),
-    "symmetric": MPPIConfig(samples=300, horizon=8, sigma=(0.2, 1.0, 0.05)),
-}
 
 
 _DEMO = Scale()
