@@ -32,7 +32,7 @@ from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.training import evaluate
 
 __all__ = ["BASELINES", "Stat", "aggregate", "baseline_errors", "horizon_errors", "mean_std",
-           "model_stats", "split_losses"]
+           "model_stats", "rollouts", "split_losses"]
 
 #: Model-free predictors of :func:`baseline_errors`, by name: their labels.
 BASELINES = {"still": "nothing moves", "mean_image": "mean training image"}
@@ -70,13 +70,25 @@ def _by_horizon(x: torch.Tensor, predict: Callable[[int], torch.Tensor]) -> list
 
 
 @torch.no_grad()
-def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> list[float]:
-    """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
-    over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN)."""
+def rollouts(model: LatentModel, data: Trajectories, normalizer: Normalizer
+             ) -> list[torch.Tensor]:
+    """The model's open-loop predictions from every start t = 0..T-1 with the true actions:
+    item t is (N, T-t+1, ...), its first frame dec(enc(x_t)) (what the model observes)."""
     x = OBSERVATIONS[model.config.encoder.kind].batch(data, normalizer)  # (N, T+1, ...)
     u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
     model.eval()
-    return _by_horizon(x, lambda t: model.predict(x[:, t], u[:, t:])[:, 1:])
+    return [model.predict(x[:, t], u[:, t:]) for t in range(x.shape[1] - 1)]
+
+
+@torch.no_grad()
+def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer,
+                   predictions: list[torch.Tensor] | None = None) -> list[float]:
+    """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
+    over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN).
+    ``predictions``: :func:`rollouts` of the same model and data, when already made."""
+    x = OBSERVATIONS[model.config.encoder.kind].batch(data, normalizer)  # (N, T+1, ...)
+    pred = predictions if predictions is not None else rollouts(model, data, normalizer)
+    return _by_horizon(x, lambda t: pred[t][:, 1:])
 
 
 @torch.no_grad()

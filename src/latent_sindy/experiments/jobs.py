@@ -103,14 +103,16 @@ def held_out(data: Trajectories) -> Trajectories:
     return data.split(held_out_split(data))
 
 
-def _what_the_latent_knows(loaded: Any, data: Trajectories) -> dict[str, Any]:
+def _what_the_latent_knows(loaded: Any, data: Trajectories,
+                           predictions: list[torch.Tensor]) -> dict[str, Any]:
     """The latent probe and the block position errors of an image model (None for a state
-    model: its latent is the pose)."""
+    model: its latent is the pose); ``predictions``: its rollouts on :func:`held_out`."""
     if loaded.model.config.encoder.kind != "image":
         return {"probe": None, "position": None}
     return {"probe": probe.latent_probe(loaded.model, data, loaded.normalizer,
                                         held_out_split(data)),
-            "position": probe.position_errors(loaded.model, held_out(data), loaded.normalizer)}
+            "position": probe.position_errors(loaded.model, held_out(data), loaded.normalizer,
+                                              predictions=predictions)}
 
 
 def _eval_key(run: RunDir, data: Path) -> dict[str, Any]:
@@ -150,13 +152,15 @@ def eval_job(job: EvalJob) -> RunResult:
     record = json.loads(cache.read_text()) if cache.exists() else {}
     if record.get("key") != key:
         data = read_trajectories(job.data)
+        # One set of open-loop rollouts for the image MSE and the block position errors.
+        rollouts = evaluation.rollouts(loaded.model, held_out(data), loaded.normalizer)
         record = {"key": key,
                   "losses": evaluation.split_losses(loaded.model, data, loaded.normalizer,
                                                     loaded.config.loss),
                   "horizon": evaluation.horizon_errors(loaded.model, held_out(data),
-                                                       loaded.normalizer),
+                                                       loaded.normalizer, rollouts),
                   "stats": evaluation.model_stats(loaded.model),
-                  **_what_the_latent_knows(loaded, data)}
+                  **_what_the_latent_knows(loaded, data, rollouts)}
         write_atomic(cache, lambda f: f.write(json.dumps(record, indent=1)), binary=False)
     control = {cond.name: _control(loaded, run, cond, s) for cond, s in job.controls}
     train_s = sum(r["time_s"] or 0.0 for r in run.read_metrics())

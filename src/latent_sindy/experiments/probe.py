@@ -153,7 +153,9 @@ def latent_probe(model: LatentModel, data: Trajectories, normalizer: Normalizer,
 
 @torch.no_grad()
 def position_errors(model: LatentModel | None, data: Trajectories, normalizer: Normalizer,
-                    levels: tuple[float, float] | None = None) -> dict[str, list[float] | float]:
+                    levels: tuple[float, float] | None = None,
+                    predictions: list[torch.Tensor] | None = None
+                    ) -> dict[str, list[float] | float]:
     """Block position error (cm, mean over every start t with t + h <= T of every
     trajectory of ``data``) at horizon h = 1..T (index h − 1).
 
@@ -161,6 +163,8 @@ def position_errors(model: LatentModel | None, data: Trajectories, normalizer: N
     ``still`` per h ("nothing moves": the block where image t shows it, against the true pose
     at t + h), and, given a model, ``recon`` (its reconstructions dec(enc(x_t))) and
     ``model`` per h (its decoded open-loop predictions from x_t with the true actions).
+    ``predictions``: item t the model's normalised predictions from x_t, (N, T-t+1, C, S, S)
+    (:func:`latent_sindy.experiments.evaluation.rollouts`), when already made.
     """
     cfg = data.env_config
     levels = levels if levels is not None else block_levels(cfg)
@@ -177,7 +181,8 @@ def position_errors(model: LatentModel | None, data: Trajectories, normalizer: N
     sums, counts = np.zeros(steps), np.zeros(steps)
     recon = []
     for t in range(steps):
-        pred = normalizer.denormalize(model.predict(x[:, t], u[:, t:])).numpy()  # (N, T-t+1,..)
+        rollout = predictions[t] if predictions is not None else model.predict(x[:, t], u[:, t:])
+        pred = normalizer.denormalize(rollout).numpy()  # (N, T-t+1, C, S, S)
         xy = block_position(pred, cfg, levels)  # (N, T-t+1, 2)
         err = _cm(xy[:, 1:], data.poses[:, t + 1:])  # (N, T-t); NaN: no block in the image
         # A diverged prediction (non-finite pixels) counts as infinitely far, never left out.
