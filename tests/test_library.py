@@ -15,6 +15,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.sindy import (
     LIBRARY_PRESETS,
     CandidateLibrary,
+    Constant,
     Cosine,
     Identity,
     Polynomial,
@@ -22,6 +23,7 @@ from latent_sindy.sindy import (
     SindyLibrary,
     Sine,
     Sum,
+    face_library,
     library_preset,
     poly_library,
     push_library,
@@ -246,7 +248,7 @@ def test_product_of_sums_by_hand() -> None:
     )  # fmt: skip
     torch.testing.assert_close(lib(z, u), want, rtol=1e-12, atol=1e-12)
     # F's trig columns: only those some term uses, sines first, each by variable.
-    assert lib.trig == ((1, "sin"), (NZ + 1, "sin"), (2, "cos"))
+    assert lib.trig == ((1, "sin", 1.0), (NZ + 1, "sin", 1.0), (2, "cos", 1.0))
 
 
 def test_plus_and_times_flatten_and_modules_combine() -> None:
@@ -333,7 +335,7 @@ def test_subset_of_a_mixed_library_equals_its_columns(order: int) -> None:
     assert len(sub.trig) <= len(lib.trig) and set(sub.trig) <= set(lib.trig)
     torch.testing.assert_close(sub(z, u), full[:, idx], rtol=0, atol=0)
     only_u = lib.subset([lib.names.index("z2 u1 cos(u0)")])
-    assert only_u.trig == ((NZ, "cos"),)
+    assert only_u.trig == ((NZ, "cos", 1.0),)
     torch.testing.assert_close(only_u(z, u)[:, 0], z[:, 2] * u[:, 1] * torch.cos(u[:, 0]))
 
 
@@ -346,3 +348,68 @@ def test_gradients_of_a_mixed_library_pass_gradcheck(order: int) -> None:
     assert torch.autograd.gradcheck(lambda z, u: lib(z, u), (z, u))
     sub = lib.subset([lib.n_terms - 1, NZ + NU + 2, 3])
     assert torch.autograd.gradcheck(lambda z, u: sub(z, u), (z, u))
+
+
+# ---------------------------------------------------------------- frequencies, face library
+
+
+def test_trig_at_a_frequency_is_named_evaluated_and_serialised() -> None:
+    spec = Identity("z0") * Sine("u1", frequency=4) + Cosine("z1", frequency=0.5) + Sine("u1")
+    lib = SindyLibrary(spec, 2, 2)
+    assert lib.names == ["z0 sin(4 u1)", "cos(0.5 z1)", "sin(u1)"]
+    z, u = torch.randn(6, 2), torch.randn(6, 2)
+    want = torch.stack([z[:, 0] * torch.sin(4 * u[:, 1]), torch.cos(0.5 * z[:, 1]),
+                        torch.sin(u[:, 1])], -1)
+    torch.testing.assert_close(lib(z, u), want)
+    assert spec_from_dict(json.loads(json.dumps(spec.to_dict()))) == spec
+    # a record written before frequencies existed has none: frequency 1
+    assert spec_from_dict({"kind": "sin", "variables": ["u1"]}) == Sine("u1")
+
+
+@pytest.mark.parametrize("bad", [0, float("nan"), float("inf"), True, "4"])
+def test_a_bad_trig_frequency_is_refused(bad) -> None:
+    with pytest.raises(UserError, match="frequency"):
+        Sine("u1", frequency=bad)
+
+
+def test_a_product_met_again_is_kept_once_where_it_first_appears() -> None:
+    lib = SindyLibrary(Identity("z0,z1") * Identity("z0,z1"), 2, 0)
+    assert lib.names == ["z0^2", "z0 z1", "z1^2"]
+    lib = SindyLibrary((Constant() + Identity("z1")) * Polynomial("z0", 1, bias=False), 2, 0)
+    assert lib.names == ["z0", "z0 z1"]
+
+
+def test_the_face_library_spans_the_push_relative_to_the_pushed_face() -> None:
+    # A state (x, y, cos 4θ, sin 4θ) and a push [p, ψ, ℓ]: what a push on a face of a square
+    # does depends on ψ - θ modulo π/2, which the library reaches through sin(4 u1), cos(4 u1)
+    # times the orientation features. Functions of that relative angle must lie exactly in
+    # its span; one of the absolute angle θ must not.
+    gen = torch.Generator().manual_seed(3)
+    n = 400
+    theta = (torch.rand(n, generator=gen, dtype=torch.float64) - 0.5) * 2 * math.pi
+    psi = (torch.rand(n, generator=gen, dtype=torch.float64) - 0.5) * 2 * math.pi
+    p, ell = torch.rand(n, 2, generator=gen, dtype=torch.float64).unbind(-1)
+    xy = torch.rand(n, 2, generator=gen, dtype=torch.float64)
+    z = torch.cat([xy, torch.cos(4 * theta)[:, None], torch.sin(4 * theta)[:, None]], -1)
+    u = torch.stack([p, psi, ell], -1)
+    lib = SindyLibrary(face_library(), 4, 3)
+    theta_lib = lib(z, u)
+    rel = 4 * (psi - theta)
+
+    def residual(target: torch.Tensor) -> float:
+        sol = torch.linalg.lstsq(theta_lib, target[:, None]).solution
+        return float((theta_lib @ sol - target[:, None]).abs().max())
+
+    # a turn Δc = -s·g, Δs = c·g with g = ℓ (a + b p + c p²)(1 + sin 4(ψ-θ))
+    g = ell * (0.3 + p - 0.5 * p**2) * (1 + torch.sin(rel) - 0.2 * torch.cos(rel))
+    assert residual(-z[:, 3] * g) < 1e-9 and residual(z[:, 2] * g) < 1e-9
+    # a translation along the push bent by the contact: ℓ cos ψ (1 + p sin 4(ψ-θ))
+    assert residual(ell * torch.cos(psi) * (1 + p * torch.sin(rel))) < 1e-9
+    assert residual(ell * torch.cos(theta)) > 0.1  # the absolute angle is not in it
+    names = set(lib.names)
+    assert {"u2 sin(u1)", "z2 u2", "z2^2 u0^2 u2 cos(4 u1)", "z3 u0 u2 sin(u1) sin(4 u1)"} <= names
+
+
+def test_the_face_library_refuses_repeated_action_indices() -> None:
+    with pytest.raises(UserError, match="different action indices"):
+        face_library(offset=1, angle=1)

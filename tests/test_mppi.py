@@ -281,12 +281,14 @@ def test_sparse_active_terms_give_the_dense_actions(order: int) -> None:
 
 def _trig_model(order: int, trig: str, init_scale: float) -> SindyDynamics:
     """nz=3, nu=2 SINDy model; trig "none", "sin", "sin+cos" (of the state) or "u" (sin and cos
-    of the state, of the controls, and products of a control's cosine with u1 and the state)."""
+    of the state, of the controls, products of a control's cosine with u1 and the state, and
+    trig at other frequencies: sin(4 u1) z0, cos(0.5 z2))."""
     if trig != "u":
         return SindyDynamics(3, 2, order=order, seed=order, init_scale=init_scale,
                              include_sine=trig != "none", include_cosine=trig == "sin+cos")
     spec = (poly_library(order, include_sine=True, include_cosine=True) + Sine("u")
-            + Cosine("u1") + Identity("u1") * Cosine("u0") * Polynomial("z", 1))
+            + Cosine("u1") + Identity("u1") * Cosine("u0") * Polynomial("z", 1)
+            + Identity("z0") * Sine("u1", frequency=4) + Cosine("z2", frequency=0.5))
     return SindyDynamics(3, 2, library_spec=spec, seed=order, init_scale=init_scale)
 
 
@@ -316,8 +318,9 @@ def test_sparse_sindy_rollout_matches_the_model(order: int, trig: str, dtype) ->
     model = _trig_model(order, trig, init_scale=0.05)
     if trig == "u":  # make sure terms with trig of a control stay active
         with torch.no_grad():
-            for j, name in enumerate(("sin(u0)", "cos(u1)", "z2 u1 cos(u0)")):
-                model.psi[model.names.index(name), j] = 0.05
+            for j, name in enumerate(("sin(u0)", "cos(u1)", "z2 u1 cos(u0)",
+                                      "z0 sin(4 u1)", "cos(0.5 z2)")):
+                model.psi[model.names.index(name), j % 3] = 0.05
     model.threshold(0.02)
     model = model.to(dtype)
     step = SparseSindyStep(model)

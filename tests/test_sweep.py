@@ -79,7 +79,7 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
             assert RunDir(out / "runs" / f"seed{s}" / name).train_config().loss.lambda_l1 == lam
     table = (out / "sweep.md").read_text().splitlines()
     assert [r.split(" | ")[0] for r in table[2:4]] == [
-        "| SINDy (push library), state, λ3=0.0001", "| SINDy (push library), state, λ3=0.01"]
+        "| SINDy (face library), state, λ3=0.0001", "| SINDy (face library), state, λ3=0.01"]
     assert all(" | 2 | " in r for r in table[2:4])  # both seeds finished
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["aggregate"]) == set(names)

@@ -28,14 +28,14 @@ def _sin(x):
 
 
 @_jit
-def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_shift, bias, terms, degree, start, ptr,
-                         rows, coefs, feat, prods):
+def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, terms, degree,
+                         start, ptr, rows, coefs, feat, prods):
     """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j).
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
     repeats one start state); out (H, nz, K). Feature rows are [z, u, trig]: row nz + nu + i
-    is sin(feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz) or an action, and a
-    cosine for shift π/2. terms (S, order): feature
+    is sin(trig_scale[i] feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz) or an
+    action, and a cosine for shift π/2. terms (S, order): feature
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
     the first product level to recompute (lower levels are shared with term s-1); the nonzero
     coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].
@@ -67,9 +67,10 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_shift, bias, terms, degree
             for i in range(trig_var.shape[0]):
                 src = feat[trig_var[i], :n]
                 f = feat[nz + nu + i, :n]
+                scale = trig_scale[i]
                 shift = trig_shift[i]
                 for k in range(n):
-                    f[k] = _sin(src[k] + shift)
+                    f[k] = _sin(src[k] * scale + shift)
             for i in range(nz):
                 src = feat[i, :n]
                 o = out[t, i, k0:k0 + n]

@@ -74,7 +74,7 @@ class SparseSindyStep:
         nz, nu = sparse.nz, sparse.nu
         self.nz, self.nu = nz, nu
         # The library's feature layout: [z, u, 1, trig...], trig column k being
-        # library.trig[k] = (index into [z, u], "sin" | "cos").
+        # library.trig[k] = (index into [z, u], "sin" | "cos", frequency).
         one = nz + nu
         library = sparse.library
         table = library.table.cpu()  # (|S|, width)
@@ -83,8 +83,9 @@ class SparseSindyStep:
         # Our features drop the constant and keep only the trig columns some term uses.
         trig_rows = sorted({int(i) for i in table.flatten() if i > one})
         trig = [library.trig[r - one - 1] for r in trig_rows]
-        trig_var = np.array([var for var, _ in trig], dtype=np.int64)
-        trig_shift = np.array([0.0 if kind == "sin" else np.pi / 2 for _, kind in trig])
+        trig_var = np.array([var for var, _, _ in trig], dtype=np.int64)
+        trig_scale = np.array([freq for _, _, freq in trig], dtype=np.float64)
+        trig_shift = np.array([0.0 if kind == "sin" else np.pi / 2 for _, kind, _ in trig])
         remap = {r: one + k for k, r in enumerate(trig_rows)} | {i: i for i in range(one)}
         products = [tuple(sorted(remap[int(i)] for i in row if i != one)) for row in table]
         bias = torch.zeros(nz, dtype=torch.float64)
@@ -115,7 +116,8 @@ class SparseSindyStep:
                      dtype=np.int64).reshape(-1, width),
             np.array([len(p) for p in terms], dtype=np.int64), np.array(start, dtype=np.int64),
             np.array(ptr, dtype=np.int64), np.array(rows, dtype=np.int64))
-        self._floats64 = (trig_shift, bias.numpy(), np.array(coefs, dtype=np.float64))
+        self._floats64 = (trig_scale, trig_shift, bias.numpy(),
+                          np.array(coefs, dtype=np.float64))
         self._args: dict[torch.dtype, tuple[np.ndarray, ...]] = {}
         self._check()
 
@@ -124,10 +126,11 @@ class SparseSindyStep:
         args = self._args.get(dtype)
         if args is None:
             np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
-            trig_shift, bias, coefs = (a.astype(np_dtype) for a in self._floats64)
+            trig_scale, trig_shift, bias, coefs = (a.astype(np_dtype) for a in self._floats64)
             terms, degree, start, ptr, rows = self._tables
             args = self._args[dtype] = (
-                self._trig_var, trig_shift, bias, terms, degree, start, ptr, rows, coefs,
+                self._trig_var, trig_scale, trig_shift, bias, terms, degree, start, ptr, rows,
+                coefs,
                 np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args

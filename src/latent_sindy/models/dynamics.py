@@ -35,6 +35,8 @@ from latent_sindy.sindy.library import (
     LibrarySpec,
     LibrarySubset,
     SindyLibrary,
+    Sine,
+    face_library,
     push_library,
     spec_from_dict,
 )
@@ -514,26 +516,48 @@ class SindyConfig:
     """Add sin(z_i) candidates."""
     include_cosine: bool = False
     """Add cos(z_i) candidates ("poly" library only)."""
-    library: Literal["poly", "push"] = "poly"
+    library: Literal["poly", "push", "face"] = "poly"
     """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
     length times the sine and cosine of the push angle, alone and times each state (what a
-    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]."""
+    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (state models,
+    order 1): the push length times the push direction or the orientation features (z2, z3),
+    times powers of the contact offset and the push angle relative to the pushed face
+    (the library's face_library)."""
+    angle_frequency: float = 4.0
+    """"face" library: f of the orientation features (cos fθ, sin fθ), the block's visible
+    symmetry: 4 for a square block, 1 for a marked one. The relative push angle enters as
+    sin(f u1), cos(f u1) times those features."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
 
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
-        if self.library not in ("poly", "push"):
-            raise UserError(f"--library {self.library!r}: use poly or push")
-        if self.library == "push" and self.include_cosine:
+        if self.library not in ("poly", "push", "face"):
+            raise UserError(f"--library {self.library!r}: use poly, push or face")
+        if self.library != "poly" and self.include_cosine:
             raise UserError("--include-cosine is for the poly library only")
+        if self.library == "face" and self.order != 1:
+            raise UserError(f"--library face with --order {self.order}: the face library's "
+                            "push terms already hold the second-order products; use --order 1")
+        if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
+            raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
+                            "> 0 (4 for a square block, 1 for a marked one)")
         _check_scale("SINDy", self.init_scale)
 
     def build(self, nz: int, nu: int) -> SindyDynamics:
+        if self.library in ("push", "face") and nu < 3:
+            raise UserError(f"the {self.library} library needs actions [p, angle, length], "
+                            f"got {nu}")
+        if self.library == "face":
+            if nz < 4:
+                raise UserError(f"the face library needs the state (x, y, cos fθ, sin fθ), "
+                                f"got a latent of size {nz}: use it with the state encoder")
+            spec = face_library(self.order, frequency=self.angle_frequency)
+            if self.include_sine:
+                spec = spec + Sine("z")
+            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec)
         if self.library == "push":
-            if nu < 3:
-                raise UserError(f"the push library needs actions [p, angle, length], got {nu}")
             spec = push_library(self.order, angle=1, length=2, include_sine=self.include_sine)
             return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec)
         return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,

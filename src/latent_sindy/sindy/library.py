@@ -6,11 +6,13 @@ model's sizes and serialises to JSON (:meth:`to_dict` / :func:`spec_from_dict`):
 * :class:`Polynomial` ``(variables, degree, bias)``: every monomial of the variables up to
   ``degree`` (the constant ``1`` when ``bias``), in the order and with the names of
   ``pysindy.PolynomialLibrary``;
-* :class:`Sine`, :class:`Cosine` ``(variables)``: ``sin(x)`` / ``cos(x)`` of each variable;
+* :class:`Sine`, :class:`Cosine` ``(variables, frequency)``: ``sin(f x)`` / ``cos(f x)`` of
+  each variable (named ``sin(x)``, ``sin(4 x)``);
 * :class:`Identity` ``(variables)``: the variables themselves;
+* :class:`Constant` ``()``: the term ``1`` (``(Constant() + a) * b`` keeps ``b``'s terms);
 * ``a + b`` (:class:`Sum`): the terms of ``a``, then those of ``b``;
 * ``a * b`` (:class:`Product`): every product of a term of ``a`` with a term of ``b``
-  (row-major: for each term of ``a``, every term of ``b``).
+  (row-major: for each term of ``a``, every term of ``b``), each distinct product once.
 
 Variables are named ``z0 .. z{nz-1}`` (state) and ``u0 .. u{nu-1}`` (control); ``"z"`` and
 ``"u"`` stand for the whole group. :class:`SindyLibrary` builds the torch module for given
@@ -18,12 +20,13 @@ sizes; :class:`CandidateLibrary` is the classic library (monomials of ``[z, u]``
 ``order``, then ``sin(z)``, optionally ``cos(z)``), and :data:`LIBRARY_PRESETS` names specs.
 
 Every term is one row of an integer table of feature indices into the feature vector
-``F = [z, u, 1, sin(x_a), .., cos(x_b), ..]`` (``x = [z, u]``; the trig columns are listed in
-``trig`` as ``(variable index, "sin" | "cos")``, sines first); a term is the product of the
-features its row names, shorter rows padded with the constant. Evaluation is one gather and
-multiply per table column, so the hot path has no Python loop over terms, and a subset of
-terms is the same code on a subset of the rows. Term names follow pysindy: ``1``, ``z0 u2``,
-``z3^2``, ``sin(z1)``, ``u2 cos(u1)`` (monomial factors first, by variable, then trig ones).
+``F = [z, u, 1, sin(f x_a), .., cos(f x_b), ..]`` (``x = [z, u]``; the trig columns are
+listed in ``trig`` as ``(variable index, "sin" | "cos", frequency)``, sines first); a term
+is the product of the features its row names, shorter rows padded with the constant.
+Evaluation is one gather and multiply per table column, so the hot path has no Python loop
+over terms, and a subset of terms is the same code on a subset of the rows. Term names follow
+pysindy: ``1``, ``z0 u2``, ``z3^2``, ``sin(z1)``, ``u2 cos(u1)``, ``z2 sin(4 u1)`` (monomial
+factors first, by variable, then trig ones).
 
     >>> spec = Polynomial("z,u", degree=2) + Sine("z") + Identity("u2") * Cosine("u1")
     >>> lib = SindyLibrary(spec, n_state=16, n_control=3)
@@ -38,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import numbers
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -53,6 +57,7 @@ __all__ = [
     "LIBRARY_PRESETS",
     "VALID_ORDERS",
     "CandidateLibrary",
+    "Constant",
     "Cosine",
     "Identity",
     "LibrarySpec",
@@ -62,6 +67,7 @@ __all__ = [
     "SindyLibrary",
     "Sine",
     "Sum",
+    "face_library",
     "library_preset",
     "poly_library",
     "push_library",
@@ -72,23 +78,26 @@ VALID_ORDERS = (1, 2, 3, 4)
 
 TermIndex = Sequence[int] | torch.Tensor
 
-# A factor of a term: (variable index into x = [z, u], function); a term is a sorted tuple.
+# A factor of a term: (variable index into x = [z, u], function, frequency); a term is a
+# sorted tuple. Monomial factors have frequency 1.
 _IDENTITY, _SIN, _COS = 0, 1, 2
 _FN_NAMES = {_SIN: "sin", _COS: "cos"}
-_Factor = tuple[int, int]
+_FN_CODES = {"sin": _SIN, "cos": _COS}
+_Factor = tuple[int, int, float]
 _Term = tuple[_Factor, ...]
 
 _VARIABLE = re.compile(r"^([zu])(\d+)?$")
 
 
-def _factor_key(f: _Factor) -> tuple[int, int, int]:
-    """Monomial factors first by variable, then trig factors by variable, sine before cosine."""
-    return (f[1] != _IDENTITY, f[0], f[1])
+def _factor_key(f: _Factor) -> tuple[bool, int, int, float]:
+    """Monomial factors first by variable, then trig factors by variable, sine before cosine,
+    then by frequency."""
+    return (f[1] != _IDENTITY, f[0], f[1], f[2])
 
 
-def _trig_order(f: _Factor) -> tuple[int, int]:
-    """Trig columns of F: sines first, each by variable."""
-    return (f[1], f[0])
+def _trig_order(f: _Factor) -> tuple[int, int, float]:
+    """Trig columns of F: sines first, each by variable, then by frequency."""
+    return (f[1], f[0], f[2])
 
 
 def _canonical(factors: Sequence[_Factor]) -> _Term:
@@ -186,17 +195,48 @@ class Polynomial(_Group):
 
 
 @dataclass(frozen=True)
-class Sine(_Group):
-    """``sin(x)`` of every variable ``x`` of ``variables``."""
+class _Trig(_Group):
+    frequency: float = 1.0
+    """f of ``sin(f x)`` / ``cos(f x)``: a finite, nonzero number (an integer is kept as one).
+    A square block's pose features turn 4 times per revolution, so its push geometry needs
+    ``sin(4 ψ)``."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        f = self.frequency
+        if isinstance(f, bool) or not isinstance(f, numbers.Real) or not (
+                math.isfinite(f) and f != 0):
+            raise UserError(f"{self.kind} library frequency {f!r} is not valid: use a finite "
+                            "nonzero number such as 1 or 4")
+        object.__setattr__(self, "frequency", float(f))
+
+    def __str__(self) -> str:
+        freq = "" if self.frequency == 1 else f"; {self.frequency:g}"
+        return f"{self.kind}({','.join(self.variables)}{freq})"
+
+
+@dataclass(frozen=True)
+class Sine(_Trig):
+    """``sin(f x)`` of every variable ``x`` of ``variables`` (f = ``frequency``)."""
 
     kind: ClassVar[str] = "sin"
 
 
 @dataclass(frozen=True)
-class Cosine(_Group):
-    """``cos(x)`` of every variable ``x`` of ``variables``."""
+class Cosine(_Trig):
+    """``cos(f x)`` of every variable ``x`` of ``variables`` (f = ``frequency``)."""
 
     kind: ClassVar[str] = "cos"
+
+
+@dataclass(frozen=True)
+class Constant(_SpecOps):
+    """The single term ``1``: ``(Constant() + a) * b`` is ``b`` and ``a * b``."""
+
+    kind: ClassVar[str] = "one"
+
+    def __str__(self) -> str:
+        return "1"
 
 
 @dataclass(frozen=True)
@@ -223,7 +263,8 @@ class Sum(_SpecOps):
 
 @dataclass(frozen=True)
 class Product(_SpecOps):
-    """Tensor product: every product of one term of each factor (``a * b``), row-major."""
+    """Tensor product: every product of one term of each factor (``a * b``), row-major; a
+    product met again (``z2 · z3`` after ``z3 · z2``) is kept only where it first appears."""
 
     kind: ClassVar[str] = "product"
     factors: tuple[LibrarySpec, ...]
@@ -235,8 +276,9 @@ class Product(_SpecOps):
         return " * ".join(f"({f})" if isinstance(f, Sum) else str(f) for f in self.factors)
 
 
-LibrarySpec = Polynomial | Sine | Cosine | Identity | Sum | Product
-_LEAVES: dict[str, type[_Group]] = {c.kind: c for c in (Polynomial, Sine, Cosine, Identity)}
+LibrarySpec = Polynomial | Sine | Cosine | Identity | Constant | Sum | Product
+_LEAVES: dict[str, type[_SpecOps]] = {
+    c.kind: c for c in (Polynomial, Sine, Cosine, Identity, Constant)}
 
 
 def _check_children(spec: Sum | Product, field: str, what: str) -> None:
@@ -323,10 +365,58 @@ def push_library(
     return poly_library(order, include_sine) + push
 
 
+def face_library(
+    order: int = 1,
+    offset: int = 0,
+    angle: int = 1,
+    length: int = 2,
+    orientation: str | Sequence[str] = ("z2", "z3"),
+    frequency: float = 4.0,
+    offset_degree: int = 2,
+) -> LibrarySpec:
+    """A push made on a face: the state's monomials up to ``order``, plus the push length
+    times the push direction or the orientation features, times what decides where the face
+    is hit: the contact offset's powers and the push angle relative to the face.
+
+    For a state s = (x, y, c, s) = (x, y, cos fθ, sin fθ) (f = ``frequency``, the block's
+    visible symmetry: 4 for a square) and a push u = [p, ψ, ℓ] in a world direction ψ, the
+    angle from the pushed face's normal enters as sin f(ψ - θ) = c sin fψ - s cos fψ and
+    cos f(ψ - θ) = c cos fψ + s sin fψ. So the terms are
+
+        ℓ · {sin ψ, cos ψ, c, s} · {1, p, .., p^offset_degree}
+          · {1, c sin fψ, c cos fψ, s sin fψ, s cos fψ}
+
+    (a translation along the push, and a turn, Δc ≈ -f s Δθ, Δs ≈ f c Δθ, both bent by where
+    and at which angle the face is hit). With the defaults: 8 + 60 terms, such as
+    ``u2 sin(u1)``, ``u0 u2 cos(u1)`` and ``z2^2 u2 sin(4 u1)``.
+
+    ``offset``, ``angle`` and ``length`` are the action indices of p, ψ and ℓ;
+    ``orientation`` names the state's orientation features. ``order`` > 1 repeats
+    ``ℓ c``-type terms, which the library refuses.
+    """
+    if len({offset, angle, length}) < 3 or min(offset, angle, length) < 0:
+        raise UserError(
+            f"face library: offset {offset}, angle {angle} and length {length} must be "
+            "different action indices >= 0"
+        )
+    if isinstance(offset_degree, bool) or not isinstance(offset_degree, int) or (
+            offset_degree < 0):
+        raise UserError(f"face library: offset_degree {offset_degree!r}: use an integer >= 0")
+    psi = f"u{angle}"
+    orient = _as_variables(orientation)
+    relative = Constant() + Identity(orient) * (Sine(psi, frequency=frequency)
+                                                + Cosine(psi, frequency=frequency))
+    contact = (Constant() if offset_degree == 0
+               else Polynomial(f"u{offset}", offset_degree, bias=True)) * relative
+    push = Identity(f"u{length}") * (Sine(psi) + Cosine(psi) + Identity(orient)) * contact
+    return Polynomial(("z", "u"), order, bias=True) + push
+
+
 #: Named spec builders; their keyword arguments are the preset's parameters.
 LIBRARY_PRESETS: dict[str, Callable[..., LibrarySpec]] = {
     "poly": poly_library,
     "push": push_library,
+    "face": face_library,
 }
 
 
@@ -375,28 +465,37 @@ def _spec_terms(spec: LibrarySpec, n_state: int, n_control: int) -> list[_Term]:
         terms: list[_Term] = [()]
         for factor in spec.factors:
             right = _spec_terms(factor, n_state, n_control)
-            terms = [_canonical(a + b) for a in terms for b in right]
+            # Each distinct product once, where it first appears (z2 * z3 = z3 * z2).
+            terms = list(dict.fromkeys(_canonical(a + b) for a in terms for b in right))
         return terms
+    if isinstance(spec, Constant):
+        return [()]
     variables = _resolve(spec.variables, n_state, n_control)
     if isinstance(spec, Polynomial):
         # pysindy's order: by degree, then itertools.combinations_with_replacement.
         return [
-            tuple((v, _IDENTITY) for v in combo)
+            tuple((v, _IDENTITY, 1.0) for v in combo)
             for degree in range(0 if spec.bias else 1, spec.degree + 1)
             for combo in itertools.combinations_with_replacement(variables, degree)
         ]
-    fn = {"sin": _SIN, "cos": _COS, "identity": _IDENTITY}[spec.kind]
-    return [((v, fn),) for v in variables]
+    if isinstance(spec, _Trig):
+        return [((v, _FN_CODES[spec.kind], spec.frequency),) for v in variables]
+    return [((v, _IDENTITY, 1.0),) for v in variables]
+
+
+def _trig_name(fn: int, var: str, frequency: float) -> str:
+    """``sin(u1)``, ``cos(4 u1)``, ``sin(0.5 z0)``."""
+    return f"{_FN_NAMES[fn]}({var})" if frequency == 1 else f"{_FN_NAMES[fn]}({frequency:g} {var})"
 
 
 def _term_name(term: _Term, var_names: Sequence[str]) -> str:
-    """pysindy's name: ``1``, ``z0^2 u1``, ``u2 sin(u1)``, ``sin(z0)^2``."""
+    """pysindy's name: ``1``, ``z0^2 u1``, ``u2 sin(u1)``, ``sin(z0)^2``, ``z2 sin(4 u1)``."""
     if not term:
         return "1"
     parts = []
-    for (var, fn), group in itertools.groupby(term):
+    for (var, fn, freq), group in itertools.groupby(term):
         power = len(list(group))
-        base = var_names[var] if fn == _IDENTITY else f"{_FN_NAMES[fn]}({var_names[var]})"
+        base = var_names[var] if fn == _IDENTITY else _trig_name(fn, var_names[var], freq)
         parts.append(base if power == 1 else f"{base}^{power}")
     return " ".join(parts)
 
@@ -408,12 +507,14 @@ class _ProductTerms(nn.Module):
     """Terms given as rows of feature indices into F = [z, u, 1, trig...]; evaluates them.
 
     ``table`` (p, width) long buffer; ``trig`` lists the trig columns of F after the constant
-    as ``(variable index into [z, u], "sin" | "cos")``, sines first.
+    as ``(variable index into [z, u], "sin" | "cos", frequency)``, sines first.
     """
 
     table: torch.Tensor  # (p, width) indices into the feature vector F
     _sin_idx: torch.Tensor  # (n_sin,) indices into [z, u]
     _cos_idx: torch.Tensor  # (n_cos,)
+    _sin_freq: torch.Tensor  # (n_sin,) frequencies
+    _cos_freq: torch.Tensor  # (n_cos,)
 
     def __init__(
         self,
@@ -421,21 +522,24 @@ class _ProductTerms(nn.Module):
         n_control: int,
         table: torch.Tensor,
         names: list[str],
-        trig: Sequence[tuple[int, str]],
+        trig: Sequence[tuple[int, str, float]],
     ) -> None:
         super().__init__()
         self.n_state = n_state
         self.n_control = n_control
         self.register_buffer("table", table, persistent=False)
         self.names = names
-        self.trig: tuple[tuple[int, str], ...] = tuple(trig)
-        kinds = [k for _, k in self.trig]
+        self.trig: tuple[tuple[int, str, float], ...] = tuple(
+            (int(v), k, float(f)) for v, k, f in trig)
+        kinds = [k for _, k, _ in self.trig]
         if kinds != sorted(kinds, reverse=True) or not set(kinds) <= {"sin", "cos"}:
             raise ValueError(f"trig columns must be sines then cosines, got {self.trig}")
-        sin_idx = [v for v, k in self.trig if k == "sin"]
-        cos_idx = [v for v, k in self.trig if k == "cos"]
-        self.register_buffer("_sin_idx", torch.tensor(sin_idx, dtype=torch.long), persistent=False)
-        self.register_buffer("_cos_idx", torch.tensor(cos_idx, dtype=torch.long), persistent=False)
+        for kind in ("sin", "cos"):
+            cols = [(v, f) for v, k, f in self.trig if k == kind]
+            self.register_buffer(f"_{kind}_idx", torch.tensor(
+                [v for v, _ in cols], dtype=torch.long), persistent=False)
+            self.register_buffer(f"_{kind}_freq", torch.tensor(
+                [f for _, f in cols], dtype=torch.float64), persistent=False)
         self._one = n_state + n_control  # column of F holding the constant 1
 
     @property
@@ -468,10 +572,13 @@ class _ProductTerms(nn.Module):
         if not self.trig:
             return base
         trig = [base]
-        if self._sin_idx.numel():
-            trig.append(torch.sin(base.index_select(-1, self._sin_idx)))
-        if self._cos_idx.numel():
-            trig.append(torch.cos(base.index_select(-1, self._cos_idx)))
+        for fn, idx, freq in ((torch.sin, self._sin_idx, self._sin_freq),
+                              (torch.cos, self._cos_idx, self._cos_freq)):
+            if idx.numel():
+                x = base.index_select(-1, idx)
+                if bool((freq != 1).any()):
+                    x = x * freq.to(x.dtype)
+                trig.append(fn(x))
         return torch.cat(trig, dim=-1)
 
     def _evaluate(
@@ -555,7 +662,7 @@ class SindyLibrary(_ProductTerms):
         # Trig columns of F: every (variable, function) some term uses, sines first.
         trig_keys = sorted({f for t in terms for f in t if f[1] != _IDENTITY}, key=_trig_order)
         column = {f: one + 1 + k for k, f in enumerate(trig_keys)}
-        column.update({(v, _IDENTITY): v for v in range(one)})
+        column.update({(v, _IDENTITY, 1.0): v for v in range(one)})
         width = max([1, *(len(t) for t in terms)])
         rows = [[column[f] for f in t] + [one] * (width - len(t)) for t in terms]
         super().__init__(
@@ -563,7 +670,7 @@ class SindyLibrary(_ProductTerms):
             n_control,
             torch.tensor(rows, dtype=torch.long).reshape(len(rows), width),
             names,
-            [(v, _FN_NAMES[fn]) for v, fn in trig_keys],
+            [(v, _FN_NAMES[fn], freq) for v, fn, freq in trig_keys],
         )
         self.spec: LibrarySpec = spec
 
