@@ -95,7 +95,9 @@ def test_a_run_folder_of_format_1_loads_and_predicts_as_before(kind: str, tmp_pa
     x, u = torch.randn(2, 1, 32, 32, generator=g), torch.rand(2, 2, 3, generator=g)
     with torch.no_grad():
         got = loaded.model.predict(x, u).flatten()[::97]
-    torch.testing.assert_close(got, torch.tensor(expected[kind]), rtol=0, atol=0)
+    # Recorded with the default thread count; another count sums the convolutions in another
+    # order (float32 rounding), so equal within rounding, not bit for bit.
+    torch.testing.assert_close(got, torch.tensor(expected[kind]), rtol=1e-5, atol=1e-6)
     text = equations_report(run, export=False)
     assert ("z0[t+1] = " in text) == (kind != "mlp")
     assert RunDir(run).train_config() == loaded.config
