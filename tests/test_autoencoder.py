@@ -199,6 +199,75 @@ def test_foreground_weight_weights_only_the_block_pixels_in_the_trained_total() 
     torch.testing.assert_close(weighted["total"] - plain["total"], extra)
 
 
+def windows_of(x: torch.Tensor, u: torch.Tensor, h: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every window of h pushes of sequences x (B, T+1, ...), u (B, T, nu), sequence-major:
+    (B (T-h+1), h+1, ...), (B (T-h+1), h, nu)."""
+    starts = range(u.shape[1] - h + 1)
+    return (torch.stack([x[:, s : s + h + 1] for s in starts], 1).flatten(0, 1),
+            torch.stack([u[:, s : s + h] for s in starts], 1).flatten(0, 1))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("h", [1, 2])
+def test_trajectory_loss_equals_the_windows_loss(kind: str, h: int) -> None:
+    """Sequences of 4 pushes with window h: the prediction terms (and l1) are those of the
+    3 or 4 windows per sequence passed one by one; recon is the mean over the distinct frames,
+    which the windows count once per window holding them."""
+    model = tiny(kind, init_scale=0.1)
+    x, u = batch(b=3, h=4, seed=1)
+    w = LossWeights(lambda_pred_x=0.7, lambda_pred_z=0.3)
+    seq = model.loss(x, u, w, window=h)
+    xw, uw = windows_of(x, u, h)
+    assert xw.shape[:2] == (3 * (5 - h), h + 1)
+    win = model.loss(xw, uw, w)
+    for term in ("pred_x", "pred_z", "l1"):
+        torch.testing.assert_close(seq[term], win[term], rtol=1e-5, atol=0)
+    per_frame = (model.decode(model.encode(x)) - x).square().mean()
+    torch.testing.assert_close(seq["recon"], per_frame, rtol=1e-6, atol=0)
+    if h == 1:  # the windows count the interior frames twice: a different mean
+        assert not torch.isclose(seq["recon"], win["recon"], rtol=1e-4)
+    torch.testing.assert_close(
+        seq["objective"], seq["recon"] + 0.7 * seq["pred_x"] + 0.3 * seq["pred_z"])
+    # The gradients of the prediction terms are those of the windows too.
+    params = list(model.parameters())
+    for term in ("pred_x", "pred_z"):
+        ga = torch.autograd.grad(model.loss(x, u, w, window=h)[term], params, allow_unused=True)
+        gb = torch.autograd.grad(model.loss(xw, uw, w)[term], params, allow_unused=True)
+        for a, b in zip(ga, gb, strict=True):
+            assert (a is None) == (b is None)
+            if a is not None:
+                torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-7)
+
+
+def test_trajectory_loss_weights_the_block_like_the_windows() -> None:
+    """With a foreground weight, the trained total of the sequences is their weighted
+    reconstruction (each frame once) + the windows' weighted prediction part."""
+    model = tiny("sindy", init_scale=0.1)
+    x, u = batch(b=2, h=3, seed=2)
+    x = 0.1 * x  # the table: within 1 of its median
+    x[..., 10:14, 10:14] = -4.0  # the block
+    fg = torch.ones_like(x[0, 0])
+    fg[..., 10:14, 10:14] = 10.0  # 1 + the foreground weight
+    w = LossWeights(foreground_weight=9.0, lambda_pred_z=0.3)
+    seq = model.loss(x, u, w, window=1)
+    xw, uw = windows_of(x, u, 1)
+    win = model.loss(xw, uw, w)
+
+    def weighted_recon(v: torch.Tensor) -> torch.Tensor:
+        return (fg * (model.decode(model.encode(v)) - v).square()).mean()
+
+    pred_part = win["total"] - weighted_recon(xw)  # λ1 pred_x + λ2 pred_z + λ3 l1, weighted
+    torch.testing.assert_close(seq["total"], weighted_recon(x) + pred_part, rtol=1e-5, atol=0)
+    assert seq["total"] > model.loss(x, u, dataclasses.replace(w, foreground_weight=0),
+                                     window=1)["total"]
+
+
+def test_loss_rejects_a_window_longer_than_the_sequences() -> None:
+    x, u = batch(h=2)
+    with pytest.raises(ValueError, match="window 3 does not fit"):
+        tiny("linear").loss(x, u, window=3)
+
+
 def test_loss_rejects_bad_shapes() -> None:
     x, u = batch(h=2)
     with pytest.raises(ValueError, match="loss expects"):

@@ -237,11 +237,13 @@ def test_equations_of_linear_and_mlp_runs(data: Path, tmp_path: Path) -> None:
 
 
 # ----------------------------------------------------------------------------- resume
-@pytest.mark.parametrize("kind", KINDS)
-def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str) -> None:
+@pytest.mark.parametrize(("kind", "batching"), [(k, "trajectories") for k in KINDS]
+                         + [("sindy", "windows")])
+def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str,
+                                     batching: str) -> None:
     """N epochs, then resume to 2N == 2N straight (pruning at epochs 2 and 4 included)."""
     scale = {} if kind == "mlp" else {"init_scale": 3e-3}  # an MLP has no coefficient scale
-    kw = {"threshold": 3e-3, "threshold_every": 2, "dynamics": scale}
+    kw = {"threshold": 3e-3, "threshold_every": 2, "dynamics": scale, "batching": batching}
     straight = train(config(data, tmp_path / "straight", kind, epochs=6, **kw))
     part = config(data, tmp_path / "resumed", kind, epochs=3, checkpoint_every=1, **kw)
     train(part)
@@ -333,7 +335,8 @@ def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None
     """eval_every=1 gives the model and losses of the trainer as it was, bit for bit; other
     values leave val/* empty except every N-th and the last epoch, and the same model."""
     kw = {"epochs": 5, "threshold": 3e-3, "threshold_every": 2, "dynamics": {"init_scale": 3e-3},
-          "batch_size": 20}  # one batch per epoch: the validation loss is one batch too
+          "batch_size": 20,  # one batch per epoch: the validation loss is one batch too
+          "batching": "windows"}
     every = train(config(data, tmp_path / "every", **kw))
     ref, ref_val = reference_model(config(data, tmp_path / "ref", **kw))
     states_equal(load_run(every, checkpoint=True).model, ref)  # the last epoch
@@ -368,12 +371,14 @@ def test_resume_with_another_thread_count_says_so(data: Path, tmp_path: Path) ->
     assert any("with 2 thread(s) a run trained on cpu with 1" in n for n in notes), notes
 
 
+@pytest.mark.parametrize("batching", ["trajectories", "windows"])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int) -> None:
+def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int,
+                                     batching: str) -> None:
     """Two trainings of the conv decoder (the CPU's own kernels included) from one seed give
     the same weights, bit for bit; another seed does not."""
     kw = {"autoencoder": {"decoder": "conv"}, "epochs": 3, "threshold": 3e-3,
-          "threshold_every": 2, "dynamics": {"init_scale": 3e-3}}
+          "threshold_every": 2, "dynamics": {"init_scale": 3e-3}, "batching": batching}
     torch.set_num_threads(threads)
     try:
         a, b = (train(config(data, tmp_path / name, **kw)) for name in "ab")
@@ -385,6 +390,50 @@ def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int) -
     assert losses(read_metrics(a)) == losses(read_metrics(b))
     with pytest.raises(AssertionError):
         states_equal(load_run(a).model, load_run(c).model)
+
+
+# ----------------------------------------------------------------------------- batching
+def test_batchings_see_the_same_predictions(data: Path, tmp_path: Path) -> None:
+    """One batch per epoch: epoch 1's training terms are the initial model's loss on all the
+    windows; trajectory batches give the same prediction terms and the per-frame
+    reconstruction mean (each of the 4 x 4 frames once), then train another model."""
+    kw = {"epochs": 2, "batch_size": 12}  # 4 trajectories of 3 pushes: 12 windows
+    traj = read_metrics(train(config(data, tmp_path / "t", batching="trajectories", **kw)))
+    win = read_metrics(train(config(data, tmp_path / "w", batching="windows", **kw)))
+    auto = read_metrics(train(config(data, tmp_path / "a", **kw)))  # window 1: trajectories
+    for term in ("pred_x", "pred_z", "l1"):
+        assert math.isclose(traj[0][f"train/{term}"], win[0][f"train/{term}"], rel_tol=1e-5)
+    d = read_trajectories(data)
+    cfg = config(data, tmp_path / "x")
+    with torch.random.fork_rng(devices=[]):  # the trainer's initial model
+        torch.manual_seed(cfg.seed)
+        model = LatentModel(from_json(ModelConfig, run_record(cfg, d)["model"], "model"))
+    x = Normalizer.from_trajectories(d).normalize(d.split("train").images)  # (4, 4, 1, 32, 32)
+    with torch.no_grad():
+        per_frame = float((model.decode(model.encode(x)) - x).square().mean())
+    assert math.isclose(traj[0]["train/recon"], per_frame, rel_tol=1e-5)
+    assert not math.isclose(win[0]["train/recon"], per_frame, rel_tol=1e-4)
+    assert losses(auto) == losses(traj)
+    assert traj[1]["train/objective"] != win[1]["train/objective"]
+
+
+def test_a_run_recorded_before_batching_was_batched_by_windows(data: Path,
+                                                               tmp_path: Path) -> None:
+    cfg = config(data, tmp_path / "run", epochs=2, batching="windows")
+    run = train(cfg)
+    record = json.loads((run / "config.json").read_text())
+    del record["train"]["batching"]
+    (run / "config.json").write_text(json.dumps(record))
+    assert load_run(run).config.batching == "windows"
+    with pytest.raises(UserError, match=r"batching \(run 'windows', now 'trajectories'\)"):
+        train(dataclasses.replace(cfg, batching="auto", epochs=3, resume=True))
+    train(dataclasses.replace(cfg, epochs=3, resume=True))
+    straight = train(config(data, tmp_path / "straight", epochs=3, batching="windows"))
+    states_equal(load_run(run).model, load_run(straight).model)
+    # auto at window 2 batches windows: a run of either setting is the other's
+    two = config(data, tmp_path / "two", epochs=1, window=2, batching="windows")
+    train(two)
+    train(dataclasses.replace(two, batching="auto", epochs=2, resume=True))
 
 
 # ----------------------------------------------------------------------------- best validation
@@ -512,8 +561,8 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
     calls = {"n": 0}
     original = LatentModel.loss
 
-    def poisoned(self, x, u, weights=None):
-        terms = original(self, x, u, weights)
+    def poisoned(self, x, u, weights=None, window=None):
+        terms = original(self, x, u, weights, window)
         calls["n"] += self.training  # validation runs in eval mode
         if calls["n"] > 3 and self.training:  # 1 batch per epoch: epoch 4 goes bad
             terms["pred_x"] = terms["pred_x"] * float("nan")

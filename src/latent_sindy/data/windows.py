@@ -139,6 +139,12 @@ class WindowDataset(Dataset):
         h = self.window
         return self.images[i, t:t + h + 1], self.actions[i, t:t + h]
 
+    def trajectories(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The whole trajectories the windows are cut from: x (N, T+1, *observation),
+        u (N, T, nu) (``LatentModel.loss(x, u, window=H)`` computes the loss of all their
+        windows)."""
+        return self.images, self.actions
+
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
         """All windows at once: x (W, H+1, *observation), u (W, H, nu) — for small data sets."""
         i = torch.as_tensor(self._index[:, 0])

@@ -11,6 +11,11 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     recon  = mean_{b,t=0..H} ‖x_t − dec(enc(x_t))‖² / (C·S·S)
     pred_x = mean_{b,t=1..H} ‖x_t − dec(ẑ_t)‖² / (C·S·S)      ẑ rolled out from ẑ_0 = enc(x_0)
     pred_z = mean_{b,t=1..H} ‖enc(x_t) − ẑ_t‖² / nz
+
+Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
+pushes in them while encoding and reconstructing each frame once (the trainer's
+``--batching trajectories``): pred_x and pred_z are then the means over the same windows,
+and recon weighs every frame once instead of once per window that holds it.
     l1     = ‖M ⊙ Ψ‖₁ (SINDy; 0 for the other models)
     objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
                                                 across models)
@@ -178,33 +183,54 @@ class LatentModel(nn.Module):
         return next(self.parameters()).new_zeros(())
 
     def loss(
-        self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None
+        self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
+        window: int | None = None,
     ) -> dict[str, torch.Tensor]:
-        """The loss terms of :data:`LOSS_TERMS` on x (B, H+1, C, S, S), u (B, H, nu), H >= 1.
+        """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, S, S), u (B, T, nu).
 
-        ``weights`` None uses the defaults of :class:`LossWeights`.
+        ``window`` H (1..T; None: T) cuts a window of H pushes at every start t = 0..T-H of
+        each sequence: the frames are encoded and reconstructed once each, ẑ is rolled out H
+        steps from every encoded frame z_t, and every prediction is decoded in the same
+        decoder pass. recon is the mean over the B (T+1) frames; pred_x and pred_z are the
+        means over the B (T-H+1) windows, exactly those of the windows passed one by one
+        (which count a frame in every window that holds it). ``weights`` None uses the
+        defaults of :class:`LossWeights`.
         """
         weights = weights or _DEFAULT_WEIGHTS
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
             raise ValueError(
-                f"loss expects x (B, H+1, ...) and u (B, H, nu), got {tuple(x.shape)} and "
+                f"loss expects x (B, T+1, ...) and u (B, T, nu), got {tuple(x.shape)} and "
                 f"{tuple(u.shape)}"
             )
-        h = u.shape[1]
-        z = self.encode(x)  # (B, H+1, nz)
-        z_hat = self.rollout_latent(z[:, 0], u)[:, 1:]  # (B, H, nz)
+        b, t = u.shape[:2]
+        h = t if window is None else window
+        if not 1 <= h <= t:
+            raise ValueError(f"loss: window {h} does not fit sequences of {t} pushes")
+        starts = t - h + 1  # windows per sequence: W
+        z = self.encode(x)  # (B, T+1, nz)
+        u_win = u.unfold(1, h, 1).movedim(-1, 2)  # (B, W, H, nu): u_win[:, s, k] = u[:, s + k]
+        z_hat = self.rollout_latent(z[:, :starts].reshape(b * starts, -1),
+                                    u_win.reshape(b * starts, h, -1))[:, 1:]  # (B W, H, nz)
+        z_hat = z_hat.reshape(b, starts * h, -1)  # (B, W H, nz)
         # One decoder pass for the reconstructions and the predictions.
-        x_dec = self.decode(torch.cat([z, z_hat], dim=1))  # (B, 2H+1, C, S, S)
-        err_recon = (x_dec[:, : h + 1] - x).square()
-        err_pred = (x_dec[:, h + 1 :] - x[:, 1:]).square()
+        x_dec = self.decode(torch.cat([z, z_hat], dim=1))  # (B, T+1 + W H, C, S, S)
+
+        def targets(v: torch.Tensor) -> torch.Tensor:
+            """v (B, T+1, ...) -> v_{s+1..s+H} of every window s, (B, W H, ...)."""
+            if starts == 1:
+                return v[:, 1:]
+            return v[:, 1:].unfold(1, h, 1).movedim(-1, 2).reshape(b, starts * h, *v.shape[2:])
+
+        err_recon = (x_dec[:, : t + 1] - x).square()
+        err_pred = (x_dec[:, t + 1 :] - targets(x)).square()
         recon, pred_x = err_recon.mean(), err_pred.mean()
-        pred_z = (z_hat - z[:, 1:]).square().mean()
+        pred_z = (z_hat - targets(z)).square().mean()
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         trained = objective
         if weights.foreground_weight and self.config.encoder.kind == "image":
-            w = 1 + weights.foreground_weight * _foreground(x)  # (B, H+1, C, S, S)
-            trained = ((w * err_recon).mean() + weights.lambda_pred_x * (w[:, 1:] * err_pred)
+            w = 1 + weights.foreground_weight * _foreground(x)  # (B, T+1, C, S, S)
+            trained = ((w * err_recon).mean() + weights.lambda_pred_x * (targets(w) * err_pred)
                        .mean() + weights.lambda_pred_z * pred_z)
         return {
             "total": trained + weights.lambda_l1 * l1,

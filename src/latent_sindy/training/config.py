@@ -21,12 +21,16 @@ import tyro
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 
-__all__ = ["DEVICES", "RESUMABLE", "TrainConfig", "default_threads", "resolve_device"]
+__all__ = ["BATCHINGS", "DEVICES", "RESUMABLE", "TrainConfig", "default_threads",
+           "resolve_batching", "resolve_device"]
 
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
 RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "eval_every",
                        "keep_best", "device", "out", "data"})
+
+#: Values of :attr:`TrainConfig.batching`.
+BATCHINGS = ("auto", "trajectories", "windows")
 
 #: Values of :attr:`TrainConfig.device`.
 DEVICES = ("auto", "cpu", "cuda")
@@ -49,7 +53,14 @@ class TrainConfig:
     epochs: int = 300
     """Passes over the training windows (the paper: 3000; 300 trains in minutes on a CPU)."""
     batch_size: int = 500
-    """Windows per mini-batch (the paper: 500)."""
+    """Windows per mini-batch (the paper: 500); trajectory batches hold batch_size // (T-H+1)
+    whole trajectories (at least one), T the pushes per trajectory."""
+    batching: Literal["auto", "trajectories", "windows"] = "auto"
+    """Mini-batches of "windows" (drawn from all trajectories; each window encodes and decodes
+    its own frames) or of whole "trajectories" (each frame encoded and reconstructed once:
+    the same prediction terms, a reconstruction term that weighs every frame once instead of
+    once per window holding it; 1.4x faster epochs at H = 1); "auto": trajectories for
+    --window 1, windows otherwise. Validation always uses windows."""
     lr: float = 1e-3
     """AdamW learning rate (the paper: 1e-3)."""
     betas: tuple[float, float] = (0.9, 0.999)
@@ -99,6 +110,8 @@ class TrainConfig:
             (self.checkpoint_every >= 1,
              f"--checkpoint-every {self.checkpoint_every}: use 1 or more"),
             (self.eval_every >= 1, f"--eval-every {self.eval_every}: use 1 or more"),
+            (self.batching in BATCHINGS,
+             f"--batching {self.batching!r} is unknown: use one of {', '.join(BATCHINGS)}"),
             (self.device in DEVICES,
              f"--device {self.device!r} is unknown: use one of {', '.join(DEVICES)}"),
             (self.seed >= 0, f"--seed {self.seed}: seeds are non-negative integers"),
@@ -110,6 +123,13 @@ class TrainConfig:
                 raise UserError(message)
         if not isinstance(self.model, ModelConfig):
             raise TypeError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+
+
+def resolve_batching(cfg: TrainConfig) -> str:
+    """What :attr:`TrainConfig.batching` batches for ``cfg``: "trajectories" or "windows"."""
+    if cfg.batching == "auto":
+        return "trajectories" if cfg.window == 1 else "windows"
+    return cfg.batching
 
 
 def resolve_device(device: str) -> str:

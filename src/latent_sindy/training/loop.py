@@ -3,7 +3,8 @@ trajectory file, written into a run folder (:mod:`latent_sindy.training.runs`).
 
 The paper's recipe (docs/design.md): AdamW on the loss of
 :meth:`~latent_sindy.models.latent_model.LatentModel.loss` over windows of ``window`` pushes,
-mini-batches shuffled by a generator seeded from ``seed``, and every ``threshold_every`` epochs
+mini-batches (of windows, or of whole trajectories whose frames are encoded once: ``batching``)
+shuffled by a generator seeded from ``seed``, and every ``threshold_every`` epochs
 SINDy coefficients with ``|Ψ| < threshold`` are pruned for good (the mask only turns off).
 ``resume=True`` continues from the run's checkpoint to the same final model, bit for bit on
 CPU (for the same torch thread count), as an uninterrupted run with the same settings. The
@@ -38,7 +39,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
-from latent_sindy.training.config import TrainConfig, resolve_device
+from latent_sindy.training.config import TrainConfig, resolve_batching, resolve_device
 from latent_sindy.training.runs import METRIC_COLUMNS, RUN_FORMAT, RUN_FORMAT_VERSION, RunDir
 
 __all__ = ["BestValidation", "TrainingDiverged", "evaluate", "run_record", "train"]
@@ -158,18 +159,21 @@ def _train_epoch(
     x: torch.Tensor,
     u: torch.Tensor,
     cfg: TrainConfig,
+    per_batch: int,
     gen: torch.Generator,
     epoch: int,
     last_ckpt: int | None,
 ) -> dict[str, float]:
-    """One shuffled pass; mean loss terms per window (as seen before each batch's update)."""
+    """One shuffled pass over sequences x (N, T+1, ...), u (N, T, nu) (windows or whole
+    trajectories), ``per_batch`` of them per batch; mean loss terms per sequence (as seen
+    before each batch's update)."""
     weights = cfg.loss
     # The generator lives on the CPU: the same mini-batches on every device.
     order = torch.randperm(len(x), generator=gen).to(x.device)
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
-    for b in range(0, len(x), cfg.batch_size):
-        idx = order[b : b + cfg.batch_size]
-        terms = model.loss(x[idx], u[idx], weights)
+    for b in range(0, len(x), per_batch):
+        idx = order[b : b + per_batch]
+        terms = model.loss(x[idx], u[idx], weights, cfg.window)
         values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (6,)
         if not torch.isfinite(values).all():
             bad = next(
@@ -363,8 +367,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     run.write_metrics(metrics)  # drops rows logged after the checkpoint
 
     kind = model_cfg.encoder.kind
-    x, u = (t.to(device) for t in WindowDataset(data.split("train"), cfg.window, norm,
-                                                 kind).tensors())  # (W, H+1, ..), (W, H, nu)
+    windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
+    if resolve_batching(cfg) == "trajectories":  # (N, T+1, ..), (N, T, nu)
+        x, u = windows.trajectories()
+        per_batch = max(1, cfg.batch_size // (data.steps - cfg.window + 1))
+    else:  # (W, H+1, ..), (W, H, nu)
+        x, u = windows.tensors()
+        per_batch = cfg.batch_size
+    x, u = x.to(device), u.to(device)
     val = data.split("val")
     xv, uv = ((t.to(device) for t in WindowDataset(val, cfg.window, norm, kind).tensors())
               if val.n else (None, None))
@@ -381,7 +391,8 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             t0 = time.perf_counter()
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
-            train_terms = _train_epoch(model, opt, x, u, cfg, gen, epoch, last_ckpt)
+            train_terms = _train_epoch(model, opt, x, u, cfg, per_batch, gen, epoch,
+                                       last_ckpt)
             row.update({f"train/{k}": v for k, v in train_terms.items()})
             if prune and epoch % cfg.threshold_every == 0:
                 row["sindy/pruned"] = _prune(model, opt, cfg.threshold)

@@ -26,6 +26,7 @@ when read, and records of format version 1 are migrated on read.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import os
@@ -43,7 +44,7 @@ from latent_sindy.data.windows import Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, ModelConfig
-from latent_sindy.training.config import RESUMABLE, TrainConfig
+from latent_sindy.training.config import RESUMABLE, TrainConfig, resolve_batching
 
 __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
            "read_metrics"]
@@ -152,6 +153,10 @@ class RunDir:
         elif version != RUN_FORMAT_VERSION:
             raise UserError(f"{path} has run format version {version}; this latent-sindy "
                             f"reads versions 1 and {RUN_FORMAT_VERSION}: retrain the run")
+        train = record.get("train")
+        if isinstance(train, dict) and "batching" not in train:
+            # recorded before the setting existed, when every run was batched by windows
+            record = {**record, "train": {**train, "batching": "windows"}}
         return record
 
     def write_record(self, record: Mapping[str, Any]) -> None:
@@ -254,8 +259,11 @@ class RunDir:
         def flat(r: Mapping[str, Any]) -> dict[str, Any]:
             data = {k: v for k, v in r["data"].items() if k != "path"}
             # through the dataclass: a setting added since the run was recorded takes its
-            # default (which keeps the old behaviour) on both sides
-            train = json.loads(json.dumps(to_json(self.train_config(r))))
+            # default (which keeps the old behaviour) on both sides; "auto" batching as what
+            # it batches
+            tc = self.train_config(r)
+            tc = dataclasses.replace(tc, batching=resolve_batching(tc))
+            train = json.loads(json.dumps(to_json(tc)))
             return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
 
         was, now = flat(old), flat(record)
