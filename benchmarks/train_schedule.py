@@ -18,7 +18,11 @@ each to the row above:
     the ReLUs work in place (the model's code now);
   * threads T: T torch threads (the CLI's ``--threads``), first with libgomp's default wait
     policy (idle OpenMP threads spin), then with ``OMP_WAIT_POLICY=PASSIVE`` (they sleep; the
-    CLI sets it).
+    CLI sets it);
+  * trajectory batches: ``--batching trajectories`` (the default at window 1): batches of 50
+    whole trajectories whose 11 frames are encoded and reconstructed once each (11 encodes and
+    21 decodes per trajectory instead of 20 and 30), at 1 and at T threads. Every other row
+    batches windows, as the trainer did before.
 
 Every variant runs in a fresh process and trains ``2 * --epochs`` epochs (``--epochs`` a
 multiple of ``--eval-every``) from the same seed; the first half warms up (memory, oneDNN's
@@ -33,6 +37,7 @@ least disturbed by other jobs (it leaves out the time spent waiting for a core).
     .venv/bin/python benchmarks/train_schedule.py --rounds 3
     .venv/bin/python benchmarks/train_schedule.py --data data/push.h5 --epochs 20
     .venv/bin/python benchmarks/train_schedule.py --only 6 7   # 1 against 2 threads
+    .venv/bin/python benchmarks/train_schedule.py --only 6 8 7 9   # windows vs trajectories
 """
 
 from __future__ import annotations
@@ -111,6 +116,7 @@ class Variant:
     omp_passive: bool = False
     native_last: bool = False
     pool_first: bool = False
+    batching: str = "windows"
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
@@ -124,6 +130,10 @@ def variants(args: argparse.Namespace) -> list[Variant]:
         Variant("+ native forward, last transposed conv", 1, n, True, True, False, True),
         Variant("+ pool before ReLU, in-place ReLUs", 1, n, True, True, False, True, True),
         Variant(f"+ {t} threads, OMP_WAIT_POLICY=PASSIVE", t, n, True, True, True, True, True),
+        Variant("+ trajectory batches, 1 thread", 1, n, True, True, False, True, True,
+                "trajectories"),
+        Variant(f"+ trajectory batches, {t} threads, PASSIVE", t, n, True, True, True, True,
+                True, "trajectories"),
     ]
 
 
@@ -164,7 +174,7 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
                         dynamics=SindyConfig(order=2))
     cfg = TrainConfig(data=data, out=out, model=model, epochs=2 * args.epochs,
                       batch_size=500, threshold_every=300, threshold=1e-3,
-                      eval_every=v.eval_every, overwrite=True)
+                      eval_every=v.eval_every, batching=v.batching, overwrite=True)
     clock = Clock(args.epochs)
     t0 = time.perf_counter()
     train(cfg, clock)

@@ -149,7 +149,8 @@ def run_stage(study: Study, data: Path, pool: Executor, say: Say) -> None:
                              epochs=scale.epochs * spec.epochs_factor,
                              batch_size=scale.batch_size, threshold=scale.threshold,
                              threshold_every=scale.threshold_every * spec.epochs_factor,
-                             eval_every=scale.eval_every * spec.epochs_factor, seed=seed,
+                             eval_every=scale.eval_every * spec.epochs_factor,
+                             batching=scale.batching, seed=seed,
                              device="auto" if cfg.gpus > 0 else "cpu")
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short

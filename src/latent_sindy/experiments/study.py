@@ -84,6 +84,11 @@ class Scale:
     """... every this many epochs."""
     eval_every: int = 1
     """Validation loss every this many epochs (and at the last); it does not change the model."""
+    # Batches of 64 windows hold 6 whole trajectories: in 60 epochs that trained 4-6 % worse
+    # than windows (BENCHMARKS.md); the study's runs so far are batched by windows too.
+    batching: Literal["windows", "trajectories"] = "windows"
+    """Training mini-batches of windows or of whole trajectories (`latent-sindy train
+    --batching`)."""
     multistep_window: int = 4
     """Training window H of the multi-step SINDy model."""
     paper_episodes: int = 5
