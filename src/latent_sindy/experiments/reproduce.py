@@ -252,7 +252,8 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
             {"nothing moves": study.position_baselines["still"],
              "reading the true image": study.position_baselines["reader"]},
             ylabel="block position error (cm)", yscale="linear", cap=10.0,
-            title="block position in decoded open-loop predictions, test trajectories")
+            title="block position in open-loop predictions (state rows: predicted poses), "
+                  "test trajectories")
 
     single, multi = study.single_step, study.multistep
     if single and multi and single.name in ok and multi.name in ok:
