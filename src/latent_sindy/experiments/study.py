@@ -50,6 +50,9 @@ class Condition:
     space: Space
     episodes: int
     max_steps: int
+    cost: Literal["latent", "image", "pose"] | None = None
+    """The cost MPPI minimises (:attr:`ControlConfig.space`); None: the planning space's own.
+    Latent MPPI of a model with a pose head may minimise its pose cost ("pose")."""
 
     @property
     def name(self) -> str:
@@ -58,7 +61,13 @@ class Condition:
 
     @property
     def label(self) -> str:
-        return f"{self.task}, {self.space}"
+        return f"{self.task}, {self.space}" + (f" ({self.cost} cost)" if self.cost else "")
+
+    @property
+    def cost_space(self) -> str:
+        """The cost's name: what ``latent-sindy control --space`` calls it, and the run's
+        control folder (control-TASK-COST)."""
+        return self.cost or self.space
 
 
 @dataclass(frozen=True)
@@ -122,6 +131,8 @@ class Scale:
                 continue
             if c.task == "random" and c.space == "latent" and not spec.headline:
                 c = dataclasses.replace(c, episodes=self.other_random_episodes)
+            if c.space == "latent" and spec.latent_cost != "latent":
+                c = dataclasses.replace(c, cost=spec.latent_cost)
             if c.episodes > 0:
                 out.append(c)
         return tuple(out)
@@ -130,7 +141,7 @@ class Scale:
         return self.mppi if self.mppi is not None else world_planner(PushEnvConfig.named(world))
 
     def control_config(self, condition: Condition, seed: int, world: str) -> ControlConfig:
-        return ControlConfig(task=condition.task, space=condition.space,
+        return ControlConfig(task=condition.task, space=condition.cost_space,
                              episodes=condition.episodes, max_steps=condition.max_steps,
                              seed=seed, until=self.until, gif_episodes=1,
                              mppi=self.planner(world))
@@ -368,6 +379,14 @@ class ModelSpec:
     image_space: bool = False
     """Also plan with image-space MPPI (the paper's variant; needs an image model). The study
     runs it for SINDy-2 only: a step decodes K·H images (about 0.3 s at K = 300, H = 8)."""
+    latent_cost: Literal["latent", "pose"] = "latent"
+    """The cost of its latent MPPI: "latent" (the distance to the encoded goal image, every
+    coordinate alike) or "pose" (its pose head's reading against the goal image's; a model
+    with a pose head)."""
+
+    def __post_init__(self) -> None:
+        if self.latent_cost == "pose" and not self.model.pose_head:
+            raise ValueError(f"model {self.name}: the pose cost needs a model with a pose head")
 
 
 #: What the study keeps of each closed-loop summary (control/<task>/<space>/<key>).
@@ -383,8 +402,9 @@ SINGLE_STEP = "sindy2"
 
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
                 ) -> tuple[ModelSpec, ...]:
-    """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows and SINDy
-    order 2 with the push library, all with the same autoencoder architecture; then SINDy
+    """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows, SINDy
+    order 2 with the push library, and the same with a privileged pose head planning on its
+    pose cost, all with the same autoencoder architecture; then SINDy
     (push library), linear and MLP on the true state (the reference rows the image models are
     measured against)."""
     h = scale.multistep_window
@@ -409,6 +429,13 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv"
         # library, sparsity 97.4 %.
         ModelSpec("sindy2_push", "SINDy-2 (push library)",
                   model(SindyConfig(order=2, library="push")), cost=1.15, headline=True),
+        # The same with a pose head trained on the simulator's poses (privileged, training
+        # only) and MPPI's cost on the head's reading (goal read from the goal image): the
+        # unsupervised latents drop the block's orientation (probe R² ≈ 0, issue 11).
+        ModelSpec("sindy2_pose", "SINDy-2 (push library), pose-supervised (privileged)",
+                  dataclasses.replace(model(SindyConfig(order=2, library="push")),
+                                      pose_head=True),
+                  loss=LossWeights(lambda_pose=1.0), cost=1.2, latent_cost="pose"),
         # State losses are in metres, far below the images': the images' λ3 = 0.01 shrank the
         # push terms (x gain 0.027 instead of 0.084 at λ3 = 1e-4; 60 % vs 90 % of 20 random
         # goals). Order 1 + the push terms write a push as it is: x += 0.084 ℓ cos ψ.
