@@ -512,8 +512,8 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
     calls = {"n": 0}
     original = LatentModel.loss
 
-    def poisoned(self, x, u, weights=None):
-        terms = original(self, x, u, weights)
+    def poisoned(self, x, u, weights=None, poses=None):
+        terms = original(self, x, u, weights, poses)
         calls["n"] += self.training  # validation runs in eval mode
         if calls["n"] > 3 and self.training:  # 1 batch per epoch: epoch 4 goes bad
             terms["pred_x"] = terms["pred_x"] * float("nan")

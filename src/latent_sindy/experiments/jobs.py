@@ -131,7 +131,7 @@ def _control(loaded: Any, run: RunDir, condition: Condition, settings: ControlCo
 
     Adds ``nonfinite_actions``: executed pushes with a NaN or inf component (should be 0).
     """
-    folder = run.control_dir(condition.task, condition.space)
+    folder = run.control_dir(condition.task, condition.cost_space)
     results = folder / "results.json"
     want = json.loads(json.dumps(to_json(settings)))
     fresh = not (results.exists() and results.stat().st_mtime_ns >= (

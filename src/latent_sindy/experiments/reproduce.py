@@ -282,8 +282,8 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
     gif_dir.mkdir(exist_ok=True)
     for m in ok:
         run = RunDir(runs[m])
-        for cond in conditions:
-            src = run.control_dir(cond.task, cond.space) / "episode_000.gif"
+        for cond in study.scale.conditions(study.spec(m)):
+            src = run.control_dir(cond.task, cond.cost_space) / "episode_000.gif"
             if src.exists():
                 dst = gif_dir / f"{m}_{cond.task}-{cond.space}.gif"
                 shutil.copyfile(src, dst)

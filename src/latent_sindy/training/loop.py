@@ -126,14 +126,16 @@ def evaluate(
     u: torch.Tensor,
     weights: LossWeights | None = None,
     batch_size: int = 500,
+    poses: torch.Tensor | None = None,
 ) -> dict[str, float]:
     """Mean loss terms over windows x (W, H+1, C, S, S), u (W, H, nu), in batches (on the
-    device of the model and the windows)."""
+    device of the model and the windows); ``poses`` (W, H+1, 4) for a pose head's term."""
     was_training = model.training
     model.eval()
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), batch_size):
-        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights)
+        s = None if poses is None else poses[b : b + batch_size]
+        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights, s)
         values = torch.stack([terms[k] for k in LOSS_TERMS]).double().cpu()
         sums += values * len(x[b : b + batch_size])
     model.train(was_training)
@@ -161,20 +163,22 @@ def _train_epoch(
     gen: torch.Generator,
     epoch: int,
     last_ckpt: int | None,
+    poses: torch.Tensor | None = None,
 ) -> dict[str, float]:
-    """One shuffled pass; mean loss terms per window (as seen before each batch's update)."""
+    """One shuffled pass; mean loss terms per window (as seen before each batch's update).
+    ``poses`` (W, H+1, 4): the windows' true pose features, for a pose head."""
     weights = cfg.loss
     # The generator lives on the CPU: the same mini-batches on every device.
     order = torch.randperm(len(x), generator=gen).to(x.device)
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), cfg.batch_size):
         idx = order[b : b + cfg.batch_size]
-        terms = model.loss(x[idx], u[idx], weights)
-        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (6,)
+        terms = model.loss(x[idx], u[idx], weights, None if poses is None else poses[idx])
+        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (7,)
         if not torch.isfinite(values).all():
             bad = next(
                 k
-                for k in ("recon", "pred_x", "pred_z", "l1", "total")
+                for k in ("recon", "pred_x", "pred_z", "l1", "pose", "total")
                 if not torch.isfinite(terms[k])
             )
             value = float(terms[bad].detach())
@@ -363,11 +367,17 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     run.write_metrics(metrics)  # drops rows logged after the checkpoint
 
     kind = model_cfg.encoder.kind
-    x, u = (t.to(device) for t in WindowDataset(data.split("train"), cfg.window, norm,
-                                                 kind).tensors())  # (W, H+1, ..), (W, H, nu)
+    train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
+    x, u = (t.to(device) for t in train_windows.tensors())  # (W, H+1, ..), (W, H, nu)
     val = data.split("val")
-    xv, uv = ((t.to(device) for t in WindowDataset(val, cfg.window, norm, kind).tensors())
-              if val.n else (None, None))
+    val_windows = WindowDataset(val, cfg.window, norm, kind) if val.n else None
+    xv, uv = ((t.to(device) for t in val_windows.tensors()) if val_windows else (None, None))
+    s = sv = None  # the windows' true pose features (W, H+1, 4): a pose head's privileged data
+    if model.pose_head is not None:
+        s = train_windows.pose_tensors().to(device)
+        sv = val_windows.pose_tensors().to(device) if val_windows else None
+        if ckpt is None:  # a resumed model has its statistics in its state
+            model.pose_head.fit_statistics(train_windows.poses)
     if val.n == 0:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy
@@ -381,14 +391,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             t0 = time.perf_counter()
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
-            train_terms = _train_epoch(model, opt, x, u, cfg, gen, epoch, last_ckpt)
+            train_terms = _train_epoch(model, opt, x, u, cfg, gen, epoch, last_ckpt, s)
             row.update({f"train/{k}": v for k, v in train_terms.items()})
             if prune and epoch % cfg.threshold_every == 0:
                 row["sindy/pruned"] = _prune(model, opt, cfg.threshold)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
             if xv is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
-                val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size)
+                val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size, sv)
                 if not math.isfinite(val_terms["total"]):
                     raise _diverged(cfg, epoch, "the validation loss", last_ckpt)
                 row.update({f"val/{k}": v for k, v in val_terms.items()})
