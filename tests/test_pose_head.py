@@ -54,7 +54,7 @@ def rendered(tmp_path_factory) -> Path:
     return path
 
 
-def config(data: Path, out: Path, head: bool, lambda_pose: float, **kw) -> TrainConfig:
+def config(data: Path, out: Path, head: str, lambda_pose: float, **kw) -> TrainConfig:
     model = ModelConfig(encoder=AutoencoderConfig(decoder="conv"),
                         dynamics=SindyConfig(order=1), pose_head=head)
     kw = {"epochs": 3, "batch_size": 16, "threshold_every": 0, **kw}
@@ -71,8 +71,8 @@ def test_no_head_by_default_and_a_zero_pose_term() -> None:
 
 
 def test_an_unweighted_head_changes_nothing_else(rendered: Path, tmp_path: Path) -> None:
-    plain = RunDir(train(config(rendered, tmp_path / "a", False, 0.0))).load().model
-    headed = RunDir(train(config(rendered, tmp_path / "b", True, 0.0))).load().model
+    plain = RunDir(train(config(rendered, tmp_path / "a", "none", 0.0))).load().model
+    headed = RunDir(train(config(rendered, tmp_path / "b", "linear", 0.0))).load().model
     a, b = plain.state_dict(), headed.state_dict()
     assert set(b) - set(a) == {"pose_head.linear.weight", "pose_head.linear.bias",
                                "pose_head.mean", "pose_head.std"}
@@ -87,7 +87,7 @@ def test_pose_supervision_puts_the_orientation_into_the_latent(rendered: Path,
     data = read_trajectories(rendered)
     r2 = {}
     for lam in (0.0, 10.0):
-        run = RunDir(train(config(rendered, tmp_path / str(lam), True, lam, epochs=150,
+        run = RunDir(train(config(rendered, tmp_path / str(lam), "linear", lam, epochs=150,
                                   keep_best=False))).load()
         probe = latent_probe(run.model, data, run.normalizer, "train")
         r2[lam] = (probe["cos"] + probe["sin"]) / 2
@@ -96,7 +96,7 @@ def test_pose_supervision_puts_the_orientation_into_the_latent(rendered: Path,
 
 def test_the_pose_cost_is_the_state_cost_of_the_heads_reading() -> None:
     torch.manual_seed(0)
-    model = LatentModel(dataclasses.replace(ModelConfig(), pose_head=True).resolve(1, 32, 3))
+    model = LatentModel(dataclasses.replace(ModelConfig(), pose_head="linear").resolve(1, 32, 3))
     head = model.pose_head
     head.mean.copy_(torch.tensor([0.5, 0.0, 0.0, 0.0]))
     head.std.copy_(torch.tensor([0.1, 0.15, 0.7, 0.7]))
@@ -119,7 +119,7 @@ def test_a_pose_2cm_or_10_degrees_off_costs_1() -> None:
 
 def test_a_run_with_a_head_round_trips(rendered: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    assert main(["train", "sindy", "--order", "1", "--pose-head", "--lambda-pose", "1",
+    assert main(["train", "sindy", "--order", "1", "--pose-head", "linear", "--lambda-pose", "1",
                  "--data", str(rendered), "--out", str(out), "--epochs", "2",
                  "--batch-size", "16", "--no-progress"]) == 0
     model = RunDir(out).load().model  # weights_only=True, as every run file
@@ -136,7 +136,7 @@ def test_a_run_with_a_head_round_trips(rendered: Path, tmp_path: Path) -> None:
 
 def test_pose_space_control_plans_on_the_heads_reading(rendered: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    train(config(rendered, out, True, 1.0, epochs=1))
+    train(config(rendered, out, "linear", 1.0, epochs=1))
     assert main(["control", str(out), "--task", "random", "--space", "pose", "--max-steps", "1",
                  "--samples", "8", "--horizon", "2", "--gif-episodes", "0",
                  "--no-progress"]) == 0
@@ -146,7 +146,7 @@ def test_pose_space_control_plans_on_the_heads_reading(rendered: Path, tmp_path:
 def test_the_study_row_plans_on_its_pose_cost() -> None:
     scale = SCALES["demo"]
     spec = next(s for s in model_specs(scale) if s.name == "sindy2_pose")
-    assert spec.model.pose_head and spec.loss.lambda_pose > 0
+    assert spec.model.has_pose_head and spec.loss.lambda_pose > 0
     latent = [c for c in scale.conditions(spec) if c.space == "latent"]
     assert latent and all(scale.control_config(c, 0, "symmetric").space == "pose"
                           for c in latent)
@@ -158,7 +158,10 @@ def test_the_study_row_plans_on_its_pose_cost() -> None:
 @pytest.mark.parametrize(("build", "message"), [
     (lambda: LossWeights(lambda_pose=-1.0), "--lambda-pose -1.0: use a finite number >= 0"),
     (lambda: TrainConfig(loss=LossWeights(lambda_pose=1.0)), "add --pose-head"),
-    (lambda: ModelConfig(encoder=StateConfig(), pose_head=True), "drop --pose-head"),
+    (lambda: ModelConfig(encoder=StateConfig(), pose_head="linear"), "drop --pose-head"),
+    (lambda: ModelConfig(pose_head="coordinates",
+                         encoder=AutoencoderConfig(latent_dim=3)), "--latent-dim 4 or more"),
+    (lambda: ModelConfig(pose_head="yes"), "--pose-head 'yes': use none, linear"),
 ])
 def test_bad_pose_settings_are_one_line(build, message: str) -> None:
     with pytest.raises(UserError, match=message) as e:
@@ -173,3 +176,32 @@ def test_pose_space_without_a_head_is_one_line() -> None:
     with pytest.raises(UserError, match="--space pose needs a model trained with a pose head"):
         Controller(model, Normalizer(0.0, 1.0), ControlConfig(space="pose"), PushEnvConfig())
     assert set(COSTS) == {"latent", "image", "pose"}
+
+
+def test_a_coordinates_head_reads_the_first_four_latent_coordinates() -> None:
+    """No parameters: the pose is the latent's first four coordinates, the loss compares
+    them in standardised units, and the head's statistics are the only state."""
+    cfg = ModelConfig(encoder=AutoencoderConfig(decoder="conv", latent_dim=4),
+                      dynamics=SindyConfig(order=1, library="face", include_sine=False),
+                      pose_head="coordinates").resolve(1, 32, 3)
+    model = LatentModel(cfg)
+    head = model.pose_head
+    assert head is not None and not list(head.parameters())
+    assert {k for k in model.state_dict() if k.startswith("pose_head")} == {
+        "pose_head.mean", "pose_head.std"}
+    head.fit_statistics(torch.tensor([[0.4, -0.1, 1.0, 0.0], [0.6, 0.1, -1.0, 0.0]]))
+    z = torch.tensor([[0.5, 0.0, 0.6, 0.8]])
+    torch.testing.assert_close(head(z), z)
+    torch.testing.assert_close(head.standardized(z), (z - head.mean) / head.std)
+    # the loss's pose term: the coordinates of the encoded and the predicted latents against
+    # the poses, in standardised units
+    x, u = torch.randn(2, 2, 1, 32, 32), torch.rand(2, 1, 3)
+    poses = torch.tensor([[0.5, 0.0, 0.6, 0.8], [0.55, 0.02, 0.0, 1.0]]).expand(2, 2, 4)
+    with torch.no_grad():
+        zx = model.encode(x)
+        zhat = model.rollout_latent(zx[:, 0], u)[:, 1:]
+        got = model.loss(x, u, poses=poses)["pose"]
+    std = head.std
+    want = (((zx - poses) / std).square().mean()
+            + ((zhat - poses[:, 1:]) / std).square().mean())
+    torch.testing.assert_close(got, want)

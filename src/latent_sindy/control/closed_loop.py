@@ -92,7 +92,7 @@ def _pose_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
     head = controller.model.pose_head
     if head is None:
         raise UserError("--space pose needs a model trained with a pose head (latent-sindy "
-                        "train ... --pose-head --lambda-pose 1); this one has none: use "
+                        "train ... --pose-head linear --lambda-pose 10); this one has none: use "
                         "--space latent")
     return PoseCost(head, head(controller.model.encode(goal[None])[0]),
                     pose_cost_weights(controller.period))

@@ -392,7 +392,7 @@ class ModelSpec:
     with a pose head)."""
 
     def __post_init__(self) -> None:
-        if self.latent_cost == "pose" and not self.model.pose_head:
+        if self.latent_cost == "pose" and not self.model.has_pose_head:
             raise ValueError(f"model {self.name}: the pose cost needs a model with a pose head")
 
 
@@ -443,7 +443,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # demo data the angle probe's R² was -0.04 at λ4 = 1, 0.42 at 10, 0.41 at 30.
         ModelSpec("sindy2_pose", "SINDy-2 (push library), pose-supervised (privileged)",
                   dataclasses.replace(model(SindyConfig(order=2, library="push")),
-                                      pose_head=True),
+                                      pose_head="linear"),
                   loss=LossWeights(lambda_pose=10.0), cost=1.2, headline=True,
                   latent_cost="pose"),
         # The face library: the push as it is (x += 0.080 ℓ cos ψ, y += 0.080 ℓ sin ψ) and the

@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Annotated, Union
+from typing import Annotated, Literal, Union
 
 import torch
 import tyro
@@ -42,7 +42,7 @@ from torch import nn
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import DynamicsConfig, LatentDynamics, SindyConfig
-from latent_sindy.models.pose_head import PoseHead
+from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
 from latent_sindy.models.state import StateConfig
 
 __all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "EncoderConfig", "LatentModel", "LossWeights",
@@ -74,19 +74,31 @@ class ModelConfig:
     (the block's true pose: a reference model)."""
     action_dim: int | None = None
     """Action size nu; None: from the data file."""
-    pose_head: bool = False
-    """Image models: add a linear readout of the block's pose features from the latent,
-    trained with the simulator's poses (privileged; weight --lambda-pose) and usable as MPPI's
-    cost (--space pose). Control reads the goal's pose from the goal image, never the
-    simulator."""
+    pose_head: Literal["none", "linear", "coordinates"] = "none"
+    """Image models: a readout of the block's pose features from the latent, trained with the
+    simulator's poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space
+    pose): "linear" (learned), or "coordinates" (the first four latent coordinates are the
+    pose features, x, y, cos 4θ, sin 4θ, so a face library can write the dynamics on them).
+    Control reads the goal's pose from the goal image, never the simulator."""
 
     def __post_init__(self) -> None:
         if self.action_dim is not None and self.action_dim < 1:
             raise UserError(f"model action_dim {self.action_dim}: use 1 or more, or leave it "
                             "unset to use the data's")
-        if self.pose_head and self.encoder.kind != "image":
+        if self.pose_head not in ("none", *POSE_HEADS):
+            raise UserError(f"--pose-head {self.pose_head!r}: use none, "
+                            + ", ".join(POSE_HEADS))
+        if self.has_pose_head and self.encoder.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
                             "latent is the pose already; drop --pose-head")
+        if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
+            raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
+                            f"coordinates: use --latent-dim 4 or more, not "
+                            f"{self.encoder.latent_dim}")
+
+    @property
+    def has_pose_head(self) -> bool:
+        return self.pose_head != "none"
 
     @property
     def resolved(self) -> bool:
@@ -168,8 +180,9 @@ class LatentModel(nn.Module):
         self._has_l1 = hasattr(self.dynamics, "l1_penalty")
         # Built last, so that the autoencoder and the dynamics draw the same initial weights
         # with or without it.
-        self.pose_head: PoseHead | None = (PoseHead(config.encoder.latent_dim)
-                                           if config.pose_head else None)
+        self.pose_head: PoseHead | None = (
+            POSE_HEADS[config.pose_head](config.encoder.latent_dim)
+            if config.has_pose_head else None)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, S, S) normalised images -> z (..., nz)."""
