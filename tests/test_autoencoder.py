@@ -262,6 +262,31 @@ def test_trajectory_loss_weights_the_block_like_the_windows() -> None:
                                      window=1)["total"]
 
 
+def test_trajectory_loss_pose_term_counts_frames_once_and_windows_alike() -> None:
+    """A pose head's term: its encoded-frame part is the per-frame mean, its prediction part
+    that of the windows."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(encoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
+                                                encoder_hidden=16, decoder_hidden=(32,)),
+                      dynamics=SindyConfig(init_scale=0.1), action_dim=3, pose_head="linear")
+    model = LatentModel(cfg)
+    x, u = batch(b=3, h=4, seed=3)
+    poses = torch.randn(3, 5, 4, generator=torch.Generator().manual_seed(4))
+    model.pose_head.fit_statistics(poses.flatten(0, 1))
+    xw, uw = windows_of(x, u, 2)
+    sw = torch.stack([poses[:, s : s + 3] for s in range(3)], 1).flatten(0, 1)  # (9, 3, 4)
+    head, std = model.pose_head.standardized, model.pose_head.standardize
+
+    def frame_part(v: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+        return (head(model.encode(v)) - std(s)).square().mean()
+
+    seq = model.loss(x, u, poses=poses, window=2)["pose"]
+    win = model.loss(xw, uw, poses=sw)["pose"]
+    torch.testing.assert_close(seq - frame_part(x, poses), win - frame_part(xw, sw),
+                               rtol=1e-5, atol=1e-6)
+    assert seq > 0
+
+
 def test_loss_rejects_a_window_longer_than_the_sequences() -> None:
     x, u = batch(h=2)
     with pytest.raises(ValueError, match="window 3 does not fit"):

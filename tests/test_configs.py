@@ -78,6 +78,9 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
                      "random_episodes", "other_random_episodes", "image_paper_episodes",
                      "image_random_episodes"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)
+    # the large scale: ten times the paper's trajectories, nothing else changed
+    assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == base
+    assert SCALES["large"].trajectories == 10 * SCALES["paper"].trajectories
 
 
 @pytest.mark.parametrize("kind", ["sindy", "linear", "mlp"])

@@ -12,7 +12,12 @@ from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.probe import block_position, latent_probe, position_errors
+from latent_sindy.experiments.probe import (
+    block_position,
+    latent_probe,
+    position_errors,
+    state_position_errors,
+)
 
 HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
 
@@ -218,3 +223,24 @@ def test_a_diverged_prediction_counts_as_infinitely_far(moving):
                              moving, norm)
     assert errors["model"][0] < 1.0  # one push: every prediction finite
     assert all(e == float("inf") for e in errors["model"][1:])
+
+
+def test_state_position_errors_of_a_perfect_and_a_still_predictor(moving):
+    """A state model's predictions are poses: exact ones are 0 cm off, "nothing moves" ones
+    are off by the distance travelled, and a diverged one counts as infinitely far."""
+    from latent_sindy.data.windows import pose_features
+
+    s = pose_features(moving.poses, moving.env_config.angle_period)  # (N, T+1, 4)
+    steps = moving.steps
+    perfect = [s[:, t:] for t in range(steps)]
+    still = [s[:, t:t + 1].expand(-1, steps - t + 1, -1) for t in range(steps)]
+    got = state_position_errors(moving, perfect)
+    assert got["recon"] == 0.0 and max(got["model"]) < 1e-5
+    for h, e in enumerate(got["still"], start=1):
+        assert e == pytest.approx(3.0 * h, rel=1e-5)  # 3 cm per push
+    np.testing.assert_allclose(state_position_errors(moving, still)["model"], got["still"],
+                               rtol=1e-5)
+    diverged = [p.clone() for p in perfect]
+    diverged[0][1, 2:] = float("nan")
+    errors = state_position_errors(moving, diverged)["model"]
+    assert errors[0] < 1e-5 and errors[1] == float("inf")

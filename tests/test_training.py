@@ -561,8 +561,8 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
     calls = {"n": 0}
     original = LatentModel.loss
 
-    def poisoned(self, x, u, weights=None, window=None):
-        terms = original(self, x, u, weights, window)
+    def poisoned(self, x, u, weights=None, poses=None, window=None):
+        terms = original(self, x, u, weights, poses, window)
         calls["n"] += self.training  # validation runs in eval mode
         if calls["n"] > 3 and self.training:  # 1 batch per epoch: epoch 4 goes bad
             terms["pred_x"] = terms["pred_x"] * float("nan")

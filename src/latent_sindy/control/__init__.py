@@ -5,7 +5,7 @@
 >>> action, info = mppi.command(z)
 """
 
-from latent_sindy.control.costs import ImageCost, LatentCost, StateCost
+from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.sindy_step import SparseSindyStep
 
@@ -16,6 +16,7 @@ __all__ = [
     "LatentCost",
     "MPPIConfig",
     "MPPIInfo",
+    "PoseCost",
     "SparseSindyStep",
     "StateCost",
     "latent_step",

@@ -2,12 +2,14 @@
 
 Each episode encodes the goal image (the camera's view with the block at the goal), then at
 every step encodes the current image, asks MPPI for a push in latent space (or in image
-space: the cost decodes every predicted latent and compares it with the goal image),
-executes it in the PyBullet world and looks again, until the block is at the goal or the step
-limit is reached.
+space: the cost decodes every predicted latent and compares it with the goal image; or in
+pose space: a model's pose head reads the block's pose from every predicted latent and from
+the encoded goal image, :data:`COSTS`), executes it in the PyBullet world and looks again,
+until the block is at the goal or the step limit is reached.
 
     latent-sindy control runs/sindy2 --task paper --episodes 1
     latent-sindy control runs/sindy2 --task random --episodes 20 --space image --max-steps 30
+    latent-sindy control runs/sindy2_pose --task random --episodes 20 --space pose
 """
 
 from __future__ import annotations
@@ -29,11 +31,12 @@ import tyro
 
 from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, write_atomic
 from latent_sindy.configs import to_json
-from latent_sindy.control.costs import ImageCost, LatentCost
+from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
+from latent_sindy.models.state import pose_cost_weights
 
 
 @dataclass(frozen=True)
@@ -46,9 +49,11 @@ class ControlConfig:
     """Number of episodes."""
     seed: int = 0
     """Seeds the random tasks and the controller's noise."""
-    space: Literal["latent", "image"] = "latent"
-    """Where MPPI's cost is computed: "latent" (distance to the encoded goal image) or
-    "image" (decode each predicted latent, compare with the goal image: the paper's variant)."""
+    space: Literal["latent", "image", "pose"] = "latent"
+    """Where MPPI's cost is computed: "latent" (distance to the encoded goal image), "image"
+    (decode each predicted latent, compare with the goal image: the paper's variant) or
+    "pose" (the pose head's reading of each predicted latent against the goal image's,
+    2 cm or 10° costing 1: models trained with --pose-head)."""
     max_steps: int = 20
     """Pushes allowed per episode (the course: 20 latent, 30 image space)."""
     until: Literal["course", "strict"] = "course"
@@ -61,8 +66,8 @@ class ControlConfig:
     def __post_init__(self) -> None:
         if self.task not in ("paper", "random"):
             raise UserError(f"--task {self.task}: use paper or random")
-        if self.space not in ("latent", "image"):
-            raise UserError(f"--space {self.space}: use latent or image")
+        if self.space not in COSTS:
+            raise UserError(f"--space {self.space}: use one of {', '.join(COSTS)}")
         if self.until not in ("course", "strict"):
             raise UserError(f"--until {self.until}: use course or strict")
         for name in ("episodes", "max_steps"):
@@ -72,6 +77,31 @@ class ControlConfig:
             raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
         if self.seed < 0:
             raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
+
+
+def _latent_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
+    return LatentCost(controller.model.encode(goal[None])[0],
+                      controller.model.autoencoder.cost_weights(controller.period))
+
+
+def _image_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
+    return ImageCost(controller.model.decode, goal)
+
+
+def _pose_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
+    head = controller.model.pose_head
+    if head is None:
+        raise UserError("--space pose needs a model trained with a pose head (latent-sindy "
+                        "train ... --pose-head linear --lambda-pose 10); this one has none: use "
+                        "--space latent")
+    return PoseCost(head, head(controller.model.encode(goal[None])[0]),
+                    pose_cost_weights(controller.period))
+
+
+#: Planning space -> the cost MPPI minimises, built from the controller and the goal as the
+#: model observes it (normalised goal image, or encoded goal pose for a state model).
+COSTS: dict[str, Callable[[Controller, torch.Tensor], StateCost]] = {
+    "latent": _latent_cost, "image": _image_cost, "pose": _pose_cost}
 
 
 @dataclass
@@ -116,7 +146,10 @@ class Controller:
         self.settings = settings
         self.box = (env_config.action_low, env_config.action_high)
         self._observe = OBSERVATIONS[model.config.encoder.kind].one
-        self._period = env_config.angle_period
+        self.period = env_config.angle_period
+        self._cost = COSTS[settings.space]
+        if settings.space == "pose" and model.pose_head is None:
+            self._cost(self, torch.zeros(0))  # its error, before any episode
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         t0 = time.perf_counter()
         MPPI(self.step, torch.zeros(model.config.encoder.latent_dim),
@@ -126,7 +159,7 @@ class Controller:
 
     def observe(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
         """What the model sees of an observation (normalised image or encoded pose)."""
-        return self._observe(image, pose, self.normalizer, self._period)
+        return self._observe(image, pose, self.normalizer, self.period)
 
     @torch.no_grad()
     def encode(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
@@ -135,11 +168,7 @@ class Controller:
 
     @torch.no_grad()
     def start(self, goal_image: np.ndarray, goal_pose: np.ndarray, seed: int) -> None:
-        if self.settings.space == "image":
-            cost = ImageCost(self.model.decode, self.observe(goal_image, goal_pose))
-        else:
-            cost = LatentCost(self.encode(goal_image, goal_pose),
-                              self.model.autoencoder.cost_weights(self._period))
+        cost = self._cost(self, self.observe(goal_image, goal_pose))
         self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
 
     def act(self, image: np.ndarray, pose: np.ndarray):

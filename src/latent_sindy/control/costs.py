@@ -4,11 +4,14 @@ MPPI calls a cost once per command on all predicted states, z (H, K, nz) -> (H, 
 cost must accept any leading batch dimensions.
 
 ``LatentCost`` is the paper's quadratic cost in latent space, ``ImageCost`` its image-space
-variant (decode each predicted latent and compare with the goal image).
+variant (decode each predicted latent and compare with the goal image), ``PoseCost`` a
+quadratic cost on a readout of each predicted latent (a model's pose head: the block's pose
+features) against the goal's.
 
     >>> cost = LatentCost(z_goal=torch.zeros(16), Q=1.0)
     >>> cost(torch.ones(5, 16))  # (5,): tensor([16., 16., 16., 16., 16.])
     >>> icost = ImageCost(autoencoder.decode, goal_image)  # goal_image (1, 32, 32)
+    >>> pcost = PoseCost(model.pose_head, model.pose_head(z_goal), pose_cost_weights(P))
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from torch import Tensor
 
 from latent_sindy.errors import UserError
 
-__all__ = ["ImageCost", "LatentCost", "StateCost"]
+__all__ = ["ImageCost", "LatentCost", "PoseCost", "StateCost"]
 
 #: ``cost(z (..., nz)) -> (...)``, batched over any leading dimensions
 StateCost = Callable[[Tensor], Tensor]
@@ -96,3 +99,21 @@ class ImageCost:
             )
         d = x.reshape(x.shape[0], -1) - self.goal  # (N, D)
         return (self.weight * (d * d).sum(-1)).reshape(z.shape[:-1])  # (...)
+
+
+class PoseCost:
+    """Quadratic cost on a readout of the state: ``(r(z) - s_goal)ᵀ Q (r(z) - s_goal)``.
+
+    Args:
+        readout: ``readout(z (..., nz)) -> (..., ns)``, e.g. a model's pose head.
+        s_goal: (ns,) the goal's readout, e.g. ``readout(encoded goal image)``.
+        Q: as :class:`LatentCost`'s, on the readout's ns coordinates.
+    """
+
+    def __init__(self, readout: Callable[[Tensor], Tensor], s_goal: Tensor,
+                 Q: float | Sequence[float] | Tensor = 1.0) -> None:
+        self.readout = readout
+        self._cost = LatentCost(s_goal, Q)
+
+    def __call__(self, z: Tensor) -> Tensor:
+        return self._cost(self.readout(z))  # (...)

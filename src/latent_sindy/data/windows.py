@@ -117,7 +117,8 @@ OBSERVATIONS = {c.kind: c for c in (ImageObservations, StateObservations)}
 
 class WindowDataset(Dataset):
     """All windows of H pushes of a set of trajectories, as observed by an encoder ``kind``
-    (normalised images by default), as torch tensors."""
+    (normalised images by default), as torch tensors; :meth:`pose_tensors` gives the true
+    poses of the same windows (for a privileged pose head)."""
 
     def __init__(self, data: Trajectories, window: int, normalizer: Normalizer,
                  kind: str = "image") -> None:
@@ -127,6 +128,7 @@ class WindowDataset(Dataset):
         self.window = window
         self.images = OBSERVATIONS[kind].batch(data, normalizer)  # (N, T+1, *observation)
         self.actions = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, 3)
+        self.poses = pose_features(data.poses, data.env_config.angle_period)  # (N, T+1, 4)
         starts = np.arange(data.steps - window + 1)
         traj = np.repeat(np.arange(data.n), len(starts))
         self._index = np.stack([traj, np.tile(starts, data.n)], axis=1)  # (W, 2)
@@ -153,3 +155,9 @@ class WindowDataset(Dataset):
         x = self.images[i[:, None], t[:, None] + steps]
         u = self.actions[i[:, None], t[:, None] + steps[:-1]]
         return x, u
+
+    def pose_tensors(self) -> torch.Tensor:
+        """The pose features of every window, in :meth:`tensors`' order: (W, H+1, 4)."""
+        i = torch.as_tensor(self._index[:, 0])
+        t = torch.as_tensor(self._index[:, 1])
+        return self.poses[i[:, None], t[:, None] + torch.arange(self.window + 1)]

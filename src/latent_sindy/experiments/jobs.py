@@ -36,8 +36,9 @@ from latent_sindy.training.loop import run_record
 __all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "held_out_split",
            "train_job"]
 
-#: Version of evaluation.json's contents: 2 added the latent probe and position errors.
-EVAL_VERSION = 2
+#: Version of evaluation.json's contents: 2 added the latent probe and position errors, 3
+#: the state models' position errors.
+EVAL_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -105,8 +106,12 @@ def held_out(data: Trajectories) -> Trajectories:
 
 def _what_the_latent_knows(loaded: Any, data: Trajectories,
                            predictions: list[torch.Tensor]) -> dict[str, Any]:
-    """The latent probe and the block position errors of an image model (None for a state
-    model: its latent is the pose); ``predictions``: its rollouts on :func:`held_out`."""
+    """The latent probe and the block position errors of an image model; a state model's
+    latent is the pose (no probe), its position errors are those of its predicted poses.
+    ``predictions``: the model's rollouts on :func:`held_out`."""
+    if loaded.model.config.encoder.kind == "state":
+        return {"probe": None,
+                "position": probe.state_position_errors(held_out(data), predictions)}
     if loaded.model.config.encoder.kind != "image":
         return {"probe": None, "position": None}
     return {"probe": probe.latent_probe(loaded.model, data, loaded.normalizer,
@@ -126,7 +131,7 @@ def _control(loaded: Any, run: RunDir, condition: Condition, settings: ControlCo
 
     Adds ``nonfinite_actions``: executed pushes with a NaN or inf component (should be 0).
     """
-    folder = run.control_dir(condition.task, condition.space)
+    folder = run.control_dir(condition.task, condition.cost_space)
     results = folder / "results.json"
     want = json.loads(json.dumps(to_json(settings)))
     fresh = not (results.exists() and results.stat().st_mtime_ns >= (

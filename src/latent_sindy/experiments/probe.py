@@ -10,7 +10,9 @@ the block.
   (:class:`~latent_sindy.envs.camera.Camera`) onto the plane of the block's centre;
 * :func:`position_errors`: the block position error (cm) of the model's decoded open-loop
   predictions h = 1..T pushes ahead against the true pose, beside reading the true images
-  (the reader's own error) and "nothing moves" (the block where the first image shows it).
+  (the reader's own error) and "nothing moves" (the block where the first image shows it);
+* :func:`state_position_errors`: the same for a state-space model, whose predictions are poses
+  (the bound an image model's predictions are measured against).
 
     run = load_run("results/runs/seed0/sindy2")
     data = read_trajectories("results/data.h5")
@@ -34,7 +36,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 
 __all__ = ["FEATURES", "GRAY", "block_levels", "block_position", "latent_probe",
-           "position_errors"]
+           "position_errors", "state_position_errors"]
 
 #: The probe's targets, in :func:`pose_features` order.
 FEATURES = ("x", "y", "cos", "sin")
@@ -196,3 +198,26 @@ def position_errors(model: LatentModel | None, data: Trajectories, normalizer: N
     out["recon"] = float(np.nanmean(np.concatenate(recon)))
     out["model"] = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan).tolist()
     return out
+
+
+def state_position_errors(data: Trajectories, predictions: list[torch.Tensor]
+                          ) -> dict[str, list[float] | float]:
+    """Block position error (cm) of a state-space model's open-loop predictions, averaged as
+    :func:`position_errors` averages (every start t with t + h <= T), so the two compare.
+
+    ``predictions``: item t the predicted encoded poses from the true pose at t,
+    (N, T-t+1, 4) (:func:`latent_sindy.experiments.evaluation.rollouts`). A state model sees
+    the pose itself: ``recon`` is 0, and ``still`` ("nothing moves") is the true pose at t
+    against that at t + h. A non-finite prediction counts as infinitely far.
+    """
+    steps = data.steps
+    still = [float(np.mean(_cm(data.poses[:, :-h, :2], data.poses[:, h:])))
+             for h in range(1, steps + 1)]
+    sums, counts = np.zeros(steps), np.zeros(steps)
+    for t in range(steps):
+        pred = predictions[t].double().numpy()[:, 1:, :2]  # (N, T-t, 2)
+        err = _cm(pred, data.poses[:, t + 1:])
+        err = np.where(np.isfinite(pred).all(-1), err, np.inf)
+        sums[: steps - t] += err.sum(axis=0)
+        counts[: steps - t] += err.shape[0]
+    return {"recon": 0.0, "still": still, "model": (sums / np.maximum(counts, 1)).tolist()}

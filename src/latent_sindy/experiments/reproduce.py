@@ -253,7 +253,8 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
             {"nothing moves": study.position_baselines["still"],
              "reading the true image": study.position_baselines["reader"]},
             ylabel="block position error (cm)", yscale="linear", cap=10.0,
-            title="block position in decoded open-loop predictions, test trajectories")
+            title="block position in open-loop predictions (state rows: predicted poses), "
+                  "test trajectories")
 
     single, multi = study.single_step, study.multistep
     if single and multi and single.name in ok and multi.name in ok:
@@ -282,8 +283,8 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
     gif_dir.mkdir(exist_ok=True)
     for m in ok:
         run = RunDir(runs[m])
-        for cond in conditions:
-            src = run.control_dir(cond.task, cond.space) / "episode_000.gif"
+        for cond in study.scale.conditions(study.spec(m)):
+            src = run.control_dir(cond.task, cond.cost_space) / "episode_000.gif"
             if src.exists():
                 dst = gif_dir / f"{m}_{cond.task}-{cond.space}.gif"
                 shutil.copyfile(src, dst)

@@ -116,6 +116,13 @@ def _latent_knows(study: Study) -> str | None:
     reader = study.position_baselines.get("reader")
     floor = (f" Reading the true test images gives {reader:.2f} cm (the measure's own error)."
              if reader is not None else "")
+    states = [m for m in study.models if _get(study, m, "probe/x") is None
+              and _get(study, m, "pos_err/h1") is not None]
+    if states:
+        floor += (" The state-space models, which see the true pose, predict it "
+                  + "; ".join(f"{study.labels[m]} " + " / ".join(
+                      cm(m, f"pos_err/h{h}") for h in horizons) for m in states)
+                  + " cm off: the bound for the image models.")
     return ("What the latent knows (image models, test images): a linear probe from the latent "
             "to the block's pose reaches R² (x / y / angle features) "
             + ", ".join(f"{study.labels[m]} {probe(m)}" for m in models)

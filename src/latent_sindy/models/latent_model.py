@@ -11,31 +11,36 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     recon  = mean_{b,t=0..H} ‖x_t − dec(enc(x_t))‖² / (C·S·S)
     pred_x = mean_{b,t=1..H} ‖x_t − dec(ẑ_t)‖² / (C·S·S)      ẑ rolled out from ẑ_0 = enc(x_0)
     pred_z = mean_{b,t=1..H} ‖enc(x_t) − ẑ_t‖² / nz
+    l1     = ‖M ⊙ Ψ‖₁ (SINDy; 0 for the other models)
+    pose   = mean_{b,t=0..H} ‖P(enc(x_t)) − s̃_t‖² / 4 + mean_{b,t=1..H} ‖P(ẑ_t) − s̃_t‖² / 4
+             (a model with a pose head P given the true poses, :mod:`.pose_head`; s̃ the
+             standardised pose features; else 0)
+    objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
+                                                across models)
+    total  = objective + λ3 l1 + λ4 pose   (what training minimises; with a foreground
+                                  weight, recon and pred_x in it weight the block's pixels more)
 
 Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
 pushes in them while encoding and reconstructing each frame once (the trainer's
 ``--batching trajectories``): pred_x and pred_z are then the means over the same windows,
-and recon weighs every frame once instead of once per window that holds it.
-    l1     = ‖M ⊙ Ψ‖₁ (SINDy; 0 for the other models)
-    objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
-                                                across models)
-    total  = objective + λ3 l1   (what training minimises; with a foreground weight, recon and
-                                  pred_x in it weight the block's pixels more)
+and recon (and the pose term on encoded frames) weighs every frame once instead of once per
+window that holds it.
 
 Dimensions: B batch, H horizon, C channels, S image side, nz latent size, nu action size.
 
     >>> cfg = ModelConfig(dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
     >>> terms = LatentModel(cfg).loss(torch.zeros(8, 2, 1, 32, 32), torch.zeros(8, 1, 3))
     >>> sorted(terms)
-    ['l1', 'objective', 'pred_x', 'pred_z', 'recon', 'total']
+    ['l1', 'objective', 'pose', 'pred_x', 'pred_z', 'recon', 'total']
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Union
+from typing import Annotated, Literal, Union
 
 import torch
 import tyro
@@ -44,6 +49,7 @@ from torch import nn
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import DynamicsConfig, LatentDynamics, SindyConfig
+from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
 from latent_sindy.models.state import StateConfig
 
 __all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "EncoderConfig", "LatentModel", "LossWeights",
@@ -57,7 +63,7 @@ EncoderConfig = Union[tuple(  # noqa: UP007  (built from the registry at import 
     Annotated[c, tyro.conf.subcommand(c.kind)] for c in ENCODER_CONFIGS)]
 
 #: The names of the loss terms :meth:`LatentModel.loss` returns, in report order.
-LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "objective")
+LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "pose", "objective")
 
 
 @dataclass(frozen=True)
@@ -75,11 +81,31 @@ class ModelConfig:
     (the block's true pose: a reference model)."""
     action_dim: int | None = None
     """Action size nu; None: from the data file."""
+    pose_head: Literal["none", "linear", "coordinates"] = "none"
+    """Image models: a readout of the block's pose features from the latent, trained with the
+    simulator's poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space
+    pose): "linear" (learned), or "coordinates" (the first four latent coordinates are the
+    pose features, x, y, cos 4θ, sin 4θ, so a face library can write the dynamics on them).
+    Control reads the goal's pose from the goal image, never the simulator."""
 
     def __post_init__(self) -> None:
         if self.action_dim is not None and self.action_dim < 1:
             raise UserError(f"model action_dim {self.action_dim}: use 1 or more, or leave it "
                             "unset to use the data's")
+        if self.pose_head not in ("none", *POSE_HEADS):
+            raise UserError(f"--pose-head {self.pose_head!r}: use none, "
+                            + ", ".join(POSE_HEADS))
+        if self.has_pose_head and self.encoder.kind != "image":
+            raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
+                            "latent is the pose already; drop --pose-head")
+        if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
+            raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
+                            f"coordinates: use --latent-dim 4 or more, not "
+                            f"{self.encoder.latent_dim}")
+
+    @property
+    def has_pose_head(self) -> bool:
+        return self.pose_head != "none"
 
     @property
     def resolved(self) -> bool:
@@ -115,13 +141,17 @@ class LossWeights:
     """λ2: weight of the latent prediction loss, ẑ_t vs enc(x_t) (latent MPPI relies on it)."""
     lambda_l1: float = 1e-2
     """λ3: weight of ‖M ⊙ Ψ‖₁, a sum over all coefficients (SINDy only)."""
+    lambda_pose: float = 0.0
+    """λ4: weight of the pose head's error on the true poses (models with --pose-head; a
+    privileged signal used in training only). 0: the head is not trained."""
     foreground_weight: float = 0.0
     """Image models: extra weight of the block's pixels in the trained image terms (recon,
     pred_x): a pixel of the true image further than 1 (one training pixel std) from its
     image's median counts 1 + this. The reported terms and objective stay unweighted."""
 
     def __post_init__(self) -> None:
-        for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "foreground_weight"):
+        for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "lambda_pose",
+                     "foreground_weight"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise UserError(f"--{name.replace('_', '-')} {v}: use a finite number >= 0")
@@ -155,6 +185,11 @@ class LatentModel(nn.Module):
         self.dynamics: LatentDynamics = config.dynamics.build(
             config.encoder.latent_dim, config.action_dim)
         self._has_l1 = hasattr(self.dynamics, "l1_penalty")
+        # Built last, so that the autoencoder and the dynamics draw the same initial weights
+        # with or without it.
+        self.pose_head: PoseHead | None = (
+            POSE_HEADS[config.pose_head](config.encoder.latent_dim)
+            if config.has_pose_head else None)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, S, S) normalised images -> z (..., nz)."""
@@ -184,17 +219,19 @@ class LatentModel(nn.Module):
 
     def loss(
         self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
-        window: int | None = None,
+        poses: torch.Tensor | None = None, window: int | None = None,
     ) -> dict[str, torch.Tensor]:
         """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, S, S), u (B, T, nu).
 
         ``window`` H (1..T; None: T) cuts a window of H pushes at every start t = 0..T-H of
         each sequence: the frames are encoded and reconstructed once each, ẑ is rolled out H
         steps from every encoded frame z_t, and every prediction is decoded in the same
-        decoder pass. recon is the mean over the B (T+1) frames; pred_x and pred_z are the
+        decoder pass. recon (and the pose head's term on encoded frames) is the mean over the
+        B (T+1) frames; pred_x, pred_z (and the pose head's term on predictions) are the
         means over the B (T-H+1) windows, exactly those of the windows passed one by one
         (which count a frame in every window that holds it). ``weights`` None uses the
-        defaults of :class:`LossWeights`.
+        defaults of :class:`LossWeights`. ``poses`` (B, T+1, 4): the true pose features of
+        the sequences, for the pose head's term (0 without them or without a head).
         """
         weights = weights or _DEFAULT_WEIGHTS
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
@@ -226,6 +263,7 @@ class LatentModel(nn.Module):
         recon, pred_x = err_recon.mean(), err_pred.mean()
         pred_z = (z_hat - targets(z)).square().mean()
         l1 = self.l1_penalty()
+        pose = self._pose_error(z, z_hat, poses, targets)
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         trained = objective
         if weights.foreground_weight and self.config.encoder.kind == "image":
@@ -233,10 +271,25 @@ class LatentModel(nn.Module):
             trained = ((w * err_recon).mean() + weights.lambda_pred_x * (targets(w) * err_pred)
                        .mean() + weights.lambda_pred_z * pred_z)
         return {
-            "total": trained + weights.lambda_l1 * l1,
+            "total": trained + weights.lambda_l1 * l1 + weights.lambda_pose * pose,
             "recon": recon,
             "pred_x": pred_x,
             "pred_z": pred_z,
             "l1": l1,
+            "pose": pose,
             "objective": objective,
         }
+
+    def _pose_error(self, z: torch.Tensor, z_hat: torch.Tensor, poses: torch.Tensor | None,
+                    targets: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+        """The pose head's mean squared error (standardised units) on the encoded images z
+        (B, T+1, nz) and the predicted latents ẑ (B, W H, nz) against poses (B, T+1, 4);
+        ``targets`` picks the poses of the predicted steps."""
+        if self.pose_head is None or poses is None:
+            return z.new_zeros(())
+        if poses.shape != (*z.shape[:2], 4):
+            raise ValueError(f"loss expects poses {(*z.shape[:2], 4)}, got {tuple(poses.shape)}")
+        target = self.pose_head.standardize(poses)  # (B, T+1, 4)
+        head = self.pose_head.standardized
+        return ((head(z) - target).square().mean()
+                + (head(z_hat) - targets(target)).square().mean())

@@ -23,7 +23,7 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 
-__all__ = ["STATE_DIM", "StateCodec", "StateConfig"]
+__all__ = ["STATE_DIM", "StateCodec", "StateConfig", "pose_cost_weights"]
 
 #: (x, y, cos(2πθ/P), sin(2πθ/P))
 STATE_DIM = 4
@@ -79,10 +79,17 @@ class StateCodec(nn.Module):
         return z
 
     def cost_weights(self, angle_period: float) -> torch.Tensor:
-        """Q of MPPI's cost: an error of ``position_scale`` in x or y, or of
-        ``angle_scale_deg`` in orientation, costs 1 (the angle features of an error e are
-        2 - 2 cos(2π e / P) apart, squared)."""
-        p = 1.0 / self.config.position_scale**2
-        e = math.radians(self.config.angle_scale_deg) * 2 * math.pi / angle_period
-        a = 1.0 / (2.0 - 2.0 * math.cos(min(e, math.pi)))
-        return torch.tensor([p, p, a, a])
+        """Q of MPPI's cost: :func:`pose_cost_weights` on this config's scales."""
+        return pose_cost_weights(angle_period, self.config)
+
+
+def pose_cost_weights(angle_period: float, scales: StateConfig | None = None) -> torch.Tensor:
+    """The diagonal Q (4,) of a quadratic cost on pose features s: an error of
+    ``position_scale`` in x or y, or of ``angle_scale_deg`` in orientation, costs 1 (the
+    angle features of an error e are 2 - 2 cos(2π e / P) apart, squared). ``scales`` None:
+    the defaults of :class:`StateConfig` (the strict criterion's 2 cm and 10°)."""
+    scales = scales or StateConfig()
+    p = 1.0 / scales.position_scale**2
+    e = math.radians(scales.angle_scale_deg) * 2 * math.pi / angle_period
+    a = 1.0 / (2.0 - 2.0 * math.cos(min(e, math.pi)))
+    return torch.tensor([p, p, a, a])

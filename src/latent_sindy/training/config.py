@@ -123,6 +123,10 @@ class TrainConfig:
                 raise UserError(message)
         if not isinstance(self.model, ModelConfig):
             raise TypeError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+        if self.loss.lambda_pose > 0 and not self.model.has_pose_head:
+            raise UserError(f"--lambda-pose {self.loss.lambda_pose} weights a pose head the "
+                            "model does not have: add --pose-head linear or coordinates "
+                            "(image models)")
 
 
 def resolve_batching(cfg: TrainConfig) -> str:

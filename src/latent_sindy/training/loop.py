@@ -127,14 +127,16 @@ def evaluate(
     u: torch.Tensor,
     weights: LossWeights | None = None,
     batch_size: int = 500,
+    poses: torch.Tensor | None = None,
 ) -> dict[str, float]:
     """Mean loss terms over windows x (W, H+1, C, S, S), u (W, H, nu), in batches (on the
-    device of the model and the windows)."""
+    device of the model and the windows); ``poses`` (W, H+1, 4) for a pose head's term."""
     was_training = model.training
     model.eval()
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), batch_size):
-        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights)
+        s = None if poses is None else poses[b : b + batch_size]
+        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights, s)
         values = torch.stack([terms[k] for k in LOSS_TERMS]).double().cpu()
         sums += values * len(x[b : b + batch_size])
     model.train(was_training)
@@ -163,22 +165,25 @@ def _train_epoch(
     gen: torch.Generator,
     epoch: int,
     last_ckpt: int | None,
+    poses: torch.Tensor | None = None,
 ) -> dict[str, float]:
     """One shuffled pass over sequences x (N, T+1, ...), u (N, T, nu) (windows or whole
     trajectories), ``per_batch`` of them per batch; mean loss terms per sequence (as seen
-    before each batch's update)."""
+    before each batch's update). ``poses`` (N, T+1, 4): the sequences' true pose features,
+    for a pose head."""
     weights = cfg.loss
     # The generator lives on the CPU: the same mini-batches on every device.
     order = torch.randperm(len(x), generator=gen).to(x.device)
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), per_batch):
         idx = order[b : b + per_batch]
-        terms = model.loss(x[idx], u[idx], weights, cfg.window)
-        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (6,)
+        terms = model.loss(x[idx], u[idx], weights, None if poses is None else poses[idx],
+                           window=cfg.window)
+        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (7,)
         if not torch.isfinite(values).all():
             bad = next(
                 k
-                for k in ("recon", "pred_x", "pred_z", "l1", "total")
+                for k in ("recon", "pred_x", "pred_z", "l1", "pose", "total")
                 if not torch.isfinite(terms[k])
             )
             value = float(terms[bad].detach())
@@ -367,17 +372,24 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     run.write_metrics(metrics)  # drops rows logged after the checkpoint
 
     kind = model_cfg.encoder.kind
-    windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
-    if resolve_batching(cfg) == "trajectories":  # (N, T+1, ..), (N, T, nu)
-        x, u = windows.trajectories()
+    train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
+    by_trajectory = resolve_batching(cfg) == "trajectories"
+    if by_trajectory:  # (N, T+1, ..), (N, T, nu)
+        x, u = train_windows.trajectories()
         per_batch = max(1, cfg.batch_size // (data.steps - cfg.window + 1))
     else:  # (W, H+1, ..), (W, H, nu)
-        x, u = windows.tensors()
+        x, u = train_windows.tensors()
         per_batch = cfg.batch_size
     x, u = x.to(device), u.to(device)
     val = data.split("val")
-    xv, uv = ((t.to(device) for t in WindowDataset(val, cfg.window, norm, kind).tensors())
-              if val.n else (None, None))
+    val_windows = WindowDataset(val, cfg.window, norm, kind) if val.n else None
+    xv, uv = ((t.to(device) for t in val_windows.tensors()) if val_windows else (None, None))
+    s = sv = None  # the true pose features of x and xv: a pose head's privileged data
+    if model.pose_head is not None:
+        s = (train_windows.poses if by_trajectory else train_windows.pose_tensors()).to(device)
+        sv = val_windows.pose_tensors().to(device) if val_windows else None
+        if ckpt is None:  # a resumed model has its statistics in its state
+            model.pose_head.fit_statistics(train_windows.poses)
     if val.n == 0:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy
@@ -392,14 +404,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
             train_terms = _train_epoch(model, opt, x, u, cfg, per_batch, gen, epoch,
-                                       last_ckpt)
+                                       last_ckpt, s)
             row.update({f"train/{k}": v for k, v in train_terms.items()})
             if prune and epoch % cfg.threshold_every == 0:
                 row["sindy/pruned"] = _prune(model, opt, cfg.threshold)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
             if xv is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
-                val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size)
+                val_terms = evaluate(model, xv, uv, cfg.loss, cfg.batch_size, sv)
                 if not math.isfinite(val_terms["total"]):
                     raise _diverged(cfg, epoch, "the validation loss", last_ckpt)
                 row.update({f"val/{k}": v for k, v in val_terms.items()})

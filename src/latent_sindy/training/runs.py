@@ -63,7 +63,7 @@ METRIC_COLUMNS = (
 )
 
 Task = Literal["paper", "random"]
-Space = Literal["latent", "image"]
+Space = Literal["latent", "image", "pose"]
 
 
 class Run(NamedTuple):
