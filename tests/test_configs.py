@@ -76,7 +76,7 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
              if getattr(SCALES["paper"], f.name) != getattr(base, f.name)}
     assert paper == {"epochs", "batch_size", "threshold_every", "eval_every", "paper_episodes",
                      "random_episodes", "other_random_episodes", "image_paper_episodes",
-                     "image_random_episodes"}
+                     "image_random_episodes", "batching"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)
     # the large scale: ten times the paper's trajectories, nothing else changed
     assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == base
