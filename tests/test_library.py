@@ -366,7 +366,7 @@ def test_trig_at_a_frequency_is_named_evaluated_and_serialised() -> None:
     assert spec_from_dict({"kind": "sin", "variables": ["u1"]}) == Sine("u1")
 
 
-@pytest.mark.parametrize("bad", [0, float("nan"), float("inf"), True, "4"])
+@pytest.mark.parametrize("bad", [0, -1, float("nan"), float("inf"), True, "4"])
 def test_a_bad_trig_frequency_is_refused(bad) -> None:
     with pytest.raises(UserError, match="frequency"):
         Sine("u1", frequency=bad)
@@ -413,3 +413,8 @@ def test_the_face_library_spans_the_push_relative_to_the_pushed_face() -> None:
 def test_the_face_library_refuses_repeated_action_indices() -> None:
     with pytest.raises(UserError, match="different action indices"):
         face_library(offset=1, angle=1)
+
+
+def test_frequencies_that_print_alike_are_refused() -> None:
+    with pytest.raises(UserError, match="twice"):
+        SindyLibrary(Sine("z0", frequency=4) + Sine("z0", frequency=4.0000001), 1, 0)

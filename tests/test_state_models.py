@@ -179,3 +179,16 @@ def test_the_face_library_predicts_the_turn_that_the_push_library_cannot(
     still = float(_angle_error_deg(Zv, Znv, period).mean())
     assert errors["push"] > 0.8 * still, (errors, still)
     assert errors["face"] < 0.6 * errors["push"], (errors, still)
+
+
+def test_the_study_writes_world_direction_pushes_with_the_face_library_only() -> None:
+    """The face library's relative angle is ψ − θ for a push in a world direction ψ; where
+    the push angle is measured from the block (the paper's and the marked world) the state
+    and pose-latent rows keep the push library."""
+    from latent_sindy.experiments.study import SCALES, model_specs
+
+    for push, library in (("symmetric", "face"), ("paper", "push")):
+        specs = {s.name: s for s in model_specs(SCALES["tiny"], push=push)}
+        for name in ("state_sindy", "sindy_pose"):
+            assert specs[name].model.dynamics.library == library, (push, name)
+            assert library in specs[name].label

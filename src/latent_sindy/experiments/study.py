@@ -95,8 +95,9 @@ class Scale:
     """Validation loss every this many epochs (and at the last); it does not change the model."""
     # Batches of 64 windows hold 6 whole trajectories: in 60 epochs that trained 4-6 % worse
     # than windows (BENCHMARKS.md). At the paper's batch of 500 trajectories trained as well
-    # (two seeds, 600 epochs) for 1.5x less CPU, so the paper scale uses them.
-    batching: Literal["windows", "trajectories"] = "windows"
+    # (two seeds, 600 epochs) for 1.5x less CPU, so the paper scale uses them where the
+    # trainer's "auto" does (single-step windows; the H = 4 row keeps windows).
+    batching: Literal["auto", "windows", "trajectories"] = "windows"
     """Training mini-batches of windows or of whole trajectories (`latent-sindy train
     --batching`)."""
     multistep_window: int = 4
@@ -163,7 +164,7 @@ SCALES: dict[str, Scale] = {
     # The paper's settings: 3000 epochs, batch 500, thresholding every 300 epochs; 10
     # paper-task runs (as its image-space test) and 20 random tasks per model and planner.
     "paper": dataclasses.replace(_DEMO, epochs=3000, batch_size=500, threshold_every=300,
-                                 eval_every=10, batching="trajectories", paper_episodes=10,
+                                 eval_every=10, batching="auto", paper_episodes=10,
                                  random_episodes=100, other_random_episodes=50,
                                  image_paper_episodes=10, image_random_episodes=50),
     # Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the demo's
@@ -414,15 +415,21 @@ SINGLE_STEP = "sindy2"
 
 
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
-                angle_period: float = math.pi / 2) -> tuple[ModelSpec, ...]:
+                angle_period: float = math.pi / 2,
+                push: Literal["symmetric", "paper"] = "symmetric") -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows, SINDy
     order 2 with the push library, and the same with a privileged pose head planning on its
     pose cost, all with the same autoencoder architecture; then SINDy (face library), linear
     and MLP on the true state (the reference rows the image models are measured against).
     ``angle_period`` is the world's visible symmetry, which sets the face library's angle
-    frequency."""
+    frequency; ``push`` its push style: the face library writes pushes given as world
+    directions, so a world whose push angle is relative to the block ("paper", "marked")
+    keeps the push library in those rows."""
     h = scale.multistep_window
     auto = AutoencoderConfig(decoder=decoder)
+    library = "face" if push == "symmetric" else "push"
+    pose_dynamics = SindyConfig(order=1, library=library, include_sine=False,
+                                angle_frequency=2 * math.pi / angle_period)
 
     def model(dynamics: Any) -> ModelConfig:
         return ModelConfig(encoder=auto, dynamics=dynamics)
@@ -458,12 +465,10 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # library on them; MPPI's cost on those coordinates, the goal read from the goal image.
         # Its encoder needs data: 5x the demo's trajectories took the strict criterion from
         # 42 % to 90 % of 50 random goals (mean angle reading error on test images 8.3° -> 5.1°).
-        ModelSpec("sindy_pose", "SINDy (face library), pose latent (privileged)",
+        ModelSpec("sindy_pose", f"SINDy ({library} library), pose latent (privileged)",
                   ModelConfig(encoder=dataclasses.replace(auto, latent_dim=4,
                                                           conv_channels=(16, 16)),
-                              dynamics=SindyConfig(order=1, library="face", include_sine=False,
-                                                   angle_frequency=2 * math.pi / angle_period),
-                              pose_head="coordinates"),
+                              dynamics=pose_dynamics, pose_head="coordinates"),
                   loss=LossWeights(lambda_pose=10.0, lambda_l1=1e-3), cost=1.3, headline=True,
                   latent_cost="pose"),
         # The face library: the push as it is (x += 0.080 ℓ cos ψ, y += 0.080 ℓ sin ψ) and the
@@ -473,10 +478,11 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # angle error equalled "nothing turns". State losses are in metres, far below the
         # images': λ3 = 1e-3 (not the images' 1e-2) keeps the push terms; 1e-4 kept 134
         # coefficients for the same validation loss.
-        ModelSpec("state_sindy", "SINDy (face library), state",
-                  state(SindyConfig(order=1, library="face", include_sine=False,
-                                    angle_frequency=2 * math.pi / angle_period)),
-                  loss=LossWeights(lambda_l1=1e-3), cost=0.1, headline=True, epochs_factor=10),
+        # (The push library's row, kept for the worlds with pushes relative to the block:
+        # λ3 = 1e-4, as the images' 1e-2 shrank its push terms.)
+        ModelSpec("state_sindy", f"SINDy ({library} library), state", state(pose_dynamics),
+                  loss=LossWeights(lambda_l1=1e-3 if library == "face" else 1e-4), cost=0.1,
+                  headline=True, epochs_factor=10),
         ModelSpec("state_linear", "linear, state", state(LinearConfig()), cost=0.1,
                   headline=True, epochs_factor=10),
         # The push angle also as cos / sin of 1-4 times it: a square block's pose features turn
@@ -491,8 +497,8 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
 def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
     """The models of a study: :func:`model_specs`, those of ``--models``, and for each model
     one variant per combination of the ``--sweep`` values that apply to it."""
-    specs = model_specs(config.preset, config.decoder,
-                        PushEnvConfig.named(config.world).angle_period)
+    world = PushEnvConfig.named(config.world)
+    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push)
     names = [s.name for s in specs]
     unknown = [m for m in config.models if m not in names]
     if unknown or len(set(config.models)) != len(config.models):
@@ -545,7 +551,8 @@ class RunResult:
     probe: dict[str, float] | None = None
     """R² of the linear probe from the latent to each pose feature (image models)."""
     position: dict[str, Any] | None = None
-    """Block position errors in cm (image models; :func:`.probe.position_errors`)."""
+    """Block position errors in cm (:func:`.probe.position_errors`; state models:
+    :func:`.probe.state_position_errors`)."""
 
     def metrics(self, conditions: tuple[Condition, ...]) -> dict[str, float | None]:
         """One flat {metric: value} dictionary (the keys of table.ROWS and more)."""

@@ -519,14 +519,15 @@ class SindyConfig:
     library: Literal["poly", "push", "face"] = "poly"
     """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
     length times the sine and cosine of the push angle, alone and times each state (what a
-    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (state models,
-    order 1): the push length times the push direction or the orientation features (z2, z3),
-    times powers of the contact offset and the push angle relative to the pushed face
-    (the library's face_library)."""
+    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (order 1, on the
+    pose: state models or --pose-head coordinates; pushes given as world directions, the
+    symmetric world): the push length times the push direction or the orientation features
+    (z2, z3), times powers of the contact offset and the push angle relative to the pushed
+    face (the library's face_library)."""
     angle_frequency: float = 4.0
     """"face" library: f of the orientation features (cos fθ, sin fθ), the block's visible
-    symmetry: 4 for a square block, 1 for a marked one. The relative push angle enters as
-    sin(f u1), cos(f u1) times those features."""
+    symmetry: 4 for a square block (2π over the visible period). The relative push angle
+    enters as sin(f u1), cos(f u1) times those features."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
 
@@ -542,7 +543,7 @@ class SindyConfig:
                             "push terms already hold the second-order products; use --order 1")
         if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
             raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
-                            "> 0 (4 for a square block, 1 for a marked one)")
+                            "> 0 (4 for a square block)")
         _check_scale("SINDy", self.init_scale)
 
     def build(self, nz: int, nu: int) -> SindyDynamics:
@@ -551,8 +552,9 @@ class SindyConfig:
                             f"got {nu}")
         if self.library == "face":
             if nz < 4:
-                raise UserError(f"the face library needs the state (x, y, cos fθ, sin fθ), "
-                                f"got a latent of size {nz}: use it with the state encoder")
+                raise UserError(f"the face library needs the pose (x, y, cos fθ, sin fθ) as the "
+                                f"first four latent coordinates, got a latent of size {nz}: use "
+                                "the state encoder or --pose-head coordinates")
             spec = face_library(self.order, frequency=self.angle_frequency)
             if self.include_sine:
                 spec = spec + Sine("z")

@@ -85,7 +85,8 @@ class ModelConfig:
     """Image models: a readout of the block's pose features from the latent, trained with the
     simulator's poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space
     pose): "linear" (learned), or "coordinates" (the first four latent coordinates are the
-    pose features, x, y, cos 4θ, sin 4θ, so a face library can write the dynamics on them).
+    pose features, x, y, cos fθ, sin fθ, f the block's symmetry, so a face library can write
+    the dynamics on them).
     Control reads the goal's pose from the goal image, never the simulator."""
 
     def __post_init__(self) -> None:
@@ -98,6 +99,11 @@ class ModelConfig:
         if self.has_pose_head and self.encoder.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
                             "latent is the pose already; drop --pose-head")
+        if (getattr(self.dynamics, "library", None) == "face" and self.encoder.kind != "state"
+                and self.pose_head != "coordinates"):
+            raise UserError("--library face writes the dynamics on the pose features (z2, z3 = "
+                            "cos, sin of the angle): use it with the state encoder or with "
+                            "--pose-head coordinates, or use --library push")
         if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "

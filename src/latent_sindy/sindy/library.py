@@ -197,7 +197,7 @@ class Polynomial(_Group):
 @dataclass(frozen=True)
 class _Trig(_Group):
     frequency: float = 1.0
-    """f of ``sin(f x)`` / ``cos(f x)``: a finite, nonzero number (an integer is kept as one).
+    """f of ``sin(f x)`` / ``cos(f x)``: a finite number > 0 (sin(-x) = -sin(x) adds nothing).
     A square block's pose features turn 4 times per revolution, so its push geometry needs
     ``sin(4 ψ)``."""
 
@@ -205,9 +205,9 @@ class _Trig(_Group):
         super().__post_init__()
         f = self.frequency
         if isinstance(f, bool) or not isinstance(f, numbers.Real) or not (
-                math.isfinite(f) and f != 0):
+                math.isfinite(f) and f > 0):
             raise UserError(f"{self.kind} library frequency {f!r} is not valid: use a finite "
-                            "nonzero number such as 1 or 4")
+                            "number > 0 such as 1 or 4")
         object.__setattr__(self, "frequency", float(f))
 
     def __str__(self) -> str:
@@ -387,7 +387,8 @@ def face_library(
           · {1, c sin fψ, c cos fψ, s sin fψ, s cos fψ}
 
     (a translation along the push, and a turn, Δc ≈ -f s Δθ, Δs ≈ f c Δθ, both bent by where
-    and at which angle the face is hit). With the defaults: 8 + 60 terms, such as
+    and at which angle the face is hit), each distinct product once. With the defaults: 8 + 54
+    terms, such as
     ``u2 sin(u1)``, ``u0 u2 cos(u1)`` and ``z2^2 u2 sin(4 u1)``.
 
     ``offset``, ``angle`` and ``length`` are the action indices of p, ψ and ℓ;
@@ -540,6 +541,7 @@ class _ProductTerms(nn.Module):
                 [v for v, _ in cols], dtype=torch.long), persistent=False)
             self.register_buffer(f"_{kind}_freq", torch.tensor(
                 [f for _, f in cols], dtype=torch.float64), persistent=False)
+            setattr(self, f"_{kind}_scaled", any(f != 1 for _, f in cols))
         self._one = n_state + n_control  # column of F holding the constant 1
 
     @property
@@ -572,11 +574,12 @@ class _ProductTerms(nn.Module):
         if not self.trig:
             return base
         trig = [base]
-        for fn, idx, freq in ((torch.sin, self._sin_idx, self._sin_freq),
-                              (torch.cos, self._cos_idx, self._cos_freq)):
+        for fn, idx, freq, scaled in (
+                (torch.sin, self._sin_idx, self._sin_freq, self._sin_scaled),
+                (torch.cos, self._cos_idx, self._cos_freq, self._cos_scaled)):
             if idx.numel():
                 x = base.index_select(-1, idx)
-                if bool((freq != 1).any()):
+                if scaled:
                     x = x * freq.to(x.dtype)
                 trig.append(fn(x))
         return torch.cat(trig, dim=-1)
@@ -635,7 +638,7 @@ class SindyLibrary(_ProductTerms):
         spec: the spec (rebuilds this library with the same sizes).
         names: term names in column order, pysindy style.
         n_terms: p, the number of columns of Θ.
-        trig: ``(variable index into [z, u], "sin" | "cos")`` of F's trig columns.
+        trig: ``(variable index into [z, u], "sin" | "cos", frequency)`` of F's trig columns.
 
     Raises:
         UserError: a variable beyond the sizes, or a term that appears twice.
@@ -651,12 +654,12 @@ class SindyLibrary(_ProductTerms):
         terms = _spec_terms(spec, n_state, n_control)
         var_names = [f"z{i}" for i in range(n_state)] + [f"u{j}" for j in range(n_control)]
         names = [_term_name(t, var_names) for t in terms]
-        first: dict[_Term, int] = {}
-        for i, t in enumerate(terms):
-            if first.setdefault(t, i) != i:
+        first: dict[str, int] = {}
+        for i, name in enumerate(names):  # equal terms have equal names
+            if first.setdefault(name, i) != i:
                 raise UserError(
-                    f"library {spec} has the term {names[i]!r} twice: remove the overlap "
-                    "between its parts"
+                    f"library {spec} has the term {name!r} twice (or two frequencies that "
+                    "print alike): remove the overlap between its parts"
                 )
         one = n_state + n_control
         # Trig columns of F: every (variable, function) some term uses, sines first.

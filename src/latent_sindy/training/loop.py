@@ -70,6 +70,11 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
 
     _, _, channels, size, _ = data.images.shape
     model_cfg = cfg.model.resolve(channels, size, data.actions.shape[-1], source=str(cfg.data))
+    if getattr(model_cfg.dynamics, "library", None) == "face" and (
+            data.env_config.push != "symmetric"):
+        raise UserError(f"--library face writes pushes given as world directions, but "
+                        f"{cfg.data} was collected with push style '{data.env_config.push}' "
+                        "(the angle relative to the block): use --library push")
     record = {
         "format": RUN_FORMAT,
         "format_version": RUN_FORMAT_VERSION,
@@ -415,7 +420,9 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
                 if not math.isfinite(val_terms["total"]):
                     raise _diverged(cfg, epoch, "the validation loss", last_ckpt)
                 row.update({f"val/{k}": v for k, v in val_terms.items()})
-                best.offer(epoch, val_terms["objective"], model)
+                # A pose head's reading is what its model plans on: it counts in the choice.
+                best.offer(epoch, val_terms["objective"]
+                           + cfg.loss.lambda_pose * val_terms.get("pose", 0.0), model)
             if sindy:
                 row["sindy/active"] = model.dynamics.n_active()
                 row["sindy/sparsity"] = model.dynamics.sparsity()
