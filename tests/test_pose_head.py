@@ -163,7 +163,7 @@ def test_the_study_row_plans_on_its_pose_cost() -> None:
                          encoder=AutoencoderConfig(latent_dim=3)), "--latent-dim 4 or more"),
     (lambda: ModelConfig(pose_head="yes"), "--pose-head 'yes': use none, linear"),
     (lambda: ModelConfig(dynamics=SindyConfig(order=1, library="face")),
-     "use it with the state encoder or with --pose-head coordinates"),
+     "use it with the state encoder, the moments encoder"),
 ])
 def test_bad_pose_settings_are_one_line(build, message: str) -> None:
     with pytest.raises(UserError, match=message) as e:

@@ -99,11 +99,12 @@ class ModelConfig:
         if self.has_pose_head and self.encoder.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
                             "latent is the pose already; drop --pose-head")
-        if (getattr(self.dynamics, "library", None) == "face" and self.encoder.kind != "state"
+        if (getattr(self.dynamics, "library", None) == "face" and not self.encoder.pose_latent
                 and self.pose_head != "coordinates"):
             raise UserError("--library face writes the dynamics on the pose features (z2, z3 = "
-                            "cos, sin of the angle): use it with the state encoder or with "
-                            "--pose-head coordinates, or use --library push")
+                            "cos, sin of the angle): use it with the state encoder, the "
+                            "moments encoder (--encoder moments --latent-dim 4) or --pose-head "
+                            "coordinates, or use --library push")
         if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "
@@ -196,6 +197,17 @@ class LatentModel(nn.Module):
         self.pose_head: PoseHead | None = (
             POSE_HEADS[config.pose_head](config.encoder.latent_dim)
             if config.has_pose_head else None)
+
+    @torch.no_grad()
+    def fit_statistics(self, frames: torch.Tensor, poses: torch.Tensor | None) -> None:
+        """Set what the model takes from the training split rather than learns: the moments
+        encoder's background from the normalised frames (..., C, S, S) (or encoded poses of a
+        state model) and a pose head's standardisation from the pose features (..., 4)."""
+        fit = getattr(self.autoencoder, "fit_statistics", None)
+        if fit is not None:
+            fit(frames.reshape(-1, *frames.shape[-3:]))
+        if self.pose_head is not None and poses is not None:
+            self.pose_head.fit_statistics(poses)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, S, S) normalised images -> z (..., nz)."""

@@ -58,6 +58,11 @@ class StateConfig:
     def resolved(self) -> bool:
         return True
 
+    @property
+    def pose_latent(self) -> bool:
+        """The latent is the pose features (a face library can write dynamics on it)."""
+        return True
+
     def resolve(self, channels: int, image_size: int, source: str = "the data") -> StateConfig:
         return self  # the pose does not depend on the images
 

@@ -70,6 +70,12 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
 
     _, _, channels, size, _ = data.images.shape
     model_cfg = cfg.model.resolve(channels, size, data.actions.shape[-1], source=str(cfg.data))
+    order = getattr(model_cfg.encoder, "moment_order", None)
+    if getattr(model_cfg.encoder, "encoder", None) == "moments" and (
+            abs(order - 2 * math.pi / data.env_config.angle_period) > 1e-9):
+        raise UserError(f"--moment-order {order} does not match {cfg.data}: its block looks "
+                        f"alike every {math.degrees(data.env_config.angle_period):g}°, so use "
+                        f"--moment-order {round(2 * math.pi / data.env_config.angle_period)}")
     if getattr(model_cfg.dynamics, "library", None) == "face" and (
             data.env_config.push != "symmetric"):
         raise UserError(f"--library face writes pushes given as world directions, but "
@@ -393,8 +399,9 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     if model.pose_head is not None:
         s = (train_windows.poses if by_trajectory else train_windows.pose_tensors()).to(device)
         sv = val_windows.pose_tensors().to(device) if val_windows else None
-        if ckpt is None:  # a resumed model has its statistics in its state
-            model.pose_head.fit_statistics(train_windows.poses)
+    if ckpt is None:  # a resumed model has its statistics in its state
+        model.fit_statistics(train_windows.images.to(device),
+                             train_windows.poses if model.pose_head is not None else None)
     if val.n == 0:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy
