@@ -70,6 +70,21 @@ def test_no_head_by_default_and_a_zero_pose_term() -> None:
     assert terms["pose"] == 0 and LossWeights().lambda_pose == 0
 
 
+def test_an_unweighted_pose_term_stays_out_of_the_total() -> None:
+    """λ4 = 0: a non-finite pose error (NaN poses) is reported but leaves the total alone."""
+    torch.manual_seed(0)
+    model = LatentModel(dataclasses.replace(ModelConfig(), pose_head="linear").resolve(1, 32, 3))
+    x, u = torch.randn(2, 2, 1, 32, 32), torch.rand(2, 1, 3)
+    nan_poses = torch.full((2, 2, 4), math.nan)
+    with torch.no_grad():
+        without = model.loss(x, u)
+        unweighted = model.loss(x, u, poses=nan_poses)
+        weighted = model.loss(x, u, LossWeights(lambda_pose=1.0), poses=nan_poses)
+    assert torch.isnan(unweighted["pose"])
+    torch.testing.assert_close(unweighted["total"], without["total"])
+    assert torch.isnan(weighted["total"])  # a weighted term counts, NaN included
+
+
 def test_an_unweighted_head_changes_nothing_else(rendered: Path, tmp_path: Path) -> None:
     plain = RunDir(train(config(rendered, tmp_path / "a", "none", 0.0))).load().model
     headed = RunDir(train(config(rendered, tmp_path / "b", "linear", 0.0))).load().model
