@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import torch
 
 from latent_sindy.cli import main
 from latent_sindy.control.closed_loop import COSTS, ControlConfig, Controller
-from latent_sindy.control.costs import LatentCost, PoseCost
+from latent_sindy.control.costs import PoseCost
 from latent_sindy.data.store import Trajectories, write_trajectories
 from latent_sindy.data.windows import pose_features
 from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
@@ -70,6 +71,21 @@ def test_no_head_by_default_and_a_zero_pose_term() -> None:
     assert terms["pose"] == 0 and LossWeights().lambda_pose == 0
 
 
+def test_an_unweighted_pose_term_stays_out_of_the_total() -> None:
+    """λ4 = 0: a non-finite pose error (NaN poses) is reported but leaves the total alone."""
+    torch.manual_seed(0)
+    model = LatentModel(dataclasses.replace(ModelConfig(), pose_head="linear").resolve(1, 32, 3))
+    x, u = torch.randn(2, 2, 1, 32, 32), torch.rand(2, 1, 3)
+    nan_poses = torch.full((2, 2, 4), math.nan)
+    with torch.no_grad():
+        without = model.loss(x, u)
+        unweighted = model.loss(x, u, poses=nan_poses)
+        weighted = model.loss(x, u, LossWeights(lambda_pose=1.0), poses=nan_poses)
+    assert torch.isnan(unweighted["pose"])
+    torch.testing.assert_close(unweighted["total"], without["total"])
+    assert torch.isnan(weighted["total"])  # a weighted term counts, NaN included
+
+
 def test_an_unweighted_head_changes_nothing_else(rendered: Path, tmp_path: Path) -> None:
     plain = RunDir(train(config(rendered, tmp_path / "a", "none", 0.0))).load().model
     headed = RunDir(train(config(rendered, tmp_path / "b", "linear", 0.0))).load().model
@@ -94,18 +110,64 @@ def test_pose_supervision_puts_the_orientation_into_the_latent(rendered: Path,
     assert r2[10.0] > 0.5 and r2[10.0] > r2[0.0] + 0.3, r2
 
 
-def test_the_pose_cost_is_the_state_cost_of_the_heads_reading() -> None:
+def _planning_cost(model: LatentModel, goal: torch.Tensor):
+    """The cost --space pose plans on for the goal image (1, 32, 32), as the controller
+    builds it."""
+    controller = SimpleNamespace(model=model.eval(), period=PERIOD)
+    with torch.no_grad():
+        return COSTS["pose"](controller, goal), model.encode(goal[None])[0]
+
+
+def test_the_pose_cost_of_a_coordinates_head_weighs_the_first_four_coordinates() -> None:
+    """Q-weighted squared error of z_0..3 against the encoded goal's, in the pose's own units
+    (the head's standardisation plays no part); the other latent coordinates cost nothing."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(encoder=AutoencoderConfig(latent_dim=7),
+                      pose_head="coordinates").resolve(1, 32, 3)
+    model = LatentModel(cfg)
+    model.pose_head.fit_statistics(torch.randn(50, 4) * 3 + 1)  # not the identity
+    cost, z_goal = _planning_cost(model, torch.randn(1, 32, 32))
+    q = pose_cost_weights(PERIOD)
+    z = torch.randn(3, 5, 7)  # (H, K, nz)
+    want = ((z[..., :4] - z_goal[:4]).square() * q).sum(-1)  # (H, K)
+    torch.testing.assert_close(cost(z), want)
+    other = z.clone()
+    other[..., 4:] = torch.randn(3, 5, 3) * 10
+    torch.testing.assert_close(cost(other), want)
+    at_goal = z.clone()
+    at_goal[..., :4] = z_goal[:4]
+    torch.testing.assert_close(cost(at_goal), torch.zeros(3, 5))
+
+
+def test_the_pose_cost_of_a_linear_head_follows_its_weights() -> None:
+    """cost(z) = Σ Q (s(z) − s(z_goal))², s(z) = (W z + b) ⊙ std + mean the head's reading in
+    pose units: other weights give another cost, by the same formula."""
     torch.manual_seed(0)
     model = LatentModel(dataclasses.replace(ModelConfig(), pose_head="linear").resolve(1, 32, 3))
     head = model.pose_head
-    head.mean.copy_(torch.tensor([0.5, 0.0, 0.0, 0.0]))
-    head.std.copy_(torch.tensor([0.1, 0.15, 0.7, 0.7]))
-    z_goal, z = torch.randn(16), torch.randn(3, 5, 16)
-    with torch.no_grad():
-        cost = PoseCost(head, head(z_goal), pose_cost_weights(PERIOD))
-        state = LatentCost(head(z_goal), StateConfig().build().cost_weights(PERIOD))
-        torch.testing.assert_close(cost(z), state(head(z)))
-    assert cost(z).shape == (3, 5)
+    head.fit_statistics(torch.randn(50, 4) * torch.tensor([0.1, 0.15, 0.7, 0.7]))
+    goal, z = torch.randn(1, 32, 32), torch.randn(3, 5, 16)
+    q = pose_cost_weights(PERIOD)
+
+    def by_hand(z_goal: torch.Tensor) -> torch.Tensor:
+        w, b = head.linear.weight.detach(), head.linear.bias.detach()  # (4, nz), (4,)
+
+        def s(v: torch.Tensor) -> torch.Tensor:
+            return (v @ w.T + b) * head.std + head.mean
+
+        return ((s(z) - s(z_goal)).square() * q).sum(-1)  # (H, K)
+
+    costs = []
+    for scale in (1.0, 3.0):
+        with torch.no_grad():
+            head.linear.weight.mul_(scale)
+            head.linear.weight[2].neg_()  # and another direction for cos
+        cost, z_goal = _planning_cost(model, goal)
+        with torch.no_grad():
+            costs.append(cost(z))
+        torch.testing.assert_close(costs[-1], by_hand(z_goal))
+    assert not torch.allclose(costs[0], costs[1], rtol=1e-2)
+    assert costs[0].shape == (3, 5)
 
 
 def test_a_pose_2cm_or_10_degrees_off_costs_1() -> None:

@@ -1,18 +1,21 @@
 """The study on a real Ray cluster: two nodes on this machine, one worker process killed while it
-trains; the study still completes and its outputs equal the local executor's, bit for bit."""
+trains; the study still completes and its outputs equal the local executor's, bit for bit. A
+job whose worker dies more often than retried, and a wrong --ray-address, are one-line errors."""
 
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
+from latent_sindy.cli import main
 from latent_sindy.errors import UserError
-from latent_sindy.executors import EXECUTORS, ExecutorOptions, make_executor
+from latent_sindy.executors import EXECUTORS, ExecutorOptions, RayExecutor, make_executor
 from latent_sindy.experiments.reproduce import reproduce
 from latent_sindy.experiments.study import ReproduceConfig
 from study_outputs import assert_same_study
@@ -110,3 +113,36 @@ def test_executor_registry_names_the_choices():
     with pytest.raises(UserError, match="--executor 'dask': use one of local, ray"):
         make_executor("dask", ExecutorOptions())
     assert not ray.is_initialized()  # the study shut down the Ray connection it opened
+
+
+def test_a_job_whose_worker_keeps_dying_is_a_one_line_error_naming_it(tmp_path):
+    attempts = tmp_path / "attempts"
+
+    def die(path: str) -> None:  # a local function: Ray ships it by value
+        with open(path, "a") as f:
+            f.write("x")
+        os._exit(1)
+
+    with RayExecutor(ExecutorOptions(workers=1, threads=1, retries=1)) as pool:
+        fut = pool.submit(die, str(attempts), name="training sindy2 (seed 3)")
+        assert pool.wait_one({fut: None}) == {fut}
+        with pytest.raises(UserError, match=r"^training sindy2 \(seed 3\) was lost on Ray "
+                                            r"after 2 attempt\(s\) \(\w+Error") as e:
+            fut.result()
+    assert attempts.read_text() == "xx"  # run, then retried once
+    assert "\n" not in str(e.value) and "run the same command again" in str(e.value)
+    assert not ray.is_initialized()
+
+
+def test_a_wrong_ray_address_fails_at_once_in_one_line(tmp_path, capsys):
+    with socket.socket() as s:  # a local port nothing listens on once closed
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    t0 = time.perf_counter()
+    code = main(["reproduce", "--scale", "tiny", "--out", str(tmp_path / "study"),
+                 "--executor", "ray", "--ray-address", address])
+    assert code == 2 and time.perf_counter() - t0 < 10
+    err = capsys.readouterr().err
+    assert err.startswith(f"latent-sindy: error: --ray-address {address}: nothing answers at "
+                          f"{address} (") and err.count("\n") == 1, err
+    assert not ray.is_initialized()

@@ -436,6 +436,33 @@ def test_a_run_recorded_before_batching_was_batched_by_windows(data: Path,
     train(dataclasses.replace(two, batching="auto", epochs=2, resume=True))
 
 
+def test_the_record_holds_what_auto_batching_resolved_to(data: Path, tmp_path: Path) -> None:
+    """config.json keeps --batching as given and what it batched; a record without the
+    resolved value (an older run) resolves its setting, and the recorded value is the one a
+    resume is checked against."""
+    one = train(config(data, tmp_path / "one", epochs=1))
+    two = train(config(data, tmp_path / "two", epochs=1, window=2))
+    for run, want in ((one, "trajectories"), (two, "windows")):
+        record = json.loads((run / "config.json").read_text())
+        assert (record["train"]["batching"], record["batching"]) == ("auto", want)
+        assert RunDir(run).batching() == want
+        assert load_run(run).config.batching == "auto"
+    record = json.loads((one / "config.json").read_text())
+    del record["batching"]  # as recorded before the resolved value was
+    (one / "config.json").write_text(json.dumps(record))
+    assert RunDir(one).batching() == "trajectories"
+    assert load_run(one).config.batching == "auto"
+    train(config(data, one, epochs=2, resume=True))
+    # a run whose auto had batched windows is not resumed by trajectory batches
+    record = json.loads((one / "config.json").read_text())
+    (one / "config.json").write_text(json.dumps({**record, "batching": "windows"}))
+    with pytest.raises(UserError, match=r"batching \(run 'windows', now 'trajectories'\)"):
+        train(config(data, one, epochs=3, resume=True))
+    (one / "config.json").write_text(json.dumps({**record, "batching": "auto"}))
+    with pytest.raises(UserError, match="batching 'auto' is not trajectories or windows"):
+        RunDir(one).batching()
+
+
 # ----------------------------------------------------------------------------- best validation
 def scripted_validation(monkeypatch, objectives: list[float]) -> None:
     """The trainer's validation reports these objectives, one per evaluation in order (the

@@ -8,7 +8,8 @@ one of the given futures is done. The study never asks which executor it holds.
   (:class:`Inline`); more run them in freshly spawned processes (:class:`Pool`).
 - ``ray``: Ray tasks (:class:`RayExecutor`), on a one-node Ray started here or on the cluster at
   ``--ray-address``. Each task declares its CPUs (and GPUs); a task whose worker process or
-  node dies is run again (``max_retries``). Ray is an optional extra, imported only here.
+  node dies is run again (``max_retries``), and once those are spent its job fails with a
+  one-line error naming it. Ray is an optional extra, imported only here.
 
     latent-sindy reproduce --scale tiny --executor ray                       # a local Ray
     ray start --head && latent-sindy reproduce --executor ray --ray-address auto
@@ -17,6 +18,7 @@ one of the given futures is done. The study never asks which executor it holds.
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -30,6 +32,9 @@ __all__ = ["EXECUTORS", "Executor", "ExecutorOptions", "Inline", "Pool", "RayExe
 #: Environment every worker needs before torch loads (see cli.py: OpenMP threads sleep
 #: instead of spinning while they wait).
 WORKER_ENV = {"OMP_WAIT_POLICY": "PASSIVE"}
+
+#: Seconds to wait for a --ray-address to accept a connection (Ray itself retries for minutes).
+CONNECT_TIMEOUT_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -61,7 +66,10 @@ class Executor(Protocol):
     slots: int
     """About how many jobs run at once (to cut work into enough pieces)."""
 
-    def submit(self, fn: Callable, *args: Any, resources: Resources = ...) -> Future: ...
+    def submit(self, fn: Callable, *args: Any, resources: Resources = ...,
+               name: str | None = None) -> Future:
+        """Run ``fn(*args)``; ``name`` says what the job is in errors (default: fn's name)."""
+        ...
 
     def wait_one(self, pending: Mapping[Future, Any]) -> set[Future]: ...
 
@@ -81,7 +89,8 @@ class Inline:
     def __init__(self) -> None:
         self._queue: list[tuple[Future, Callable, tuple]] = []
 
-    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources()) -> Future:
+    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources(),
+               name: str | None = None) -> Future:
         fut: Future = Future()
         self._queue.append((fut, fn, args))
         return fut
@@ -112,7 +121,8 @@ class Pool:
         self.slots = workers
         self._pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
 
-    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources()) -> Future:
+    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources(),
+               name: str | None = None) -> Future:
         return self._pool.submit(fn, *args)
 
     def wait_one(self, pending: Mapping[Future, Any]) -> set[Future]:
@@ -150,9 +160,12 @@ class RayExecutor:
         self._retries = options.retries
         self._remote: dict[Callable, Any] = {}
         self._refs: dict[Future, Any] = {}
+        self._names: dict[Future, str] = {}
         # The workers' environment: ours, as cli.py set it before torch loaded.
         env = {k: os.environ.get(k, v) for k, v in WORKER_ENV.items()}
         self._owner = not ray.is_initialized()
+        if self._owner and options.address:
+            _probe(options.address)
         if self._owner:
             kwargs: dict[str, Any] = {"address": options.address} if options.address else {
                 "num_cpus": options.workers * options.threads, "include_dashboard": False}
@@ -169,7 +182,8 @@ class RayExecutor:
         cpus = ray.cluster_resources().get("CPU", 1.0)
         self.slots = max(1, int(cpus // options.threads))
 
-    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources()) -> Future:
+    def submit(self, fn: Callable, *args: Any, resources: Resources = Resources(),
+               name: str | None = None) -> Future:
         remote = self._remote.get(fn)
         if remote is None:
             remote = self._remote[fn] = self._ray.remote(fn)
@@ -177,6 +191,7 @@ class RayExecutor:
                              max_retries=self._retries, retry_exceptions=False).remote(*args)
         fut: Future = Future()
         self._refs[fut] = ref
+        self._names[fut] = name or getattr(fn, "__name__", "a job")
         return fut
 
     def wait_one(self, pending: Mapping[Future, Any]) -> set[Future]:
@@ -187,13 +202,19 @@ class RayExecutor:
         for ref in ready:
             fut = by_ref[ref]
             del self._refs[fut]
+            name = self._names.pop(fut)
             try:
                 fut.set_result(ray.get(ref))
             except ray.exceptions.RayTaskError as e:  # the job raised: its own exception
                 cause = getattr(e, "cause", None)
                 fut.set_exception(cause if isinstance(cause, BaseException) else e)
             except ray.exceptions.RayError as e:  # e.g. its worker died more often than retried
-                fut.set_exception(e)
+                reason = (str(e).strip().splitlines() or [""])[0]
+                fut.set_exception(UserError(
+                    f"{name} was lost on Ray after {self._retries + 1} attempt(s) "
+                    f"({type(e).__name__}: {reason}); check the nodes' memory and logs "
+                    "(`ray status`), then run the same command again: finished jobs are "
+                    "reused"))
             done.add(fut)
         return done
 
@@ -202,6 +223,7 @@ class RayExecutor:
             for ref in self._refs.values():
                 self._ray.cancel(ref, force=True)
         self._refs.clear()
+        self._names.clear()
         if self._owner and self._ray.is_initialized():
             self._ray.shutdown()
             self._owner = False
@@ -211,6 +233,22 @@ class RayExecutor:
 
     def __exit__(self, *exc: object) -> None:
         self.shutdown()
+
+
+def _probe(address: str) -> None:
+    """UserError unless something accepts connections at a HOST:PORT address (also
+    ray://HOST:PORT) within :data:`CONNECT_TIMEOUT_S`: Ray would retry a dead address for
+    minutes. Other forms ("auto") are Ray's to resolve."""
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")  # ray://HOST:PORT too
+    if not (sep and host and port.isdigit()):
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), CONNECT_TIMEOUT_S).close()
+    except OSError as e:
+        reason = e.strerror or type(e).__name__
+        raise UserError(f"--ray-address {address}: nothing answers at {host}:{port} ({reason}); "
+                        "start the cluster there with `ray start --head` or fix the "
+                        "address") from None
 
 
 def _local(options: ExecutorOptions) -> Inline | Pool:

@@ -263,11 +263,20 @@ def _run(todo: list[int], plan: CollectionPlan, workers: int):
 SHARDS_PER_SLOT = 4
 
 
+def _indices(shard: tuple[int, ...]) -> str:
+    """A shard's trajectory indices for messages: "0, 4, 8" or "0, 4, ... (25 of them)"."""
+    if len(shard) <= 3:
+        return ", ".join(map(str, shard))
+    return f"{shard[0]}, {shard[1]}, ... ({len(shard)} of them)"
+
+
 def _run_on(executor: Executor, todo: list[int], plan: CollectionPlan):
     """Yield (index, trajectory) as the shards of ``todo`` finish on ``executor``."""
     n = min(len(todo), SHARDS_PER_SLOT * executor.slots)
     shards = [tuple(todo[k::n]) for k in range(n)]
-    pending = {executor.submit(collect_shard, plan, shard): shard for shard in shards}
+    pending = {executor.submit(collect_shard, plan, shard,
+                               name=f"collecting trajectories {_indices(shard)}"): shard
+               for shard in shards}
     try:
         while pending:
             for fut in executor.wait_one(pending):

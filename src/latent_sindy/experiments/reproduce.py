@@ -173,7 +173,8 @@ def _drain(pool: Executor, jobs: list[TrainJob], study: Study, data: Path,
     t0 = time.perf_counter()
     done_eval = 0
     pending: dict[Future, tuple[str, Any]] = {
-        pool.submit(train_job, j, resources=train_needs): ("train", j) for j in jobs}
+        pool.submit(train_job, j, resources=train_needs,
+                    name=f"training {j.name} (seed {j.seed})"): ("train", j) for j in jobs}
     while pending:
         for fut in pool.wait_one(pending):
             kind, job = pending.pop(fut)
@@ -192,7 +193,8 @@ def _drain(pool: Executor, jobs: list[TrainJob], study: Study, data: Path,
                 controls = tuple((c, scale.control_config(c, job.seed, study.config.world))
                                  for c in scale.conditions(spec))
                 ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
-                pending[pool.submit(eval_job, ev, resources=eval_needs)] = ("eval", ev)
+                pending[pool.submit(eval_job, ev, resources=eval_needs,
+                                    name=f"evaluating {ev.name} (seed {ev.seed})")] = ("eval", ev)
             else:
                 done_eval += 1
                 study.results.setdefault(job.seed, {})[job.name] = result

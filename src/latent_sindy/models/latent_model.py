@@ -18,7 +18,8 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
                                                 across models)
     total  = objective + λ3 l1 + λ4 pose   (what training minimises; with a foreground
-                                  weight, recon and pred_x in it weight the block's pixels more)
+                                  weight, recon and pred_x in it weight the block's pixels more;
+                                  the pose term only with λ4 > 0)
 
 Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
 pushes in them while encoding and reconstructing each frame once (the trainer's
@@ -288,8 +289,11 @@ class LatentModel(nn.Module):
             w = 1 + weights.foreground_weight * _foreground(x)  # (B, T+1, C, S, S)
             trained = ((w * err_recon).mean() + weights.lambda_pred_x * (targets(w) * err_pred)
                        .mean() + weights.lambda_pred_z * pred_z)
+        total = trained + weights.lambda_l1 * l1
+        if weights.lambda_pose > 0:  # 0 * a non-finite pose error would still be NaN
+            total = total + weights.lambda_pose * pose
         return {
-            "total": trained + weights.lambda_l1 * l1 + weights.lambda_pose * pose,
+            "total": total,
             "recon": recon,
             "pred_x": pred_x,
             "pred_z": pred_z,

@@ -87,6 +87,7 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
         "package_version": __version__,
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "train": to_json(cfg),
+        "batching": resolve_batching(cfg),  # what train.batching ("auto") batched
         "model": to_json(model_cfg),
         "normalizer": OBSERVATIONS[model_cfg.encoder.kind].normalizer(data).to_dict(),
         "data": _data_identity(data, cfg.data),

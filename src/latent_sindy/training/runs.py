@@ -2,9 +2,10 @@
 
 A run folder describes itself; every later command needs only it::
 
-    RUN/config.json         the record: TrainConfig, resolved ModelConfig, normaliser, the
-                            data's identity, the environment, versions; at the end "kept":
-                            the epoch whose weights model.pt holds and why
+    RUN/config.json         the record: TrainConfig, the batching it resolved to, resolved
+                            ModelConfig, normaliser, the data's identity, the environment,
+                            versions; at the end "kept": the epoch whose weights model.pt
+                            holds and why
     RUN/model.pt            kept weights (best validation or last epoch; SINDy mask
                             included) + model config + normaliser
     RUN/checkpoint.pt       model, optimiser, epoch, shuffle-generator state, metrics so far,
@@ -44,7 +45,7 @@ from latent_sindy.data.windows import Normalizer
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, ModelConfig
-from latent_sindy.training.config import RESUMABLE, TrainConfig, resolve_batching
+from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
 
 __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
            "read_metrics"]
@@ -167,6 +168,18 @@ class RunDir:
         record = self.read_record() if record is None else record
         return from_json(TrainConfig, record["train"], f"{self.path / self.CONFIG}: train")
 
+    def batching(self, record: Mapping[str, Any] | None = None) -> str:
+        """How the run batched its training: "trajectories" or "windows" (its --batching,
+        "auto" resolved as recorded; a record from before that was recorded resolves it)."""
+        record = self.read_record() if record is None else record
+        recorded = record.get("batching")
+        if recorded is None:
+            return resolve_batching(self.train_config(record))
+        if recorded not in BATCHINGS or recorded == "auto":
+            raise UserError(f"{self.path / self.CONFIG}: batching {recorded!r} is not "
+                            "trajectories or windows: the file was edited; retrain the run")
+        return recorded
+
     # ---------------------------------------------------------------- .pt files
     def save_torch(self, name: str, payload: dict[str, Any]) -> None:
         write_atomic(self.path / name, lambda f: torch.save({"format": RUN_FORMAT, **payload}, f))
@@ -260,9 +273,8 @@ class RunDir:
             data = {k: v for k, v in r["data"].items() if k != "path"}
             # through the dataclass: a setting added since the run was recorded takes its
             # default (which keeps the old behaviour) on both sides; "auto" batching as what
-            # it batches
-            tc = self.train_config(r)
-            tc = dataclasses.replace(tc, batching=resolve_batching(tc))
+            # it batched
+            tc = dataclasses.replace(self.train_config(r), batching=self.batching(r))
             train = json.loads(json.dumps(to_json(tc)))
             return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
 
