@@ -3,8 +3,8 @@
 Drawn with matplotlib's object API (no pyplot, so no global backend or open figures):
 
 * :func:`loss_histories` (Fig. 6/7): training and validation objective per epoch, a line per model;
-* :func:`rollout_strip` (Fig. 8): ground truth, single-step and multi-step model rollouts from
-  the same first image and actions;
+* :func:`rollout_strip` (Fig. 8): ground truth and model rollouts (single- and multi-step
+  SINDy-2, then other models) from the same first image and actions;
 * :func:`coefficient_map` (Fig. 9/10): M ⊙ Ψ, rows latent states, columns candidate terms;
 * :func:`horizon_plot`: prediction error against horizon, a line per model (image MSE, or
   the block position error);

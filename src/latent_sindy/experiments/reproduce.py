@@ -258,11 +258,17 @@ def output_stage(study: Study, data: Trajectories, say: Say) -> dict[str, Any]:
             title="block position in open-loop predictions (state rows: predicted poses), "
                   "test trajectories")
 
+    # Fig. 8: the single- and multi-step SINDy-2 (the paper's), then the other headline
+    # image models (what the representation work bought).
     single, multi = study.single_step, study.multistep
-    if single and multi and single.name in ok and multi.name in ok:
-        files["rollouts"] = _rollout_figure(
-            [(runs[single.name], single), (runs[multi.name], multi)], held_out(data),
-            fig_dir / "rollouts.png")
+    strip = [(runs[s.name], f"{kind} {s.label}\n(trained on H={s.window})")
+             for kind, s in (("single-step", single), ("multi-step", multi))
+             if s is not None and s.name in ok]
+    strip += [(runs[s.name], s.label.replace(", ", ",\n", 1) if len(s.label) > 24 else s.label)
+              for s in study.specs if s.headline and s.name in ok and s not in (single, multi)
+              and s.model.encoder.kind == "image"]
+    if strip:
+        files["rollouts"] = _rollout_figure(strip, held_out(data), fig_dir / "rollouts.png")
     for spec in study.specs:
         if spec.name in ok:
             dyn = load_run(runs[spec.name]).model.dynamics
@@ -329,17 +335,16 @@ def _curves(study: Study, prefix: str) -> dict[str, tuple[list[float], list[floa
 
 
 @torch.no_grad()
-def _rollout_figure(models: list[tuple[Path, Any]], test: Trajectories, path: Path) -> Path:
-    """Fig. 8: a test trajectory, and each model's open-loop rollout from its first image."""
+def _rollout_figure(models: list[tuple[Path, str]], test: Trajectories, path: Path) -> Path:
+    """Fig. 8: a test trajectory, and each (run, label)'s open-loop rollout from its first
+    image."""
     rows = [("ground truth", test.images[0].astype(float))]
-    for run_dir, spec in models:
+    for run_dir, label in models:
         run = load_run(run_dir)
         x = run.normalizer.normalize(test.images[:1])  # (1, T+1, C, S, S)
         u = torch.as_tensor(test.actions[:1], dtype=torch.float32)  # (1, T, nu)
         pred = run.model.predict(x[:, 0], u)[0]  # (T+1, C, S, S)
-        kind = "single-step" if spec.window == 1 else "multi-step"
-        rows.append((f"{kind} {spec.label}\n(trained on H={spec.window})",
-                     run.normalizer.denormalize(pred).numpy()))
+        rows.append((label, run.normalizer.denormalize(pred).numpy()))
     return figures.rollout_strip(rows, path)
 
 

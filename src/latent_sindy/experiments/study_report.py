@@ -245,7 +245,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
             f"{cfg.seeds[0]})")
     if "rollouts" in files:
         r.image(files["rollouts"], "Fig. 8: a test trajectory (top) and open-loop rollouts "
-                "of the single-step and the multi-step SINDy-2 from its first image and actions")
+                "from its first image and actions: the single-step and the multi-step SINDy-2, "
+                "then the other headline image models")
     r.image(files["horizon"], "Open-loop prediction error against horizon on the test "
             "trajectories (mean ± std over seeds); dashed: predictors that learn nothing")
     if study.baselines:
