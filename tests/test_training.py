@@ -24,7 +24,13 @@ from latent_sindy.data.store import read_trajectories, write_trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
-from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LatentModel, ModelConfig
+from latent_sindy.models import (
+    DYNAMICS_KINDS,
+    AutoencoderConfig,
+    LatentModel,
+    LossWeights,
+    ModelConfig,
+)
 from latent_sindy.training import (
     METRIC_COLUMNS,
     RunDir,
@@ -368,7 +374,8 @@ def test_resume_with_another_thread_count_says_so(data: Path, tmp_path: Path) ->
     finally:
         torch.set_num_threads(1)
     notes = [c[1] for c in progress.calls if c[0] == "note"]
-    assert any("with 2 thread(s) a run trained on cpu with 1" in n for n in notes), notes
+    assert any("with 2 thread(s) (batch) a run trained on cpu with 1 (ops)" in n
+               for n in notes), notes
 
 
 @pytest.mark.parametrize("batching", ["trajectories", "windows"])
@@ -664,3 +671,73 @@ def test_load_run_errors(data: Path, tmp_path: Path) -> None:
     (run / "config.json").write_text("{")
     with pytest.raises(UserError, match=r"config\.json is damaged"):
         load_run(run)
+
+
+def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
+    """--parallel batch: the slices' loss terms and gradients, weighted by their share and
+    added, are those of the whole batch (to float rounding), the pose head's unused
+    parameters stay without a gradient, and the same batch gives the same bits again."""
+    from latent_sindy.training.loop import _Gradients
+
+    torch.manual_seed(0)
+    cfg = ModelConfig(encoder=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),
+                      pose_head="linear").resolve(1, 32, 3)
+    model = LatentModel(cfg)
+    g = torch.Generator().manual_seed(1)
+    x, u = torch.randn(7, 4, 1, 32, 32, generator=g), torch.rand(7, 3, 3, generator=g)
+    weights = LossWeights()
+
+    def run(parts: int) -> tuple[dict, list]:
+        grads = _Gradients(model, parts)
+        try:
+            terms = grads(x, u, weights, None, 1)
+        finally:
+            grads.close()
+        return terms, [None if p.grad is None else p.grad.clone() for p in model.parameters()]
+
+    threads = torch.get_num_threads()
+    one, split, again = run(1), run(3), run(3)
+    assert torch.get_num_threads() == threads  # restored
+    for k in one[0]:
+        assert torch.allclose(one[0][k], split[0][k], rtol=1e-5, atol=1e-7), k
+        assert torch.equal(split[0][k], again[0][k]), k
+    named = [n for n, _ in model.named_parameters()]
+    for name, a, b, c in zip(named, one[1], split[1], again[1], strict=True):
+        if name.startswith("pose_head"):  # λ4 = 0: not in the total
+            assert a is None and b is None, name
+            continue
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-6), name
+        assert torch.equal(b, c), name
+
+
+def test_parallel_settings_resolve_by_device_and_threads(tmp_path: Path) -> None:
+    from latent_sindy.training.config import resolve_parallel
+
+    cfg = TrainConfig(data=tmp_path / "d.h5", out=tmp_path / "r")
+    assert resolve_parallel(cfg, "cpu", 2) == "batch"
+    assert resolve_parallel(cfg, "cpu", 1) == "ops"
+    assert resolve_parallel(cfg, "cuda", 4) == "ops"
+    assert resolve_parallel(dataclasses.replace(cfg, parallel="ops"), "cpu", 2) == "ops"
+    with pytest.raises(UserError, match="--parallel 'threads' is unknown"):
+        TrainConfig(parallel="threads")  # type: ignore[arg-type]
+
+
+def test_a_batch_parallel_run_on_two_threads_is_reproducible(data: Path,
+                                                             tmp_path: Path) -> None:
+    """Two threads, batches split in two: the same seed gives the same model bit for bit,
+    within float rounding of the one-thread-per-batch ("ops") run's."""
+    torch.set_num_threads(2)
+    try:
+        runs = {}
+        for name, parallel in (("a", "batch"), ("b", "batch"), ("ops", "ops")):
+            out = train(config(data, tmp_path / name, parallel=parallel, batch_size=6,
+                               batching="trajectories"))
+            runs[name] = RunDir(out).load().model
+            assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(1)
+    states_equal(runs["a"], runs["b"])
+    for k, v in runs["a"].state_dict().items():
+        assert torch.allclose(v, runs["ops"].state_dict()[k], rtol=1e-3, atol=1e-5), k
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["train"]["parallel"] == \
+        "batch"

@@ -21,16 +21,19 @@ import tyro
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 
-__all__ = ["BATCHINGS", "DEVICES", "RESUMABLE", "TrainConfig", "default_threads",
-           "resolve_batching", "resolve_device"]
+__all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "RESUMABLE", "TrainConfig", "default_threads",
+           "resolve_batching", "resolve_device", "resolve_parallel"]
 
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
 RESUMABLE = frozenset({"epochs", "resume", "overwrite", "checkpoint_every", "eval_every",
-                       "keep_best", "device", "out", "data"})
+                       "keep_best", "device", "parallel", "out", "data"})
 
 #: Values of :attr:`TrainConfig.batching`.
 BATCHINGS = ("auto", "trajectories", "windows")
+
+#: Values of :attr:`TrainConfig.parallel`.
+PARALLELS = ("auto", "ops", "batch")
 
 #: Values of :attr:`TrainConfig.device`.
 DEVICES = ("auto", "cpu", "cuda")
@@ -61,6 +64,13 @@ class TrainConfig:
     the same prediction terms, a reconstruction term that weighs every frame once instead of
     once per window holding it; 1.5x faster epochs at H = 1, batch 500); "auto": trajectories for
     --window 1, windows otherwise. Validation always uses windows."""
+    parallel: Literal["auto", "ops", "batch"] = "auto"
+    """How training uses several CPU threads (--threads T): "ops", torch's own threads inside
+    each layer; "batch", each mini-batch split into T parts whose gradients T threads compute
+    at once (one torch thread each) and add (1.3x faster epochs than "ops" on 2 cores at the
+    paper's sizes: these layers are too small to split well; BENCHMARKS.md); "auto": batch on
+    the CPU with T > 1, else ops. The same settings give the same model; ops and batch differ
+    in the last bits."""
     lr: float = 1e-3
     """AdamW learning rate (the paper: 1e-3)."""
     betas: tuple[float, float] = (0.9, 0.999)
@@ -112,6 +122,8 @@ class TrainConfig:
             (self.eval_every >= 1, f"--eval-every {self.eval_every}: use 1 or more"),
             (self.batching in BATCHINGS,
              f"--batching {self.batching!r} is unknown: use one of {', '.join(BATCHINGS)}"),
+            (self.parallel in PARALLELS,
+             f"--parallel {self.parallel!r} is unknown: use one of {', '.join(PARALLELS)}"),
             (self.device in DEVICES,
              f"--device {self.device!r} is unknown: use one of {', '.join(DEVICES)}"),
             (self.seed >= 0, f"--seed {self.seed}: seeds are non-negative integers"),
@@ -134,6 +146,14 @@ def resolve_batching(cfg: TrainConfig) -> str:
     if cfg.batching == "auto":
         return "trajectories" if cfg.window == 1 else "windows"
     return cfg.batching
+
+
+def resolve_parallel(cfg: TrainConfig, device: str, threads: int) -> str:
+    """What :attr:`TrainConfig.parallel` does on ``device`` with ``threads`` torch threads:
+    "batch" or "ops" (always "ops" off the CPU or on one thread)."""
+    if device != "cpu" or threads < 2:
+        return "ops"
+    return "batch" if cfg.parallel == "auto" else cfg.parallel
 
 
 def resolve_device(device: str) -> str:

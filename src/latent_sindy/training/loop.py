@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import json
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -39,7 +41,12 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
-from latent_sindy.training.config import TrainConfig, resolve_batching, resolve_device
+from latent_sindy.training.config import (
+    TrainConfig,
+    resolve_batching,
+    resolve_device,
+    resolve_parallel,
+)
 from latent_sindy.training.runs import METRIC_COLUMNS, RUN_FORMAT, RUN_FORMAT_VERSION, RunDir
 
 __all__ = ["BestValidation", "TrainingDiverged", "evaluate", "run_record", "train"]
@@ -167,8 +174,62 @@ def _diverged(cfg: TrainConfig, epoch: int, what: str, last_ckpt: int | None) ->
     )
 
 
+class _Gradients:
+    """Loss terms and gradients of one mini-batch, on one thread or split across several.
+
+    With ``parts`` > 1 the batch is cut into that many slices whose losses and gradients
+    that many threads compute at once, each with one torch thread (torch's own threads are
+    set to 1 until :meth:`close`), and the gradients are added in slice order; the loss terms
+    are means, so each slice counts by its share of the sequences. Deterministic: every
+    slice runs single-threaded and the sums have a fixed order. With ``parts`` = 1 it is one
+    ``loss(...).backward()``.
+    """
+
+    def __init__(self, model: LatentModel, parts: int) -> None:
+        self.model, self.parts = model, parts
+        self.params = [p for p in model.parameters() if p.requires_grad]
+        self._pool: ThreadPoolExecutor | None = None
+        self._threads = torch.get_num_threads()
+        if parts > 1:
+            self._pool = ThreadPoolExecutor(parts, thread_name_prefix="latent-sindy-grad")
+            torch.set_num_threads(1)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+            torch.set_num_threads(self._threads)
+
+    def __call__(self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights,
+                 poses: torch.Tensor | None, window: int) -> dict[str, torch.Tensor]:
+        """Set every parameter's ``.grad`` to d total / d parameter on sequences x, u;
+        returns the loss terms (detached)."""
+        if self._pool is None or len(x) < 2:
+            terms = self.model.loss(x, u, weights, poses, window=window)
+            for p in self.params:
+                p.grad = None
+            terms["total"].backward()
+            return {k: v.detach() for k, v in terms.items()}
+        bounds = torch.linspace(0, len(x), min(self.parts, len(x)) + 1).round().long().tolist()
+
+        def part(a: int, b: int) -> tuple[dict[str, torch.Tensor], tuple]:
+            share = (b - a) / len(x)
+            terms = self.model.loss(x[a:b], u[a:b], weights,
+                                    None if poses is None else poses[a:b], window=window)
+            g = torch.autograd.grad(terms["total"] * share, self.params, allow_unused=True)
+            return {k: v.detach() * share for k, v in terms.items()}, g
+
+        results = list(self._pool.map(part, bounds[:-1], bounds[1:]))
+        terms = {k: sum(r[0][k] for r in results[1:]) + results[0][0][k]
+                 for k in results[0][0]}
+        for i, p in enumerate(self.params):
+            gs = [r[1][i] for r in results if r[1][i] is not None]
+            p.grad = None if not gs else functools.reduce(torch.add, gs)
+        return terms
+
+
 def _train_epoch(
-    model: LatentModel,
+    grads: _Gradients,
     opt: torch.optim.Optimizer,
     x: torch.Tensor,
     u: torch.Tensor,
@@ -189,22 +250,20 @@ def _train_epoch(
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), per_batch):
         idx = order[b : b + per_batch]
-        terms = model.loss(x[idx], u[idx], weights, None if poses is None else poses[idx],
-                           window=cfg.window)
-        values = torch.stack([terms[k].detach() for k in LOSS_TERMS])  # (7,)
+        terms = grads(x[idx], u[idx], weights, None if poses is None else poses[idx],
+                      cfg.window)
+        values = torch.stack([terms[k] for k in LOSS_TERMS])  # (7,)
         if not torch.isfinite(values).all():
             bad = next(
                 k
                 for k in ("recon", "pred_x", "pred_z", "l1", "pose", "total")
                 if not torch.isfinite(terms[k])
             )
-            value = float(terms[bad].detach())
+            value = float(terms[bad])
             raise _diverged(cfg, epoch, f"loss term {bad} ({value})", last_ckpt)
-        opt.zero_grad(set_to_none=True)
-        terms["total"].backward()
         opt.step()
         sums += values.double().cpu() * len(idx)
-    for name, p in model.named_parameters():
+    for name, p in grads.model.named_parameters():
         if not torch.isfinite(p).all():
             raise _diverged(cfg, epoch, f"parameter {name}", last_ckpt)
     return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
@@ -353,6 +412,8 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
         model.parameters(), lr=cfg.lr, betas=cfg.betas, weight_decay=cfg.weight_decay
     )
     gen = torch.Generator().manual_seed(cfg.seed)  # the only randomness after the init
+    threads = torch.get_num_threads()
+    parallel = resolve_parallel(cfg, device.type, threads)
     metrics: list[dict[str, Any]] = []
     done = 0
     best = BestValidation()
@@ -371,12 +432,12 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
         if "best" not in ckpt and cfg.keep_best:
             progress.note(f"{run / run.CHECKPOINT} is from before model selection: the kept "
                           f"weights are chosen among epochs {done + 1} to {cfg.epochs}")
-        was = (ckpt.get("device", "cpu"), ckpt.get("threads"))
-        now = (device.type, torch.get_num_threads())
+        was = (ckpt.get("device", "cpu"), ckpt.get("threads"), ckpt.get("parallel", "ops"))
+        now = (device.type, threads, parallel)
         if was[1] is not None and was != now:  # older checkpoints did not record them
-            progress.note(f"resuming on {now[0]} with {now[1]} thread(s) a run trained on "
-                          f"{was[0]} with {was[1]}: the result will differ in the last bits "
-                          "from an uninterrupted run")
+            progress.note(f"resuming on {now[0]} with {now[1]} thread(s) ({now[2]}) a run "
+                          f"trained on {was[0]} with {was[1]} ({was[2]}): the result will "
+                          "differ in the last bits from an uninterrupted run")
     if cfg.overwrite:
         run.clear()
     run.path.mkdir(parents=True, exist_ok=True)
@@ -410,13 +471,14 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
 
     last_ckpt = done or None
     model.train()
+    grads = _Gradients(model, threads if parallel == "batch" else 1)
     progress.start(cfg.epochs, done)
     try:
         for epoch in range(done + 1, cfg.epochs + 1):
             t0 = time.perf_counter()
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
-            train_terms = _train_epoch(model, opt, x, u, cfg, per_batch, gen, epoch,
+            train_terms = _train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch,
                                        last_ckpt, s)
             row.update({f"train/{k}": v for k, v in train_terms.items()})
             if prune and epoch % cfg.threshold_every == 0:
@@ -443,7 +505,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
                     "optimizer": _cpu(opt.state_dict()),
                     "generator": gen.get_state(), "metrics": metrics,
                     "best": best.to_checkpoint(),
-                    "device": device.type, "threads": torch.get_num_threads()})
+                    "device": device.type, "threads": threads, "parallel": parallel})
                 last_ckpt = epoch
             progress.update(epoch, row)
         kept = _kept(cfg, best, metrics)
@@ -456,6 +518,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
             loss_histories({"run": metrics}, {}, run / run.PLOT, dpi=100)
         raise
     finally:
+        grads.close()
         progress.close()
     from latent_sindy import __version__
 
