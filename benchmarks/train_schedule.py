@@ -19,6 +19,8 @@ each to the row above:
   * threads T: T torch threads (the CLI's ``--threads``), first with libgomp's default wait
     policy (idle OpenMP threads spin), then with ``OMP_WAIT_POLICY=PASSIVE`` (they sleep; the
     CLI sets it);
+  * batch split: ``--parallel batch`` (the default with several threads): each batch cut into
+    T slices whose gradients T threads of one torch thread each compute at once, then added;
   * trajectory batches: ``--batching trajectories`` (the default at window 1): batches of 50
     whole trajectories whose 11 frames are encoded and reconstructed once each (11 encodes and
     21 decodes per trajectory instead of 20 and 30), at 1 and at T threads. Every other row
@@ -38,6 +40,7 @@ least disturbed by other jobs (it leaves out the time spent waiting for a core).
     .venv/bin/python benchmarks/train_schedule.py --data data/push.h5 --epochs 20
     .venv/bin/python benchmarks/train_schedule.py --only 6 7   # 1 against 2 threads
     .venv/bin/python benchmarks/train_schedule.py --only 6 8 7 9   # windows vs trajectories
+    .venv/bin/python benchmarks/train_schedule.py --only 8 9 10   # ... and the batch split
 """
 
 from __future__ import annotations
@@ -117,6 +120,7 @@ class Variant:
     native_last: bool = False
     pool_first: bool = False
     batching: str = "windows"
+    parallel: str = "ops"
 
 
 def variants(args: argparse.Namespace) -> list[Variant]:
@@ -134,6 +138,8 @@ def variants(args: argparse.Namespace) -> list[Variant]:
                 "trajectories"),
         Variant(f"+ trajectory batches, {t} threads, PASSIVE", t, n, True, True, True, True,
                 True, "trajectories"),
+        Variant(f"+ batch split across {t} threads (--parallel batch)", t, n, True, True, True,
+                True, True, "trajectories", "batch"),
     ]
 
 
@@ -174,7 +180,8 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
                         dynamics=SindyConfig(order=2))
     cfg = TrainConfig(data=data, out=out, model=model, epochs=2 * args.epochs,
                       batch_size=500, threshold_every=300, threshold=1e-3,
-                      eval_every=v.eval_every, batching=v.batching, overwrite=True)
+                      eval_every=v.eval_every, batching=v.batching, parallel=v.parallel,
+                      overwrite=True)
     clock = Clock(args.epochs)
     t0 = time.perf_counter()
     train(cfg, clock)
