@@ -1,9 +1,11 @@
 """Latent dynamics models: one interface, SINDy masking and libraries, the linear model's
-closed-form fit (the SINDy fits are in test_fit.py)."""
+closed-form fit (the SINDy fits are in test_fit.py), and the unit circle that a pose latent's
+angle features are kept on."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -11,12 +13,20 @@ import torch
 
 from latent_sindy.models import (
     DYNAMICS_KINDS,
+    AutoencoderConfig,
     LatentDynamics,
+    LatentModel,
+    LinearConfig,
     LinearDynamics,
+    MlpConfig,
     MlpDynamics,
+    ModelConfig,
+    SindyConfig,
     SindyDynamics,
+    StateConfig,
     make_dynamics,
 )
+from latent_sindy.models.dynamics import project_circle
 from latent_sindy.sindy import Polynomial, Sine, push_library
 
 NZ, NU = 4, 2
@@ -341,3 +351,159 @@ def test_set_coefficients_replaces_psi_and_mask() -> None:
     assert model.n_active() == 3 and int((model.psi != 0).sum()) == 3
     with pytest.raises(ValueError, match="set_coefficients expects"):
         model.set_coefficients(torch.zeros(11, 2))
+
+
+# ---------------------------------------------------------------- the unit circle of a pose latent
+
+CIRCLE_CASES = ["sindy2", "sindy2-sparse", "sindy-push", "linear", "mlp"]
+
+
+def _with_circle(case: str, circle: tuple[int, int] | None) -> LatentDynamics:
+    """The model of ``_build(case)`` (same parameters) built with ``circle``."""
+    if case.endswith("-sparse"):
+        dense = _with_circle(case.removesuffix("-sparse"), circle)
+        dense.threshold(0.04)  # as _build does
+        return dense.compile_sparse()
+    model = _build(case)
+    copy = make_dynamics(model.kind, **model.hparams(), circle=circle)
+    copy.load_state_dict(model.state_dict())
+    return copy
+
+
+def _on_circle(batch: int, horizon: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """z0 (batch, 4) with (z2, z3) on the unit circle, random actions (batch, horizon, NU)."""
+    gen = torch.Generator().manual_seed(seed)
+    angle = 2 * torch.pi * torch.rand(batch, generator=gen)
+    z0 = torch.stack([0.3 * torch.randn(batch, generator=gen), 0.3 * torch.randn(batch,
+                      generator=gen), angle.cos(), angle.sin()], -1)
+    return z0, torch.rand(batch, horizon, NU, generator=gen) * 2 - 1
+
+
+@pytest.mark.parametrize("case", CIRCLE_CASES)
+def test_a_circle_keeps_the_angle_pair_on_it_and_leaves_the_rest(case: str) -> None:
+    """50 steps of random pushes: every predicted (z2, z3) has norm 1 and each step is the
+    unprojected step with that pair divided by its norm; the same model without a circle
+    steps off it (so the projection is what keeps it there) and is its own update exactly."""
+    projected, free = _with_circle(case, (2, 3)), _with_circle(case, None)
+    assert projected.circle == (2, 3) and free.circle is None
+    z0, actions = _on_circle(32, 50, seed=3)
+    with torch.no_grad():
+        zs = projected.rollout(z0, actions)  # (32, 51, 4)
+        norms = zs[:, 1:, 2:].norm(dim=-1)
+        torch.testing.assert_close(norms, torch.ones_like(norms), rtol=0, atol=1e-6)
+        for t in (0, 17, 49):
+            raw = free.step(zs[:, t], actions[:, t])
+            want = torch.cat([raw[:, :2], raw[:, 2:] / raw[:, 2:].norm(dim=-1, keepdim=True)], 1)
+            torch.testing.assert_close(zs[:, t + 1], want, rtol=1e-6, atol=1e-6)
+            torch.testing.assert_close(zs[:, t + 1, :2], raw[:, :2], rtol=0, atol=0)
+        off = (free.step(z0, actions[:, 0])[:, 2:].norm(dim=-1) - 1).abs().max()
+        assert off > 1e-3, float(off)
+        short = actions[:, :8]  # the unprojected random models diverge over 50 steps
+        z, chained = z0, [z0]
+        for t in range(short.shape[1]):  # the unprojected computation, bit for bit
+            z = free._step(z, short[:, t])
+            chained.append(z)
+        assert torch.stack(chained, 1).isfinite().all()
+        assert torch.equal(free.rollout(z0, short), torch.stack(chained, 1))
+
+
+def test_the_projection_is_differentiable_and_leaves_the_origin_finite() -> None:
+    index = torch.tensor([2, 0])
+    z = torch.randn(5, 4, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda v: project_circle(v, index), (z,))
+    out = project_circle(torch.zeros(1, 4), index)
+    assert torch.equal(out, torch.zeros(1, 4))  # no block seen (moments: (0, 0)) stays 0
+    nan = project_circle(torch.tensor([[1.0, 0.0, math.nan, 1.0]]), index)
+    assert nan[0, 0].isnan() and nan[0, 2].isnan() and nan[0, 1] == 0 and nan[0, 3] == 1
+
+
+@pytest.mark.parametrize("case", ["sindy2", "linear", "mlp"])
+def test_gradients_flow_through_the_projection(case: str) -> None:
+    model = _with_circle(case, (2, 3))
+    z0, actions = _on_circle(6, 5, seed=4)
+    target = torch.randn(6, 6, NZ, generator=torch.Generator().manual_seed(5))
+    (model.rollout(z0, actions) - target).square().mean().backward()
+    for name, p in model.named_parameters():
+        assert p.grad is not None and p.grad.isfinite().all(), name
+        assert p.grad.abs().sum() > 0, name
+
+
+@pytest.mark.parametrize("kind", sorted(DYNAMICS_KINDS))
+def test_the_circle_is_part_of_the_rebuilt_model(kind: str) -> None:
+    """hparams (through JSON) and compile_sparse keep the circle; the state dict has no
+    entry for it, so checkpoints of models with and without one load alike."""
+    model = _with_circle("sindy2" if kind == "sindy" else kind, (3, 1))
+    params = json.loads(json.dumps(model.hparams()))
+    assert params["circle"] == [3, 1]
+    copy = make_dynamics(kind, **params)
+    assert copy.circle == (3, 1)
+    assert set(copy.state_dict()) == set(make_dynamics(kind, NZ, NU).state_dict())
+    copy.load_state_dict(model.state_dict())
+    z0, actions = _batch()
+    with torch.no_grad():
+        torch.testing.assert_close(copy.rollout(z0, actions), model.rollout(z0, actions))
+    assert "circle" not in make_dynamics(kind, NZ, NU).hparams()
+    if kind == "sindy":
+        fast = model.compile_sparse()
+        assert fast.circle == (3, 1)
+        with torch.no_grad():
+            torch.testing.assert_close(fast.rollout(z0, actions), model.rollout(z0, actions))
+        assert model.summary()[-1] == "after every step (z3, z1) is scaled onto the unit circle"
+
+
+@pytest.mark.parametrize("circle", [(2, 2), (1, 4), (-1, 2), (1, 2, 3)])
+def test_a_bad_circle_is_one_line(circle) -> None:
+    with pytest.raises(ValueError, match=r"circle .*: give two different latent coordinates in "
+                                         r"0\.\.3"):
+        SindyDynamics(NZ, NU, circle=circle)
+
+
+FACE = SindyConfig(order=1, library="face", include_sine=False, init_scale=0.05)
+POSE_MODELS = {  # name: (config, whether its latent is a pose)
+    "state face": (ModelConfig(dynamics=FACE, encoder=StateConfig()), True),
+    "state mlp": (ModelConfig(dynamics=MlpConfig(hidden=16), encoder=StateConfig()), True),
+    "moments": (ModelConfig(dynamics=FACE, encoder=AutoencoderConfig(
+        encoder="moments", latent_dim=4)), True),
+    "coordinates": (ModelConfig(dynamics=LinearConfig(init_scale=0.05), pose_head="coordinates",
+                                encoder=AutoencoderConfig(latent_dim=6)), True),
+    "linear head": (ModelConfig(dynamics=SindyConfig(order=1, init_scale=0.05),
+                                pose_head="linear", encoder=AutoencoderConfig(latent_dim=6)),
+                    False),
+    "conv": (ModelConfig(dynamics=SindyConfig(order=1, init_scale=0.05),
+                         encoder=AutoencoderConfig(latent_dim=6)), False),
+}
+
+
+@pytest.mark.parametrize("name", sorted(POSE_MODELS))
+def test_a_pose_latent_model_rolls_out_on_the_circle(name: str) -> None:
+    """The circle follows from the model's config: a pose latent (state, moments, coordinates
+    head) projects (z2, z3) over 50 random pushes, in rollouts and in the loss; any other
+    latent's rollout is the dynamics' own update, bit for bit."""
+    cfg, pose = POSE_MODELS[name]
+    torch.manual_seed(0)
+    model = LatentModel(cfg.resolve(1, 32, 3))
+    assert cfg.pose_latent is pose
+    assert model.dynamics.circle == ((2, 3) if pose else None)
+    nz = cfg.encoder.latent_dim
+    gen = torch.Generator().manual_seed(1)
+    z0 = torch.randn(16, nz, generator=gen)
+    u = torch.rand(16, 50, 3, generator=gen) * 2 - 1
+    with torch.no_grad():
+        zs = model.rollout_latent(z0, u)  # (16, 51, nz)
+        raw = model.dynamics._step(z0, u[:, 0])
+        norms = zs[:, 1:, 2:4].norm(dim=-1)
+        if pose:
+            torch.testing.assert_close(norms, torch.ones_like(norms), rtol=0, atol=1e-5)
+            assert (raw[:, 2:4].norm(dim=-1) - 1).abs().max() > 1e-3  # unprojected: off it
+        else:
+            chained = [z0]
+            for t in range(u.shape[1]):
+                chained.append(model.dynamics._step(chained[-1], u[:, t]))
+            assert torch.equal(zs, torch.stack(chained, 1))
+    if name.startswith("state"):
+        # Observations that follow the projected rollout exactly: no prediction error, so
+        # the loss steps through the same projected dynamics.
+        x = zs[:, :6]
+        with torch.no_grad():
+            assert float(model.loss(x, u[:, :5])["pred_z"]) == pytest.approx(0.0, abs=1e-12)
+            torch.testing.assert_close(model.predict(x[:, 0], u[:, :5]), x, rtol=0, atol=0)

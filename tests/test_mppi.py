@@ -19,7 +19,7 @@ from latent_sindy.control import (
     latent_step,
 )
 from latent_sindy.errors import UserError
-from latent_sindy.models import SindyDynamics, make_dynamics
+from latent_sindy.models import SindyConfig, SindyDynamics, make_dynamics
 from latent_sindy.sindy import Cosine, Identity, Polynomial, Sine, poly_library
 
 B = torch.tensor([[0.5, 0.1], [0.0, 0.4]])  # integrator z_{t+1} = z + B u, nz = nu = 2
@@ -380,6 +380,97 @@ def test_latent_cost_is_the_same_for_any_memory_layout() -> None:
     z = feature_major.transpose(1, 2)  # (H, K, nz) view, last dimension strided
     torch.testing.assert_close(cost(z), cost(z.contiguous()))
     assert cost(z).shape == (4, 6)
+
+
+def _face_model(circle: tuple[int, int] | None, dtype: torch.dtype) -> SindyDynamics:
+    """A pruned face-library SINDy model on a pose latent (x, y, cos 4θ, sin 4θ), nu = 3."""
+    model = SindyConfig(order=1, library="face", include_sine=False, init_scale=0.02).build(
+        NZ, NU, circle=circle)
+    model.threshold(0.01)
+    return model.to(dtype)
+
+
+def _pose_batch(K: int, H: int, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """z0 (K, 4) with (z2, z3) on the unit circle, random pushes (K, H, 3)."""
+    gen = torch.Generator().manual_seed(4)
+    angle = 2 * math.pi * torch.rand(K, generator=gen, dtype=dtype)
+    z0 = torch.stack([0.1 * torch.randn(K, generator=gen, dtype=dtype) + 0.5,
+                      0.1 * torch.randn(K, generator=gen, dtype=dtype), angle.cos(),
+                      angle.sin()], -1)
+    low, high = torch.tensor(PUSH_LOW, dtype=dtype), torch.tensor(PUSH_HIGH, dtype=dtype)
+    return z0, low + (high - low) * torch.rand(K, H, NU, generator=gen, dtype=dtype)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("circle", [(2, 3), None])
+def test_the_fused_rollout_projects_as_the_model_does(circle, dtype) -> None:
+    """K = 1100 (two full kernel blocks and a partial one), 20 pushes: with a circle every
+    predicted (z2, z3) lies on it and the kernel equals the torch model's projected rollout
+    to rounding; without one both stay unprojected (the pair leaves the circle)."""
+    model = _face_model(circle, dtype)
+    step = SparseSindyStep(model)
+    assert step.circle == circle
+    z0, actions = _pose_batch(1100, 20, dtype)
+    with torch.no_grad():
+        want = model.rollout(z0, actions)
+    got = step.rollout(z0, actions)
+    assert torch.isfinite(want).all()
+    tol = 1e-5 if dtype == torch.float32 else 1e-10
+    torch.testing.assert_close(got, want, rtol=tol, atol=tol)
+    torch.testing.assert_close(step(z0, actions[:, 0]), want[:, 1], rtol=tol, atol=tol)
+    off = (got[:, 1:, 2:].norm(dim=-1) - 1).abs().max()
+    if circle is None:
+        assert off > 1e-2, float(off)
+    else:
+        assert off < (1e-6 if dtype == torch.float32 else 1e-14), float(off)
+
+
+@pytest.mark.parametrize("case", ["sindy1", "sindy2-sparse", "linear", "mlp"])
+def test_every_control_step_of_a_pose_latent_stays_on_the_circle(case: str) -> None:
+    """latent_step of any model built with a circle predicts MPPI's horizon on it, like the
+    model's own rollout."""
+    model = build(case)
+    if case.startswith("sindy"):
+        dense = SindyDynamics(NZ, NU, order=int(case[5]), seed=0, init_scale=0.05,
+                              circle=(2, 3))
+        dense.threshold(0.04)
+        model = dense.compile_sparse() if case.endswith("-sparse") else dense
+    else:
+        params = model.state_dict()
+        model = make_dynamics(case, **model.hparams(), circle=(2, 3))
+        model.load_state_dict(params)
+    step = latent_step(model)
+    z0, actions = _pose_batch(64, 10, torch.float32)
+    with torch.no_grad():
+        want = model.rollout(z0, actions)
+        if hasattr(step, "rollout"):
+            got = step.rollout(z0, actions)
+        else:
+            z, got = z0, [z0]
+            for t in range(actions.shape[1]):
+                z = step(z, actions[:, t])
+                got.append(z)
+            got = torch.stack(got, 1)
+    norms = got[:, 1:, 2:].norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms), rtol=0, atol=1e-6)
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+
+
+def test_the_check_catches_a_kernel_that_skips_the_projection(monkeypatch) -> None:
+    from latent_sindy.control import sindy_step
+
+    real = sindy_step._kernel()
+
+    def unprojected(*args):  # the kernel with ca = cb = -1: no projection
+        args = list(args)
+        args[13] = args[14] = -1
+        real(*args)
+
+    SparseSindyStep(_face_model((2, 3), torch.float32))  # the real kernel passes the check
+    monkeypatch.setattr(sindy_step, "_kernel", lambda: unprojected)
+    SparseSindyStep(_face_model(None, torch.float32))  # nothing to project: still agrees
+    with pytest.raises(RuntimeError, match="circle projection"):
+        SparseSindyStep(_face_model((2, 3), torch.float32))
 
 
 def test_sparse_sindy_step_rejects_other_models() -> None:

@@ -50,6 +50,37 @@ def test_a_state_model_trains_on_poses_and_pushes(data: Path, tmp_path: Path, ki
     assert (out / "control-random-latent" / "results.json").exists()
 
 
+def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_path: Path) -> None:
+    """The projection follows from the run's config: after training, saving and loading, the
+    state SINDy's rollouts (torch and MPPI's fused kernel alike) keep (z2, z3) on the unit
+    circle over 50 random pushes, and its equations say so."""
+    from latent_sindy.control import SparseSindyStep, latent_step
+    from latent_sindy.data.store import write_trajectories
+    from latent_sindy.equations import equations_report
+    from synthetic import make_trajectories
+
+    data, out = tmp_path / "d.h5", tmp_path / "run"
+    write_trajectories(data, make_trajectories(n=6, steps=3))
+    assert main(["train", "sindy", "--order", "1", "--library", "face", "--no-include-sine",
+                 "--init-scale", "0.05", "state", "--data", str(data), "--out", str(out),
+                 "--epochs", "3", "--batch-size", "4", "--no-progress"]) == 0
+    model = RunDir(out).load().model
+    assert model.dynamics.circle == (2, 3)
+    gen = torch.Generator().manual_seed(0)
+    angle = 2 * math.pi * torch.rand(64, generator=gen)
+    z0 = torch.stack([torch.full((64,), 0.5), torch.zeros(64), angle.cos(), angle.sin()], -1)
+    actions = torch.rand(64, 50, 3, generator=gen) * 2 - 1
+    with torch.no_grad():
+        zs = model.rollout_latent(z0, actions)
+        assert (model.dynamics._step(z0, actions[:, 0])[:, 2:].norm(dim=-1) - 1).abs().max() > 1e-3
+    norms = zs[:, 1:, 2:].norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms), rtol=0, atol=1e-5)
+    step = latent_step(model.dynamics)
+    assert isinstance(step, SparseSindyStep) and step.circle == (2, 3)
+    torch.testing.assert_close(step.rollout(z0, actions), zs, rtol=1e-4, atol=1e-4)
+    assert "(z2, z3) is scaled onto the unit circle" in equations_report(out, export=False)
+
+
 @pytest.fixture(scope="module")
 def symmetric_pushes(tmp_path_factory) -> tuple:
     """Transitions of 48 random trajectories (5 pushes each) in the default world, as

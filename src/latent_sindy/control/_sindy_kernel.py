@@ -3,13 +3,15 @@
 Imported only when a SINDy step first runs on the CPU (importing numba takes a moment).
 Every loop over samples is innermost and contiguous, so LLVM vectorises it. Of the fast-math
 flags only ``contract`` (fused multiply-add) is on: NaN and inf must propagate, since MPPI
-discards diverging samples by them.
+discards diverging samples by them. Division follows numpy's error model (IEEE results, no
+ZeroDivisionError check), which lets the projection's divisions vectorise.
 """
 
 import numba
 import numpy as np
 
-_jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False)
+_jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False,
+                  error_model="numpy")
 
 
 @numba.njit(fastmath={"contract"}, inline="always", cache=True)
@@ -29,8 +31,10 @@ def _sin(x):
 
 @_jit
 def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, terms, degree,
-                         start, ptr, rows, coefs, feat, prods):
-    """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j).
+                         start, ptr, rows, coefs, ca, cb, tiny, feat, prods):
+    """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j),
+    then for ca >= 0 the pair (z_ca, z_cb) divided by sqrt(z_ca² + z_cb² + tiny) (onto the unit
+    circle, before the next step reads it; ca = cb = -1: no projection).
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
     repeats one start state); out (H, nz, K). Feature rows are [z, u, trig]: row nz + nu + i
@@ -39,8 +43,9 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
     the first product level to recompute (lower levels are shared with term s-1); the nonzero
     coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].
-    feat (nf, block) and prods (order, block) are scratch. Each block of samples runs the whole
-    horizon while it is in cache.
+    feat (nf, block) and prods (order, block) are scratch (prods[0], which no product uses,
+    holds the projection's norms). Each block of samples runs the whole horizon while it is
+    in cache.
     """
     nz, K = z0t.shape
     H, nu = ut.shape[0], ut.shape[1]
@@ -91,3 +96,13 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
                     c = coefs[j]
                     for k in range(n):
                         o[k] += c * theta[k]
+            if ca >= 0:  # separate loops: one that writes both rows does not vectorise
+                oa = out[t, ca, k0:k0 + n]
+                ob = out[t, cb, k0:k0 + n]
+                r = prods[0, :n]
+                for k in range(n):
+                    r[k] = np.sqrt(oa[k] * oa[k] + ob[k] * ob[k] + tiny)
+                for k in range(n):
+                    oa[k] = oa[k] / r[k]
+                for k in range(n):
+                    ob[k] = ob[k] / r[k]

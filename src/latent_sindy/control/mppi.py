@@ -137,7 +137,9 @@ def latent_step(model: LatentDynamics) -> DynamicsStep:
 
     A SINDy model (:class:`SindyDynamics` or its ``compile_sparse()``) becomes a
     :class:`SparseSindyStep` over its active library terms only (a frozen snapshot: call again
-    after further training or pruning); every other model's own ``step`` is returned.
+    after further training or pruning); every other model's own ``step`` is returned. Either
+    way a model with a ``circle`` (a pose latent) keeps its angle features on the unit circle
+    after every step, as in training.
     """
     if isinstance(model, SindyDynamics | SparseSindyDynamics):
         return SparseSindyStep(model)

@@ -11,14 +11,18 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
 with F = [z, u, trig] for the block (only the sines and cosines some term uses, of states
 or of actions, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2)
-and b the constant term's coefficients. Terms are sorted lexicographically so a term reuses
-its predecessor's partial product over their common prefix (x0 x1 x2 after x0 x1: one
-multiply). Everything runs feature-major (nz, K): ``step`` returns a transposed view, so the
-next step's input is contiguous again, and ``rollout`` a permuted one. Results equal the
-model's own step to float rounding (checked on a probe batch when the step is built; tested
-for orders 1-4 and libraries with trig of states and of actions).
+and b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's
+angle features) then has (out_a, out_b) divided by their norm, in the same pass, before the
+next step reads them: the projection of ``LatentDynamics.step``. Terms are sorted
+lexicographically so a term reuses its predecessor's partial product over their common
+prefix (x0 x1 x2 after x0 x1: one multiply). Everything runs feature-major (nz, K): ``step``
+returns a transposed view, so the next step's input is contiguous again, and ``rollout`` a
+permuted one. Results equal the model's own step to float rounding (checked on a probe batch
+when the step is built; tested for orders 1-4, libraries with trig of states and of actions,
+and pose latents with and without the circle).
 
-On devices other than the CPU the model's sparse torch step runs instead.
+On devices other than the CPU the model's sparse torch step (projection included) runs
+instead.
 
     >>> step = SparseSindyStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
     >>> z_next = step(z, u)  # z (K, nz), u (K, nu) -> (K, nz)
@@ -59,7 +63,8 @@ class SparseSindyStep:
 
     Built from a :class:`SindyDynamics` (compiled to its active terms first: a snapshot, so
     build again after further training or pruning) or a :class:`SparseSindyDynamics`.
-    ``n_terms`` is |S| and ``n_coefficients`` the number of nonzero coefficients.
+    ``n_terms`` is |S| and ``n_coefficients`` the number of nonzero coefficients; ``circle``
+    is the model's (the pair kept on the unit circle after every step, or None).
 
     Made for control: no gradient flows through it, and its scratch buffers make one object
     unsafe to call from two threads at once. The first call on the CPU compiles the kernel
@@ -73,6 +78,8 @@ class SparseSindyStep:
         self._sparse = sparse
         nz, nu = sparse.nz, sparse.nu
         self.nz, self.nu = nz, nu
+        self.circle = sparse.circle
+        self._circle = (-1, -1) if sparse.circle is None else sparse.circle  # the kernel's ca, cb
         # The library's feature layout: [z, u, 1, trig...], trig column k being
         # library.trig[k] = (index into [z, u], "sin" | "cos", frequency).
         one = nz + nu
@@ -128,9 +135,10 @@ class SparseSindyStep:
             np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
             trig_scale, trig_shift, bias, coefs = (a.astype(np_dtype) for a in self._floats64)
             terms, degree, start, ptr, rows = self._tables
+            tiny = np_dtype.type(torch.finfo(dtype).tiny)  # as project_circle adds
             args = self._args[dtype] = (
                 self._trig_var, trig_scale, trig_shift, bias, terms, degree, start, ptr, rows,
-                coefs,
+                coefs, *self._circle, tiny,
                 np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args
@@ -170,7 +178,8 @@ class SparseSindyStep:
 
     @torch.no_grad()
     def _check(self) -> None:
-        """Compare with the model's own step on a probe batch: guards the feature layout."""
+        """Compare with the model's own step (its circle's projection included) on a probe
+        batch: guards the feature layout and the kernel's projection."""
         gen = torch.Generator().manual_seed(0)
         z = torch.randn(7, self.nz, generator=gen) * 0.5
         u = torch.randn(7, self.nu, generator=gen) * 0.5
@@ -182,5 +191,6 @@ class SparseSindyStep:
             raise RuntimeError(
                 "SparseSindyStep disagrees with SparseSindyDynamics.step (max difference "
                 f"{float((want - got).abs().max()):.3g}): the library's feature layout "
-                "[z, u, 1, trig...] has changed; update latent_sindy/control/sindy_step.py"
+                "[z, u, 1, trig...] or the step's circle projection has changed; update "
+                "latent_sindy/control/sindy_step.py"
             )

@@ -1,15 +1,20 @@
 """Latent dynamics models behind one interface: SINDy, globally linear (E2C-like) and MLP.
 
 Every model is a ``torch.nn.Module`` with ``step(z, u) -> z_next`` on batched tensors and a
-shared ``rollout``, so MPPI, evaluation and figures never ask which model they hold; a model
-also describes itself (``summary``, ``coefficient_rows``, ``equations``, ``stats``), so the
-equations report and the study never ask either. Each kind has one config dataclass (its
-settings, its ``kind`` tag and ``build``) registered in :data:`DYNAMICS_CONFIGS`: a new kind
-is one model class, one config class and one entry there.
+shared ``rollout``, so MPPI, evaluation and figures never ask which model they hold. A model
+built with ``circle=(a, b)`` (a latent that is a pose, (x, y, cos fθ, sin fθ): the state and
+moments encoders, a coordinates pose head) scales (z_a, z_b) back onto the unit circle after
+every step, so the angle features cannot drift off it in long open-loop rollouts; training,
+prediction, evaluation and control all step through it. A model also describes itself
+(``summary``, ``coefficient_rows``, ``equations``, ``stats``), so the equations report and
+the study never ask either. Each kind has one config dataclass (its settings, its ``kind``
+tag and ``build``) registered in :data:`DYNAMICS_CONFIGS`: a new kind is one model class, one
+config class and one entry there.
 Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p library terms.
 
     >>> model = SindyConfig(order=2).build(nz=16, nu=3)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
+    >>> pose = SindyConfig(order=1, library="face").build(nz=4, nu=3, circle=(2, 3))
     >>> fast = model.compile_sparse()  # same step, only the active library terms
     >>> from latent_sindy.sindy import push_library  # any composed library spec
     >>> push = make_dynamics("sindy", nz=16, nu=3, library_spec=push_library(order=2))
@@ -19,7 +24,7 @@ Dimensions: K samples (batch), H horizon, nz latent size, nu action size, p libr
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Literal, Union
 
@@ -56,32 +61,66 @@ __all__ = [
     "SparseSindyDynamics",
     "format_equations",
     "make_dynamics",
+    "project_circle",
 ]
 
 #: One coefficient of a model's equations: (state, term, value), e.g. ("z3", "z0 u2", 0.05).
 Row = tuple[str, str, float]
 
 
+def project_circle(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """z (..., nz) with the two coordinates ``index`` (2,) divided by their norm, so they lie on
+    the unit circle: (z_a, z_b) / sqrt(z_a² + z_b² + tiny) (a pair at 0 stays 0). Out of place
+    and differentiable; NaN and inf stay non-finite."""
+    pair = z.index_select(-1, index)  # (..., 2)
+    norm = torch.sqrt(pair.square().sum(-1, keepdim=True) + torch.finfo(z.dtype).tiny)
+    return z.index_copy(-1, index, pair / norm)
+
+
 class LatentDynamics(nn.Module):
     """Base class: a discrete-time latent model ``z_{t+1} = f(z_t, u_t)``.
 
-    Subclasses implement :meth:`step`; :meth:`rollout` is shared. ``kind`` names the model in
+    Subclasses implement :meth:`_step`, the model's own update; the public :meth:`step` is it
+    followed, for a model built with ``circle=(a, b)``, by :func:`project_circle` of
+    (z_a, z_b), and :meth:`rollout` chains :meth:`step`. ``kind`` names the model in
     :data:`DYNAMICS_KINDS`, and :meth:`hparams` returns the constructor arguments, so
     ``make_dynamics(m.kind, **m.hparams())`` rebuilds an untrained copy of ``m``.
+
+    Args:
+        nz, nu: latent and action sizes.
+        circle: the latent coordinates (a, b) of an angle's (cos, sin) features, kept on the
+            unit circle after every step; None: none (the step is the model's own, unchanged).
     """
 
     kind: ClassVar[str] = ""
+    _circle_index: torch.Tensor  # (2,) long, or (0,) without a circle
 
-    def __init__(self, nz: int, nu: int) -> None:
+    def __init__(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> None:
         super().__init__()
         if nz < 1 or nu < 0:
             raise ValueError(f"need nz >= 1 and nu >= 0, got nz={nz}, nu={nu}")
         self.nz = nz
         self.nu = nu
+        if circle is not None:
+            circle = tuple(int(i) for i in circle)
+            if len(circle) != 2 or circle[0] == circle[1] or not all(
+                    0 <= i < nz for i in circle):
+                raise ValueError(f"circle {circle}: give two different latent coordinates "
+                                 f"in 0..{nz - 1} (the cos and sin features), or None")
+        self.circle: tuple[int, int] | None = circle
+        self.register_buffer("_circle_index", torch.tensor(circle or (), dtype=torch.long),
+                             persistent=False)
+
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """The model's own update, before any projection: z (K, nz), u (K, nu) -> (K, nz)."""
+        raise NotImplementedError
 
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """One step: z (K, nz), u (K, nu) -> z_next (K, nz)."""
-        raise NotImplementedError
+        """One step: z (K, nz), u (K, nu) -> z_next (K, nz), the circle's pair projected."""
+        z_next = self._step(z, u)
+        if self.circle is None:
+            return z_next
+        return project_circle(z_next, self._circle_index)
 
     def forward(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return self.step(z, u)
@@ -100,12 +139,21 @@ class LatentDynamics(nn.Module):
 
     def hparams(self) -> dict[str, Any]:
         """Constructor keyword arguments (nz and nu included) that rebuild this model."""
-        return {"nz": self.nz, "nu": self.nu}
+        if self.circle is None:
+            return {"nz": self.nz, "nu": self.nu}
+        return {"nz": self.nz, "nu": self.nu, "circle": self.circle}
 
     # ---------------------------------------------------------------- self-description
     def summary(self) -> list[str]:
-        """One or two lines saying what the model is (the equations report's heading)."""
-        return [f"{type(self).__name__} latent dynamics"]
+        """A few lines saying what the model is (the equations report's heading)."""
+        return [f"{type(self).__name__} latent dynamics", *self._circle_note()]
+
+    def _circle_note(self) -> list[str]:
+        """The summary's line on the projection, if the model has one."""
+        if self.circle is None:
+            return []
+        a, b = self.circle
+        return [f"after every step (z{a}, z{b}) is scaled onto the unit circle"]
 
     def coefficient_rows(self) -> list[Row] | None:
         """Every coefficient of its equations as (state, term, value); None: it has none."""
@@ -166,6 +214,7 @@ class SindyDynamics(LatentDynamics):
             :data:`~latent_sindy.sindy.library.LibrarySpec` or its ``to_dict()`` form (e.g.
             ``push_library(order=2, angle=1, length=2)``); then leave ``order``,
             ``include_sine`` and ``include_cosine`` at their defaults.
+        circle: see :class:`LatentDynamics`.
     """
 
     kind = "sindy"
@@ -182,8 +231,9 @@ class SindyDynamics(LatentDynamics):
         init_scale: float = 1e-3,
         seed: int | None = None,
         library_spec: LibrarySpec | Mapping[str, Any] | None = None,
+        circle: Sequence[int] | None = None,
     ) -> None:
-        super().__init__(nz, nu)
+        super().__init__(nz, nu, circle)
         init: dict[str, Any]
         if library_spec is None:
             self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
@@ -215,7 +265,7 @@ class SindyDynamics(LatentDynamics):
         """The effective coefficients M ⊙ Ψ: (p, nz)."""
         return self.psi * self.mask
 
-    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         theta = self.library(z, u)  # (K, p)
         return z + theta @ self.coefficients()  # (K, nz)
 
@@ -266,6 +316,8 @@ class SindyDynamics(LatentDynamics):
         fitted in place, so pass one to read its ``n_iter_`` etc.) solves it in closed form.
         Z (N, nz), U (N, nu), Znext (N, nz). With ``restrict_to_mask`` only terms the current
         mask allows may be active (``STLSQ(threshold=0)`` then refits them by least squares).
+        The regression fits the update before the circle's projection (which :meth:`step`
+        then applies).
         """
         opt = sindy_fit.fit_state_data(
             self.library, Z, U, Znext, optimizer, mask=self.mask if restrict_to_mask else None
@@ -314,7 +366,7 @@ class SindyDynamics(LatentDynamics):
                 f"x {nz} states), z[t+1] = z + Θ(z, u) (M ⊙ Ψ)",
                 f"active coefficients: {self.n_active()} of {p * nz} (sparsity "
                 f"{100 * self.sparsity():.1f}%); terms used by some state: "
-                f"{int(self.mask.any(dim=1).sum())} of {p}"]
+                f"{int(self.mask.any(dim=1).sum())} of {p}", *self._circle_note()]
 
     def export_info(self) -> dict[str, Any]:
         return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
@@ -330,8 +382,9 @@ class SindyDynamics(LatentDynamics):
     def compile_sparse(self) -> SparseSindyDynamics:
         """A frozen copy of the current model that evaluates only the active library terms.
 
-        Its ``step`` equals this model's ``step`` to float precision. It holds a snapshot of
-        the coefficients (no gradient): compile again after further training or pruning.
+        Its ``step`` equals this model's ``step`` to float precision (the circle's projection
+        included). It holds a snapshot of the coefficients (no gradient): compile again after
+        further training or pruning.
         """
         return SparseSindyDynamics(self)
 
@@ -343,14 +396,14 @@ class SparseSindyDynamics(LatentDynamics):
     """Fast, frozen SINDy step over the terms active in any state (for control).
 
     ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
-    C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer.
+    C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer; the model's circle, if any, is kept.
     """
 
     kind = "sindy-sparse"
     coef: torch.Tensor  # (|S|, nz)
 
     def __init__(self, model: SindyDynamics) -> None:
-        super().__init__(model.nz, model.nu)
+        super().__init__(model.nz, model.nu, model.circle)
         terms = model.active_terms()
         self.library: LibrarySubset = model.library.subset(terms)
         self.register_buffer("coef", model.coefficients().detach()[terms].clone())
@@ -359,20 +412,22 @@ class SparseSindyDynamics(LatentDynamics):
     def names(self) -> list[str]:
         return self.library.names
 
-    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return z + self.library(z, u) @ self.coef  # (K, nz)
 
 
 class LinearDynamics(LatentDynamics):
     """Globally linear latent model ``z_{t+1} = A z_t + B u_t + c`` (the E2C-style baseline).
 
-    A (nz, nz) starts near the identity, B (nz, nu) small, c (nz,) zero.
+    A (nz, nz) starts near the identity, B (nz, nu) small, c (nz,) zero; ``circle``: see
+    :class:`LatentDynamics`.
     """
 
     kind = "linear"
 
-    def __init__(self, nz: int, nu: int, init_scale: float = 1e-3, seed: int | None = None) -> None:
-        super().__init__(nz, nu)
+    def __init__(self, nz: int, nu: int, init_scale: float = 1e-3, seed: int | None = None,
+                 circle: Sequence[int] | None = None) -> None:
+        super().__init__(nz, nu, circle)
         gen = None if seed is None else torch.Generator().manual_seed(seed)
         self.A = nn.Parameter(torch.eye(nz) + init_scale * torch.randn(nz, nz, generator=gen))
         self.B = nn.Parameter(init_scale * torch.randn(nz, nu, generator=gen))
@@ -382,7 +437,7 @@ class LinearDynamics(LatentDynamics):
     def hparams(self) -> dict[str, Any]:
         return {**super().hparams(), **self._init}
 
-    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return z @ self.A.T + u @ self.B.T + self.c  # (K, nz)
 
     @torch.no_grad()
@@ -401,7 +456,8 @@ class LinearDynamics(LatentDynamics):
 
     def summary(self) -> list[str]:
         return [f"linear latent dynamics z[t+1] = A z + B u + c (A {self.nz}x{self.nz}, "
-                f"B {self.nz}x{self.nu}, c {self.nz}), every coefficient active"]
+                f"B {self.nz}x{self.nu}, c {self.nz}), every coefficient active",
+                *self._circle_note()]
 
     def export_info(self) -> dict[str, Any]:
         return {"n_coefficients": self.nz * (self.nz + self.nu + 1)}
@@ -448,13 +504,14 @@ class MlpDynamics(LatentDynamics):
     ``harmonics`` = n > 0 the action ``u[angle]`` (an angle) also enters as cos(k u), sin(k u)
     for k = 1..n: a network of this size learns functions of an angle that turn n times per
     revolution (the pose features of a block with n-fold symmetry) only from such features.
+    ``circle``: see :class:`LatentDynamics`.
     """
 
     kind = "mlp"
 
     def __init__(self, nz: int, nu: int, hidden: int = 128, layers: int = 2,
-                 harmonics: int = 0, angle: int = 1) -> None:
-        super().__init__(nz, nu)
+                 harmonics: int = 0, angle: int = 1, circle: Sequence[int] | None = None) -> None:
+        super().__init__(nz, nu, circle)
         if layers < 1 or hidden < 1:
             raise ValueError(
                 f"MlpDynamics needs layers >= 1 and hidden >= 1, got layers={layers}, "
@@ -483,7 +540,7 @@ class MlpDynamics(LatentDynamics):
     def hparams(self) -> dict[str, Any]:
         return {**super().hparams(), **self._init}
 
-    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         parts = [z, u]
         if len(self._k):
             a = u[..., self._angle, None] * self._k.to(u.dtype)
@@ -495,7 +552,7 @@ class MlpDynamics(LatentDynamics):
         extra = f", u{self._init['angle']} as cos/sin of 1..{n} times it" if n else ""
         return [f"MLP latent dynamics z[t+1] = z + MLP([z, u]) ({self._init['layers']} hidden "
                 f"layers of {self._init['hidden']}{extra}): a neural network has no readable "
-                "equations"]
+                "equations", *self._circle_note()]
 
 
 # ----------------------------------------------------------------------------- configs
@@ -546,7 +603,9 @@ class SindyConfig:
                             "> 0 (4 for a square block)")
         _check_scale("SINDy", self.init_scale)
 
-    def build(self, nz: int, nu: int) -> SindyDynamics:
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> SindyDynamics:
+        """The model for latent size nz and action size nu; ``circle``: the latent
+        coordinates kept on the unit circle (see :class:`LatentDynamics`)."""
         if self.library in ("push", "face") and nu < 3:
             raise UserError(f"the {self.library} library needs actions [p, angle, length], "
                             f"got {nu}")
@@ -558,12 +617,13 @@ class SindyConfig:
             spec = face_library(self.order, frequency=self.angle_frequency)
             if self.include_sine:
                 spec = spec + Sine("z")
-            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec)
-        if self.library == "push":
+        elif self.library == "push":
             spec = push_library(self.order, angle=1, length=2, include_sine=self.include_sine)
-            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec)
-        return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
-                             include_cosine=self.include_cosine, init_scale=self.init_scale)
+        else:
+            return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
+                                 include_cosine=self.include_cosine, init_scale=self.init_scale,
+                                 circle=circle)
+        return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle)
 
 
 @dataclass(frozen=True)
@@ -578,8 +638,8 @@ class LinearConfig:
     def __post_init__(self) -> None:
         _check_scale("linear", self.init_scale)
 
-    def build(self, nz: int, nu: int) -> LinearDynamics:
-        return LinearDynamics(nz, nu, init_scale=self.init_scale)
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> LinearDynamics:
+        return LinearDynamics(nz, nu, init_scale=self.init_scale, circle=circle)
 
 
 @dataclass(frozen=True)
@@ -603,12 +663,12 @@ class MlpConfig:
         if not 0 <= self.harmonics <= 64:
             raise UserError(f"--harmonics {self.harmonics}: use 0 to 64")
 
-    def build(self, nz: int, nu: int) -> MlpDynamics:
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> MlpDynamics:
         if self.harmonics and nu < 2:
             raise UserError(f"--harmonics needs a push angle u1, but actions have {nu} "
                             "components")
         return MlpDynamics(nz, nu, hidden=self.hidden, layers=self.layers,
-                           harmonics=self.harmonics, angle=1)
+                           harmonics=self.harmonics, angle=1, circle=circle)
 
 
 #: The registry: every latent dynamics kind's config class (its ``kind`` names it).

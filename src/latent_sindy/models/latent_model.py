@@ -4,7 +4,12 @@
 :class:`~latent_sindy.models.autoencoder.Autoencoder`, or the identity codec of the true
 state, :mod:`latent_sindy.models.state`) and any latent
 dynamics model of :data:`~latent_sindy.models.dynamics.DYNAMICS_CONFIGS` (SINDy, linear,
-MLP). Its :meth:`LatentModel.loss` is the paper's loss (eq. 1–4, docs/design.md) on one batch
+MLP). Where the latent is a pose, (x, y, cos fθ, sin fθ, ...) (:attr:`ModelConfig.pose_latent`:
+the state and moments encoders, a coordinates pose head), the dynamics are built to scale
+(z2, z3) back onto the unit circle after every step, so the loss's rollouts, predictions,
+evaluation and control all step through the same projected dynamics; the projection follows
+from the config, so a saved run gets it back when it is loaded.
+Its :meth:`LatentModel.loss` is the paper's loss (eq. 1–4, docs/design.md) on one batch
 of windows x_0..x_H, u_0..u_{H-1}, every term a mean squared error per element of normalised
 pixels (or latent coordinates), so values do not depend on the image size, batch or horizon:
 
@@ -51,7 +56,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import DynamicsConfig, LatentDynamics, SindyConfig
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
-from latent_sindy.models.state import StateConfig
+from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
 
 __all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "EncoderConfig", "LatentModel", "LossWeights",
            "ModelConfig"]
@@ -100,8 +105,7 @@ class ModelConfig:
         if self.has_pose_head and self.encoder.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
                             "latent is the pose already; drop --pose-head")
-        if (getattr(self.dynamics, "library", None) == "face" and not self.encoder.pose_latent
-                and self.pose_head != "coordinates"):
+        if getattr(self.dynamics, "library", None) == "face" and not self.pose_latent:
             raise UserError("--library face writes the dynamics on the pose features (z2, z3 = "
                             "cos, sin of the angle): use it with the state encoder, the "
                             "moments encoder (--encoder moments --latent-dim 4) or --pose-head "
@@ -114,6 +118,13 @@ class ModelConfig:
     @property
     def has_pose_head(self) -> bool:
         return self.pose_head != "none"
+
+    @property
+    def pose_latent(self) -> bool:
+        """Whether the first four latent coordinates are the pose features (x, y, cos fθ,
+        sin fθ): the state and moments encoders, or a coordinates pose head. The dynamics then
+        keep (z2, z3) on the unit circle."""
+        return self.encoder.pose_latent or self.pose_head == "coordinates"
 
     @property
     def resolved(self) -> bool:
@@ -177,7 +188,8 @@ def _foreground(x: torch.Tensor) -> torch.Tensor:
 
 
 class LatentModel(nn.Module):
-    """Autoencoder + latent dynamics; ``step(z, u)`` is the dynamics model's step.
+    """Autoencoder + latent dynamics; ``step(z, u)`` is the dynamics model's step (with the
+    angle features of a pose latent projected onto the unit circle: ``dynamics.circle``).
 
     Args:
         config: a resolved :class:`ModelConfig`. The parameters are initialised from the
@@ -191,7 +203,8 @@ class LatentModel(nn.Module):
         self.config = config
         self.autoencoder = config.encoder.build()
         self.dynamics: LatentDynamics = config.dynamics.build(
-            config.encoder.latent_dim, config.action_dim)
+            config.encoder.latent_dim, config.action_dim,
+            circle=ANGLE_FEATURES if config.pose_latent else None)
         self._has_l1 = hasattr(self.dynamics, "l1_penalty")
         # Built last, so that the autoencoder and the dynamics draw the same initial weights
         # with or without it.

@@ -23,10 +23,13 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 
-__all__ = ["STATE_DIM", "StateCodec", "StateConfig", "pose_cost_weights"]
+__all__ = ["ANGLE_FEATURES", "STATE_DIM", "StateCodec", "StateConfig", "pose_cost_weights"]
 
 #: (x, y, cos(2πθ/P), sin(2πθ/P))
 STATE_DIM = 4
+#: Where the angle features (cos, sin) lie in the pose: a pose latent's dynamics keep them on
+#: the unit circle (:class:`~latent_sindy.models.dynamics.LatentDynamics`'s ``circle``).
+ANGLE_FEATURES = (2, 3)
 
 
 @dataclass(frozen=True)
