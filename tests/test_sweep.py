@@ -84,3 +84,25 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["aggregate"]) == set(names)
     assert summary["config"]["sweep"] == [{"setting": "lambda_l1", "values": [1e-4, 1e-2]}]
+
+
+def test_the_threshold_is_a_sindy_setting_the_study_trains_with(tmp_path):
+    """--sweep threshold applies to SINDy models only, and the study trains each spec with
+    its own threshold where it sets one (the moments row), else the scale's."""
+    from latent_sindy.experiments.reproduce import train_config
+    from latent_sindy.experiments.study import Study
+
+    cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
+                          sweep=(Sweep.parse("threshold=0.01,0.1"),))
+    specs = {s.name: s for s in study_specs(cfg)}
+    assert list(specs) == ["sindy2.threshold=0.01", "sindy2.threshold=0.1", "linear"]
+    plain = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "sindy_moments"))
+    for config in (cfg, plain):
+        chosen = study_specs(config)
+        study = Study(config, chosen, {0: {s.name: tmp_path / s.name for s in chosen}})
+        for spec in chosen:
+            want = SCALES["tiny"].threshold if spec.threshold is None else spec.threshold
+            assert train_config(study, spec, 0, tmp_path / "d.h5").threshold == want
+    moments = next(s for s in study_specs(plain) if s.name == "sindy_moments")
+    assert moments.threshold != SCALES["tiny"].threshold
+    assert specs["sindy2.threshold=0.1"].threshold == 0.1

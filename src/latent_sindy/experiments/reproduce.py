@@ -64,13 +64,13 @@ from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import BASELINES, Stat, aggregate, baseline_errors
 from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
 from latent_sindy.experiments.probe import position_errors
-from latent_sindy.experiments.study import ReproduceConfig, Study, study_specs
+from latent_sindy.experiments.study import ModelSpec, ReproduceConfig, Study, study_specs
 from latent_sindy.experiments.study_report import write_report
 from latent_sindy.experiments.table import write_sweep_table, write_table1
 from latent_sindy.progress import bar, say_stderr
 from latent_sindy.training import RunDir, TrainConfig, load_run, read_metrics
 
-__all__ = ["reproduce", "versions"]
+__all__ = ["reproduce", "train_config", "versions"]
 
 Say = Callable[[str], None]
 
@@ -144,14 +144,7 @@ def run_stage(study: Study, data: Path, pool: Executor, say: Say) -> None:
     jobs = []
     for seed in cfg.seeds:
         for spec in study.specs:
-            tc = TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
-                             loss=spec.loss, window=spec.window,
-                             epochs=scale.epochs * spec.epochs_factor,
-                             batch_size=scale.batch_size, threshold=scale.threshold,
-                             threshold_every=scale.threshold_every * spec.epochs_factor,
-                             eval_every=scale.eval_every * spec.epochs_factor,
-                             batching=scale.batching, seed=seed,
-                             device="auto" if cfg.gpus > 0 else "cpu")
+            tc = train_config(study, spec, seed, data)
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
     jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in study.specs for c in scale.conditions(spec))
@@ -335,6 +328,21 @@ def _curves(study: Study, prefix: str) -> dict[str, tuple[list[float], list[floa
 
 
 @torch.no_grad()
+def train_config(study: Study, spec: ModelSpec, seed: int, data: Path) -> TrainConfig:
+    """How the study trains ``spec`` for ``seed``: the scale's schedule (times the spec's
+    epochs factor), the spec's model, loss weights, window and threshold (if it sets one)."""
+    scale = study.scale
+    return TrainConfig(data=data, out=study.runs[seed][spec.name], model=spec.model,
+                       loss=spec.loss, window=spec.window,
+                       epochs=scale.epochs * spec.epochs_factor,
+                       batch_size=scale.batch_size,
+                       threshold=scale.threshold if spec.threshold is None else spec.threshold,
+                       threshold_every=scale.threshold_every * spec.epochs_factor,
+                       eval_every=scale.eval_every * spec.epochs_factor,
+                       batching=scale.batching, seed=seed,
+                       device="auto" if study.config.gpus > 0 else "cpu")
+
+
 def _rollout_figure(models: list[tuple[Path, str]], test: Trajectories, path: Path) -> Path:
     """Fig. 8: a test trajectory, and each (run, label)'s open-loop rollout from its first
     image."""
@@ -343,7 +351,8 @@ def _rollout_figure(models: list[tuple[Path, str]], test: Trajectories, path: Pa
         run = load_run(run_dir)
         x = run.normalizer.normalize(test.images[:1])  # (1, T+1, C, S, S)
         u = torch.as_tensor(test.actions[:1], dtype=torch.float32)  # (1, T, nu)
-        pred = run.model.predict(x[:, 0], u)[0]  # (T+1, C, S, S)
+        with torch.no_grad():
+            pred = run.model.predict(x[:, 0], u)[0]  # (T+1, C, S, S)
         rows.append((label, run.normalizer.denormalize(pred).numpy()))
     return figures.rollout_strip(rows, path)
 
