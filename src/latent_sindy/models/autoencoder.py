@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.state import StateConfig, pose_cost_weights
 
 __all__ = ["ENCODERS", "Autoencoder", "AutoencoderConfig", "Decoder", "Encoder",
            "KeypointEncoder", "MomentEncoder"]
@@ -265,9 +266,7 @@ class MomentEncoder(nn.Module):
         default camera), and so does 10° of orientation (as the state's cost,
         :func:`~latent_sindy.models.state.pose_cost_weights`)."""
         pixel = float(self.coords[1] - self.coords[0])
-        e = math.radians(10.0) * self.order
-        a = 1.0 / (2.0 - 2.0 * math.cos(min(e, math.pi)))
-        return torch.tensor([1 / pixel**2, 1 / pixel**2, a, a])
+        return pose_cost_weights(2 * math.pi / self.order, StateConfig(position_scale=pixel))
 
 
 class _NativeForwardConvTranspose(torch.autograd.Function):

@@ -215,8 +215,8 @@ class LatentModel(nn.Module):
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor, poses: torch.Tensor | None) -> None:
         """Set what the model takes from the training split rather than learns: the moments
-        encoder's background from the normalised frames (..., C, S, S) (or encoded poses of a
-        state model) and a pose head's standardisation from the pose features (..., 4)."""
+        encoder's background from the normalised frames (..., C, S, S) (other encoders take
+        none) and a pose head's standardisation from the pose features (..., 4)."""
         fit = getattr(self.autoencoder, "fit_statistics", None)
         if fit is not None:
             fit(frames.reshape(-1, *frames.shape[-3:]))

@@ -220,7 +220,7 @@ class _Gradients:
             return {k: v.detach() * share for k, v in terms.items()}, g
 
         results = list(self._pool.map(part, bounds[:-1], bounds[1:]))
-        terms = {k: sum(r[0][k] for r in results[1:]) + results[0][0][k]
+        terms = {k: functools.reduce(torch.add, [r[0][k] for r in results])
                  for k in results[0][0]}
         for i, p in enumerate(self.params):
             gs = [r[1][i] for r in results if r[1][i] is not None]
