@@ -17,6 +17,7 @@ from latent_sindy.sindy import (
     CandidateLibrary,
     Constant,
     Cosine,
+    FaceFrame,
     Identity,
     Polynomial,
     Product,
@@ -24,6 +25,8 @@ from latent_sindy.sindy import (
     Sine,
     Sum,
     face_library,
+    face_variables,
+    frame_library,
     library_preset,
     poly_library,
     push_library,
@@ -418,3 +421,78 @@ def test_the_face_library_refuses_repeated_action_indices() -> None:
 def test_frequencies_that_print_alike_are_refused() -> None:
     with pytest.raises(UserError, match="twice"):
         SindyLibrary(Sine("z0", frequency=4) + Sine("z0", frequency=4.0000001), 1, 0)
+
+
+def _poses_and_pushes(n: int, seed: int) -> tuple[torch.Tensor, ...]:
+    gen = torch.Generator().manual_seed(seed)
+    theta = (torch.rand(n, generator=gen, dtype=torch.float64) - 0.5) * 2 * math.pi
+    psi = (torch.rand(n, generator=gen, dtype=torch.float64) - 0.5) * 2 * math.pi
+    p = torch.rand(n, generator=gen, dtype=torch.float64) * 2 - 1
+    ell = torch.rand(n, generator=gen, dtype=torch.float64)
+    return theta, psi, p, ell
+
+
+def test_the_face_variables_are_the_angle_from_the_nearest_face_normal() -> None:
+    theta, psi, *_ = _poses_and_pushes(500, seed=1)
+    c, s = torch.cos(4 * theta), torch.sin(4 * theta)
+    a, n = face_variables(psi, c, s, (0, 0, 0, 4.0, 1, 0.0))
+    assert bool((a >= -math.pi / 4).all() and (a < math.pi / 4).all())
+    # n is one of the block's four face normals θ + kπ/2 ...
+    k = (n - theta) / (math.pi / 2)
+    torch.testing.assert_close(k, k.round(), rtol=0, atol=1e-9)
+    # ... the one nearest the push direction
+    normals = theta[:, None] + torch.arange(4, dtype=torch.float64) * math.pi / 2
+    gap = torch.remainder(psi[:, None] - normals + math.pi, 2 * math.pi) - math.pi
+    torch.testing.assert_close(a, gap.gather(1, gap.abs().argmin(1, keepdim=True))[:, 0])
+    # features read in a mirrored frame about another reference: sense -1 and an offset
+    mirrored = math.pi - 4 * theta
+    a2, n2 = face_variables(psi, torch.cos(mirrored), torch.sin(mirrored),
+                            (0, 0, 0, 4.0, -1, math.pi))
+    torch.testing.assert_close(a2, a, rtol=0, atol=1e-9)
+
+
+def test_the_frame_library_writes_a_push_along_the_face_normal_exactly() -> None:
+    # A block pushed on a face slides along that face's normal n and turns, by amounts set
+    # by the contact offset p and the angle a from the normal: polynomials of (p, a) times
+    # ℓ cos n, ℓ sin n (and the orientation features for the turn) lie in the frame
+    # library's span exactly; in the face library's (harmonics of 4(ψ - θ)) they do not.
+    theta, psi, p, ell = _poses_and_pushes(600, seed=2)
+    z = torch.stack([torch.rand_like(p), torch.rand_like(p), torch.cos(4 * theta),
+                     torch.sin(4 * theta)], -1)
+    u = torch.stack([p, psi, ell], -1)
+    a, n = face_variables(psi, z[:, 2], z[:, 3], (0, 0, 0, 4.0, 1, 0.0))
+    along = ell * (1.0 - 0.3 * p**2 - 0.5 * a**2)
+    across = ell * (0.4 * a - 0.8 * p * a**2)
+    dx = along * torch.cos(n) - across * torch.sin(n)
+    turn = ell * (-0.8 * p + 1.5 * a - 1.7 * a**3)
+
+    def residual(lib: SindyLibrary, target: torch.Tensor) -> float:
+        theta_lib = lib(z, u)
+        sol = torch.linalg.lstsq(theta_lib, target[:, None]).solution
+        return float((theta_lib @ sol - target[:, None]).abs().max())
+
+    frame, face = SindyLibrary(frame_library(), 4, 3), SindyLibrary(face_library(), 4, 3)
+    assert residual(frame, dx) < 1e-9 and residual(frame, -z[:, 3] * turn) < 1e-9
+    assert residual(face, dx) > 1e-2
+    assert frame.n_terms == 8 + 4 * 10 and "u0 u2 a cos(n)" in frame.names
+
+
+def test_a_face_frame_round_trips_and_prints_its_definition() -> None:
+    spec = frame_library(sense=-1, angle_offset=math.pi, degree=2)
+    again = spec_from_dict(json.loads(json.dumps(spec.to_dict())))
+    assert again == spec
+    assert SindyLibrary(again, 4, 3).names == SindyLibrary(spec, 4, 3).names
+    assert "a = u1 - (-atan2(z3, z2) + 3.142) / 4" in str(spec)
+
+
+def test_face_variables_need_a_face_frame_and_one_definition() -> None:
+    with pytest.raises(UserError, match="wrap the library in FaceFrame"):
+        SindyLibrary(Identity("u2") * Cosine("n"), 4, 3)
+    with pytest.raises(UserError, match="twice"):
+        SindyLibrary(FaceFrame(Identity("a")) + FaceFrame(Identity("n"), frequency=2), 4, 3)
+    with pytest.raises(UserError, match="name one action"):
+        FaceFrame(Identity("a"), angle="z1")
+    with pytest.raises(UserError, match="sense"):
+        FaceFrame(Identity("a"), sense=2)
+    with pytest.raises(UserError, match="n_state"):  # the orientation beyond the state
+        SindyLibrary(FaceFrame(Identity("a"), orientation=("z4", "z5")), 4, 3)

@@ -560,3 +560,25 @@ def test_sparse_sindy_step_serves_mppi_and_plain_calls() -> None:
     with torch.no_grad():
         torch.testing.assert_close(step(z, u), model.step(z, u))
     torch.testing.assert_close(step(z, u), model.step(z, u).detach())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("sense", [1, -1])
+def test_sparse_sindy_step_computes_the_face_variables_as_the_model(dtype, sense) -> None:
+    # The frame library's face variables (a, n) come from atan2 of the orientation features
+    # and a wrap, inside the kernel; also as arguments of cos(n), sin(n), over a rollout with
+    # the unit-circle projection.
+    from latent_sindy.sindy import frame_library
+
+    model = SindyDynamics(4, 3, library_spec=frame_library(sense=sense, angle_offset=0.7),
+                          seed=2, init_scale=0.05, circle=(2, 3)).to(dtype)
+    model.threshold(0.03)
+    step = SparseSindyStep(model)
+    assert any("a" in name.split() or "cos(n)" in name for name in step._sparse.names)
+    gen = torch.Generator().manual_seed(4)
+    z0 = torch.randn(700, 4, generator=gen, dtype=dtype)
+    actions = torch.randn(700, 6, 3, generator=gen, dtype=dtype) * 2
+    with torch.no_grad():
+        want = model.rollout(z0, actions)
+    tol = 1e-4 if dtype == torch.float32 else 1e-9
+    torch.testing.assert_close(step.rollout(z0, actions), want, rtol=tol, atol=tol)

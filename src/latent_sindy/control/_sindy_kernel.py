@@ -31,15 +31,20 @@ def _sin(x):
 
 @_jit
 def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, terms, degree,
-                         start, ptr, rows, coefs, ca, cb, tiny, feat, prods):
+                         start, ptr, rows, coefs, ca, cb, tiny, face_idx, face_par, feat,
+                         prods):
     """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j),
     then for ca >= 0 the pair (z_ca, z_cb) divided by sqrt(z_ca² + z_cb² + tiny) (onto the unit
     circle, before the next step reads it; ca = cb = -1: no projection).
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
-    repeats one start state); out (H, nz, K). Feature rows are [z, u, trig]: row nz + nu + i
-    is sin(trig_scale[i] feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz) or an
-    action, and a cosine for shift π/2. terms (S, order): feature
+    repeats one start state); out (H, nz, K). Feature rows are [z, u, (a, n), trig]. For
+    face_idx[0] >= 0 rows nz + nu and nz + nu + 1 are the face variables of
+    ``latent_sindy.sindy.library.FaceFrame``: with ψ = feat[face_idx[0]], (c, s) the rows
+    face_idx[1:] and (f, sense, offset) = face_par, a = wrap_2π(f ψ - sense atan2(s, c) -
+    offset) / f and n = ψ - a. The next trig row i is sin(trig_scale[i] feat[trig_var[i]] +
+    trig_shift[i]), of a state (trig_var < nz), an action or a face variable, and a cosine
+    for shift π/2. terms (S, order): feature
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
     the first product level to recompute (lower levels are shared with term s-1); the nonzero
     coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].
@@ -50,6 +55,9 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
     nz, K = z0t.shape
     H, nu = ut.shape[0], ut.shape[1]
     block = feat.shape[1]
+    face = face_idx[0] >= 0
+    base = nz + nu + 2 if face else nz + nu
+    two_pi = 2.0 * np.pi
     for k0 in range(0, K, block):
         n = min(block, K - k0)
         for i in range(nz):
@@ -69,9 +77,21 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
                 f = feat[nz + i, :n]
                 for k in range(n):
                     f[k] = src[k]
+            if face:
+                psi = feat[face_idx[0], :n]
+                fc = feat[face_idx[1], :n]
+                fs = feat[face_idx[2], :n]
+                fa = feat[nz + nu, :n]
+                fn = feat[nz + nu + 1, :n]
+                freq, sense, offset = face_par[0], face_par[1], face_par[2]
+                for k in range(n):
+                    x = freq * psi[k] - (sense * np.arctan2(fs[k], fc[k]) + offset) + np.pi
+                    a = (x - two_pi * np.floor(x / two_pi) - np.pi) / freq
+                    fa[k] = a
+                    fn[k] = psi[k] - a
             for i in range(trig_var.shape[0]):
                 src = feat[trig_var[i], :n]
-                f = feat[nz + nu + i, :n]
+                f = feat[base + i, :n]
                 scale = trig_scale[i]
                 shift = trig_shift[i]
                 for k in range(n):

@@ -9,9 +9,9 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
     out_i = z_i + b_i + Σ_{(s, i, c) ∈ nnz(C_S)} c · θ_s,   θ_s = Π_k F[term_s[k]]
 
-with F = [z, u, trig] for the block (only the sines and cosines some term uses, of states
-or of actions, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2)
-and b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's
+with F = [z, u, (a, n), trig] for the block ((a, n) the face variables of a library in a
+``FaceFrame``; only the sines and cosines some term uses, of states, actions or face
+variables, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2) and b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's
 angle features) then has (out_a, out_b) divided by their norm, in the same pass, before the
 next step reads them: the projection of ``LatentDynamics.step``. Terms are sorted
 lexicographically so a term reuses its predecessor's partial product over their common
@@ -80,10 +80,10 @@ class SparseSindyStep:
         self.nz, self.nu = nz, nu
         self.circle = sparse.circle
         self._circle = (-1, -1) if sparse.circle is None else sparse.circle  # the kernel's ca, cb
-        # The library's feature layout: [z, u, 1, trig...], trig column k being
-        # library.trig[k] = (index into [z, u], "sin" | "cos", frequency).
-        one = nz + nu
+        # The library's feature layout: [z, u, (a, n), 1, trig...], trig column k being
+        # library.trig[k] = (index into [z, u, (a, n)], "sin" | "cos", frequency).
         library = sparse.library
+        one = library.constant_column
         table = library.table.cpu()  # (|S|, width)
         coef = sparse.coef.detach().cpu().double()  # (|S|, nz)
         self.n_terms = int(table.shape[0])
@@ -118,6 +118,10 @@ class SparseSindyStep:
         self._order = width
         # Kernel arguments: integer tables as they are, floats kept in float64 and cast per dtype.
         self._trig_var = trig_var
+        face = library.face
+        self._face_idx = np.array(face[:3] if face is not None else (-1, -1, -1), dtype=np.int64)
+        self._face_par = np.array(face[3:] if face is not None else (1.0, 1.0, 0.0),
+                                  dtype=np.float64)
         self._tables = (
             np.array([p + (0,) * (width - len(p)) for p in terms],
                      dtype=np.int64).reshape(-1, width),
@@ -133,12 +137,13 @@ class SparseSindyStep:
         args = self._args.get(dtype)
         if args is None:
             np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
-            trig_scale, trig_shift, bias, coefs = (a.astype(np_dtype) for a in self._floats64)
+            trig_scale, trig_shift, bias, coefs, face_par = (
+                a.astype(np_dtype) for a in (*self._floats64, self._face_par))
             terms, degree, start, ptr, rows = self._tables
             tiny = np_dtype.type(torch.finfo(dtype).tiny)  # as project_circle adds
             args = self._args[dtype] = (
                 self._trig_var, trig_scale, trig_shift, bias, terms, degree, start, ptr, rows,
-                coefs, *self._circle, tiny,
+                coefs, *self._circle, tiny, self._face_idx, face_par,
                 np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args
@@ -191,6 +196,6 @@ class SparseSindyStep:
             raise RuntimeError(
                 "SparseSindyStep disagrees with SparseSindyDynamics.step (max difference "
                 f"{float((want - got).abs().max()):.3g}): the library's feature layout "
-                "[z, u, 1, trig...] or the step's circle projection has changed; update "
+                "[z, u, (a, n), 1, trig...] or the step's circle projection has changed; update "
                 "latent_sindy/control/sindy_step.py"
             )

@@ -15,6 +15,8 @@ in both axes, and where this one puts it (tests/test_probe.py).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from latent_sindy.envs._bullet import pybullet as pb
@@ -29,6 +31,7 @@ class Camera:
     def __init__(self, cfg: PushEnvConfig) -> None:
         c = cfg.camera
         self.size = cfg.image_size
+        self.target = tuple(c.target)
         #: PyBullet's view and projection matrices (column-major 16-tuples), for rendering
         self.view = pb.computeViewMatrixFromYawPitchRoll(c.target, c.distance, c.yaw, c.pitch,
                                                          0.0, 2)
@@ -45,6 +48,21 @@ class Camera:
         ndc = clip[..., :3] / clip[..., 3:]
         s = self.size
         return np.stack([(1 - ndc[..., 1]) / 2 * s - 1, (ndc[..., 0] + 1) / 2 * s], -1)
+
+    def angle_map(self, height: float = 0.0) -> tuple[int, float]:
+        """How the image turns world directions, at the workspace's centre (the camera's
+        target): a direction at world angle β has the image angle γ0 + sense · β, in image
+        axes x to the right (columns) and y down (rows). Returns (sense, γ0): sense -1 where
+        the image mirrors the world (its axes swap the world's)."""
+        x, y, _ = self.target
+        step = 0.01
+        rc0 = self.world_to_pixel((x, y, height))
+        jx = self.world_to_pixel((x + step, y, height)) - rc0  # (row, col) per world x
+        jy = self.world_to_pixel((x, y + step, height)) - rc0
+        # image (col, row) vectors of the world axes
+        ex, ey = np.array([jx[1], jx[0]]), np.array([jy[1], jy[0]])
+        sense = 1 if ex[0] * ey[1] - ex[1] * ey[0] > 0 else -1
+        return sense, float(math.atan2(ex[1], ex[0]))
 
     def pixel_to_world(self, rc, height: float) -> np.ndarray:
         """(row, col) (..., 2) -> (x, y) (..., 2) where each pixel's ray meets the plane

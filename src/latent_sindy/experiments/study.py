@@ -26,6 +26,7 @@ import tyro
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planners import world_planner
+from latent_sindy.envs.camera import Camera
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.evaluation import Stat
@@ -420,7 +421,8 @@ SINGLE_STEP = "sindy2"
 
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                 angle_period: float = math.pi / 2,
-                push: Literal["symmetric", "paper"] = "symmetric") -> tuple[ModelSpec, ...]:
+                push: Literal["symmetric", "paper"] = "symmetric",
+                moment_frame: tuple[int, float] = (1, 0.0)) -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows, SINDy
     order 2 with the push library, and the same with a privileged pose head planning on its
     pose cost, all with the same autoencoder architecture; the pose latents (privileged, and
@@ -429,12 +431,15 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     ``angle_period`` is the world's visible symmetry, which sets the face library's angle
     frequency; ``push`` its push style: the face library writes pushes given as world
     directions, so a world whose push angle is relative to the block ("paper", "marked")
-    keeps the push library in those rows."""
+    keeps the push library in those rows. ``moment_frame`` (sense, offset) maps the moments
+    latent's orientation features to the world's (:func:`moment_frame`)."""
     h = scale.multistep_window
     auto = AutoencoderConfig(decoder=decoder)
     library = "face" if push == "symmetric" else "push"
     pose_dynamics = SindyConfig(order=1, library=library, include_sine=False,
                                 angle_frequency=2 * math.pi / angle_period)
+    frame = library == "face"  # the frame library, like the face one, needs world directions
+    frame_dynamics = dataclasses.replace(pose_dynamics, library="frame") if frame else None
 
     def model(dynamics: Any) -> ModelConfig:
         return ModelConfig(encoder=auto, dynamics=dynamics)
@@ -504,6 +509,18 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         ModelSpec("state_sindy", f"SINDy ({library} library), state", state(pose_dynamics),
                   loss=LossWeights(lambda_l1=1e-3 if library == "face" else 1e-4), cost=0.1,
                   headline=True, epochs_factor=10),
+        *((ModelSpec("state_sindy_frame", "SINDy (frame library), state",
+                     state(frame_dynamics), loss=LossWeights(lambda_l1=1e-3), cost=0.1,
+                     headline=True, epochs_factor=10),
+           ModelSpec("sindy_moments_frame", "SINDy (frame library), image moments",
+                     ModelConfig(encoder=dataclasses.replace(
+                         auto, encoder="moments", latent_dim=4,
+                         moment_order=round(2 * math.pi / angle_period)),
+                         dynamics=dataclasses.replace(
+                             frame_dynamics, frame_sense=moment_frame[0],
+                             frame_offset=moment_frame[1])),
+                     loss=LossWeights(lambda_pred_x=0.0, lambda_l1=3e-3), threshold=0.03,
+                     cost=0.6, headline=True)) if frame else ()),
         ModelSpec("state_linear", "linear, state", state(LinearConfig()), cost=0.1,
                   headline=True, epochs_factor=10),
         # The push angle also as cos / sin of 1-4 times it: a square block's pose features turn
@@ -515,11 +532,23 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     )
 
 
+def moment_frame(world: PushEnvConfig) -> tuple[int, float]:
+    """(sense, offset) of the frame library for the moments latent of ``world``'s images:
+    the world's fθ = sense · nφ + offset, from nφ, the argument of the images' n-th angular
+    moment (n = 2π / the visible period). The camera maps a world angle β to the image angle
+    γ0 + sense · β (:meth:`Camera.angle_map`), and a square's 4th moment peaks at its
+    corners, π / n off its faces: nφ = n (γ0 + sense θ) + π."""
+    sense, gamma0 = Camera(world).angle_map()
+    n = 2 * math.pi / world.angle_period
+    return sense, math.remainder(-sense * (math.pi + n * gamma0), 2 * math.pi)
+
+
 def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
     """The models of a study: :func:`model_specs`, those of ``--models``, and for each model
     one variant per combination of the ``--sweep`` values that apply to it."""
     world = PushEnvConfig.named(config.world)
-    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push)
+    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push,
+                        moment_frame(world))
     names = [s.name for s in specs]
     unknown = [m for m in config.models if m not in names]
     if unknown or len(set(config.models)) != len(config.models):

@@ -42,6 +42,7 @@ from latent_sindy.sindy.library import (
     SindyLibrary,
     Sine,
     face_library,
+    frame_library,
     push_library,
     spec_from_dict,
 )
@@ -573,31 +574,50 @@ class SindyConfig:
     """Add sin(z_i) candidates."""
     include_cosine: bool = False
     """Add cos(z_i) candidates ("poly" library only)."""
-    library: Literal["poly", "push", "face"] = "poly"
+    library: Literal["poly", "push", "face", "frame"] = "poly"
     """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
     length times the sine and cosine of the push angle, alone and times each state (what a
     push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (order 1, on the
     pose: state models or --pose-head coordinates; pushes given as world directions, the
     symmetric world): the push length times the push direction or the orientation features
     (z2, z3), times powers of the contact offset and the push angle relative to the pushed
-    face (the library's face_library)."""
+    face (the library's face_library); "frame" (order 1, on the pose, world-direction
+    pushes): the push in the pushed face's frame, the push length times the face normal's
+    direction (cos n, sin n) or the orientation features, times the monomials of the contact
+    offset and of the push's angle a from the face normal (the library's frame_library)."""
     angle_frequency: float = 4.0
     """"face" library: f of the orientation features (cos fθ, sin fθ), the block's visible
     symmetry: 4 for a square block (2π over the visible period). The relative push angle
     enters as sin(f u1), cos(f u1) times those features."""
+    frame_degree: int = 3
+    """"frame" library: highest degree of the monomials of the contact offset and the angle
+    from the face normal."""
+    frame_sense: int = 1
+    """"frame" library: the orientation features' sense against the world's, fθ =
+    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image; the study sets
+    it for the moments latent from the camera)."""
+    frame_offset: float = 0.0
+    """"frame" library: that offset (radians)."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
 
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
-        if self.library not in ("poly", "push", "face"):
-            raise UserError(f"--library {self.library!r}: use poly, push or face")
+        if self.library not in ("poly", "push", "face", "frame"):
+            raise UserError(f"--library {self.library!r}: use poly, push, face or frame")
         if self.library != "poly" and self.include_cosine:
             raise UserError("--include-cosine is for the poly library only")
-        if self.library == "face" and self.order != 1:
-            raise UserError(f"--library face with --order {self.order}: the face library's "
-                            "push terms already hold the second-order products; use --order 1")
+        if self.library in ("face", "frame") and self.order != 1:
+            raise UserError(f"--library {self.library} with --order {self.order}: the "
+                            f"{self.library} library's push terms already hold the "
+                            "higher-order products; use --order 1")
+        if isinstance(self.frame_degree, bool) or not 0 <= self.frame_degree <= 4:
+            raise UserError(f"--frame-degree {self.frame_degree}: use 0 to 4")
+        if self.frame_sense not in (1, -1):
+            raise UserError(f"--frame-sense {self.frame_sense}: use 1 or -1")
+        if not math.isfinite(self.frame_offset):
+            raise UserError(f"--frame-offset {self.frame_offset}: use a finite angle (radians)")
         if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
             raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
                             "> 0 (4 for a square block)")
@@ -606,14 +626,20 @@ class SindyConfig:
     def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> SindyDynamics:
         """The model for latent size nz and action size nu; ``circle``: the latent
         coordinates kept on the unit circle (see :class:`LatentDynamics`)."""
-        if self.library in ("push", "face") and nu < 3:
+        if self.library in ("push", "face", "frame") and nu < 3:
             raise UserError(f"the {self.library} library needs actions [p, angle, length], "
                             f"got {nu}")
-        if self.library == "face":
-            if nz < 4:
-                raise UserError(f"the face library needs the pose (x, y, cos fθ, sin fθ) as the "
-                                f"first four latent coordinates, got a latent of size {nz}: use "
-                                "the state encoder or --pose-head coordinates")
+        if self.library in ("face", "frame") and nz < 4:
+            raise UserError(f"the {self.library} library needs the pose (x, y, cos fθ, sin fθ) "
+                            f"as the first four latent coordinates, got a latent of size {nz}: "
+                            "use the state or moments encoder or --pose-head coordinates")
+        if self.library == "frame":
+            spec = frame_library(self.order, frequency=self.angle_frequency,
+                                 degree=self.frame_degree, sense=self.frame_sense,
+                                 angle_offset=self.frame_offset)
+            if self.include_sine:
+                spec = spec + Sine("z")
+        elif self.library == "face":
             spec = face_library(self.order, frequency=self.angle_frequency)
             if self.include_sine:
                 spec = spec + Sine("z")

@@ -105,9 +105,10 @@ class ModelConfig:
         if self.has_pose_head and self.encoder.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
                             "latent is the pose already; drop --pose-head")
-        if getattr(self.dynamics, "library", None) == "face" and not self.pose_latent:
-            raise UserError("--library face writes the dynamics on the pose features (z2, z3 = "
-                            "cos, sin of the angle): use it with the state encoder, the "
+        library = getattr(self.dynamics, "library", None)
+        if library in ("face", "frame") and not self.pose_latent:
+            raise UserError(f"--library {library} writes the dynamics on the pose features "
+                            "(z2, z3 = cos, sin of the angle): use it with the state encoder, the "
                             "moments encoder (--encoder moments --latent-dim 4) or --pose-head "
                             "coordinates, or use --library push")
         if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:

@@ -20,7 +20,8 @@ sizes; :class:`CandidateLibrary` is the classic library (monomials of ``[z, u]``
 ``order``, then ``sin(z)``, optionally ``cos(z)``), and :data:`LIBRARY_PRESETS` names specs.
 
 Every term is one row of an integer table of feature indices into the feature vector
-``F = [z, u, 1, sin(f x_a), .., cos(f x_b), ..]`` (``x = [z, u]``; the trig columns are
+``F = [x, 1, sin(f x_a), .., cos(f x_b), ..]`` (``x = [z, u]``, or ``[z, u, a, n]`` with the
+pushed face's variables of a :class:`FaceFrame`, :func:`frame_library`; the trig columns are
 listed in ``trig`` as ``(variable index, "sin" | "cos", frequency)``, sines first); a term
 is the product of the features its row names, shorter rows padded with the constant.
 Evaluation is one gather and multiply per table column, so the hot path has no Python loop
@@ -59,6 +60,7 @@ __all__ = [
     "CandidateLibrary",
     "Constant",
     "Cosine",
+    "FaceFrame",
     "Identity",
     "LibrarySpec",
     "LibrarySubset",
@@ -68,6 +70,8 @@ __all__ = [
     "Sine",
     "Sum",
     "face_library",
+    "face_variables",
+    "frame_library",
     "library_preset",
     "poly_library",
     "push_library",
@@ -86,7 +90,9 @@ _FN_CODES = {"sin": _SIN, "cos": _COS}
 _Factor = tuple[int, int, float]
 _Term = tuple[_Factor, ...]
 
-_VARIABLE = re.compile(r"^([zu])(\d+)?$")
+_VARIABLE = re.compile(r"^([zu])(\d+)?$|^([an])$")
+#: The pushed face's variables a :class:`FaceFrame` defines, after [z, u] in that order.
+FACE_VARIABLES = ("a", "n")
 
 
 def _factor_key(f: _Factor) -> tuple[bool, int, int, float]:
@@ -116,7 +122,7 @@ def _as_variables(value: str | Sequence[str]) -> tuple[str, ...]:
         if not isinstance(name, str) or not _VARIABLE.match(name):
             raise UserError(
                 f"library variable {name!r} is not valid: use 'z' or 'u' (the whole group), "
-                "or one variable such as 'z3' or 'u1'"
+                "one variable such as 'z3' or 'u1', or a face variable 'a' or 'n' (FaceFrame)"
             )
     return names
 
@@ -276,9 +282,80 @@ class Product(_SpecOps):
         return " * ".join(f"({f})" if isinstance(f, Sum) else str(f) for f in self.factors)
 
 
-LibrarySpec = Polynomial | Sine | Cosine | Identity | Constant | Sum | Product
+@dataclass(frozen=True)
+class FaceFrame(_SpecOps):
+    """``body``'s terms, with the variables of the pushed face defined for them: for a push in
+    the world direction ψ = ``angle`` on a body whose orientation features are
+    (c, s) = ``orientation`` = (cos fθ', sin fθ') (f = ``frequency``, the visible symmetry: 4
+    for a square), with fθ = ``sense`` · atan2(s, c) + ``offset`` the orientation in the
+    world's sense,
+
+    * ``a`` = the push's angle from the pushed face's normal, ψ − θ wrapped into [−π/f, π/f)
+      (the face met is the one whose outward normal is nearest the push direction);
+    * ``n`` = ψ − a, that normal's world angle, so ``cos(n)``, ``sin(n)`` point along it.
+
+    A push moves a block along the pushed face's normal and turns it by amounts that depend
+    on where and at which angle the face is hit: few terms such as ``u2 cos(n)``,
+    ``u2 a sin(n)`` and ``z3 u0 u2`` write it. ``sense`` = −1 and ``offset`` serve features
+    read in a mirrored frame (an image whose axes swap the world's) or about another
+    reference direction. ``a`` is discontinuous where the pushed face changes (a = ±π/f).
+    """
+
+    kind: ClassVar[str] = "face_frame"
+    body: LibrarySpec
+    angle: str = "u1"
+    orientation: tuple[str, str] = ("z2", "z3")
+    frequency: float = 4.0
+    sense: int = 1
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.body, Mapping):
+            object.__setattr__(self, "body", spec_from_dict(self.body))
+        if not isinstance(self.body, _SpecOps):
+            raise UserError(f"a face frame holds a library spec, got {self.body!r}")
+        angle = _as_variables(self.angle)
+        orientation = _as_variables(self.orientation)
+        if (len(angle) != 1 or not re.match(r"^u\d+$", angle[0]) or len(orientation) != 2
+                or not all(re.match(r"^z\d+$", v) for v in orientation)
+                or orientation[0] == orientation[1]):
+            raise UserError(
+                f"face frame: angle {self.angle!r} and orientation {self.orientation!r}: name "
+                "one action such as 'u1' and two different states such as ('z2', 'z3')")
+        object.__setattr__(self, "angle", angle[0])
+        object.__setattr__(self, "orientation", orientation)
+        f = self.frequency
+        if isinstance(f, bool) or not isinstance(f, numbers.Real) or not (
+                math.isfinite(f) and f > 0):
+            raise UserError(f"face frame frequency {f!r}: use a finite number > 0 (4 for a "
+                            "square block)")
+        if self.sense not in (1, -1) or isinstance(self.sense, bool):
+            raise UserError(f"face frame sense {self.sense!r}: use 1 or -1")
+        if not (isinstance(self.offset, numbers.Real) and math.isfinite(self.offset)):
+            raise UserError(f"face frame offset {self.offset!r}: use a finite angle (radians)")
+        object.__setattr__(self, "frequency", float(f))
+        object.__setattr__(self, "sense", int(self.sense))
+        object.__setattr__(self, "offset", float(self.offset))
+
+    def to_dict(self) -> dict[str, Any]:
+        out = super().to_dict()
+        out["body"] = self.body.to_dict()
+        return out
+
+    def __str__(self) -> str:
+        c, s = self.orientation
+        sign = "" if self.sense == 1 else "-"
+        offset = f" + {self.offset:.4g}" if self.offset else ""
+        theta = f"atan2({s}, {c}) / {self.frequency:g}"
+        if sign or offset:
+            theta = f"({sign}atan2({s}, {c}){offset}) / {self.frequency:g}"
+        return (f"face_frame(a = {self.angle} - {theta} wrapped to ±π/{self.frequency:g}, "
+                f"n = {self.angle} - a)[{self.body}]")
+
+
+LibrarySpec = Polynomial | Sine | Cosine | Identity | Constant | Sum | Product | FaceFrame
 _LEAVES: dict[str, type[_SpecOps]] = {
-    c.kind: c for c in (Polynomial, Sine, Cosine, Identity, Constant)}
+    c.kind: c for c in (Polynomial, Sine, Cosine, Identity, Constant, FaceFrame)}
 
 
 def _check_children(spec: Sum | Product, field: str, what: str) -> None:
@@ -413,11 +490,55 @@ def face_library(
     return Polynomial(("z", "u"), order, bias=True) + push
 
 
+def frame_library(
+    order: int = 1,
+    offset: int = 0,
+    angle: int = 1,
+    length: int = 2,
+    orientation: str | Sequence[str] = ("z2", "z3"),
+    frequency: float = 4.0,
+    degree: int = 3,
+    sense: int = 1,
+    angle_offset: float = 0.0,
+) -> LibrarySpec:
+    """A push written in the pushed face's frame (:class:`FaceFrame`): the state's monomials
+    up to ``order``, plus the push length times the face normal's direction or the
+    orientation features, times the monomials of the contact offset p and of the angle a
+    between the push and the face normal up to ``degree``:
+
+        ℓ · {cos n, sin n, c, s} · {1, p, a, p², p a, a², .., a^degree}
+
+    (the block slides along the normal of the face it is pushed on, Δx = ℓ g(p, a) cos n −
+    ℓ h(p, a) sin n, and turns by ℓ r(p, a), Δc ≈ −f s Δθ, Δs ≈ f c Δθ). With the defaults
+    8 + 40 terms, such as ``u2 cos(n)``, ``u0 u2 a sin(n)`` and ``z3 u2 a^2``. Where the
+    face library spends harmonics of 4(ψ − θ) on the relative angle, this one reads it.
+
+    ``offset``, ``angle`` and ``length`` are the action indices of p, ψ (a world direction)
+    and ℓ; ``orientation`` names the state's (cos fθ, sin fθ); ``sense`` and
+    ``angle_offset`` map them to the world's orientation (:class:`FaceFrame`).
+    """
+    if len({offset, angle, length}) < 3 or min(offset, angle, length) < 0:
+        raise UserError(
+            f"frame library: offset {offset}, angle {angle} and length {length} must be "
+            "different action indices >= 0"
+        )
+    if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
+        raise UserError(f"frame library: degree {degree!r}: use an integer >= 0")
+    orient = _as_variables(orientation)
+    shape = (Constant() if degree == 0
+             else Polynomial((f"u{offset}", "a"), degree, bias=True))
+    push = Identity(f"u{length}") * (Cosine("n") + Sine("n") + Identity(orient)) * shape
+    return FaceFrame(Polynomial(("z", "u"), order, bias=True) + push, angle=f"u{angle}",
+                     orientation=orient, frequency=frequency, sense=sense,
+                     offset=angle_offset)
+
+
 #: Named spec builders; their keyword arguments are the preset's parameters.
 LIBRARY_PRESETS: dict[str, Callable[..., LibrarySpec]] = {
     "poly": poly_library,
     "push": push_library,
     "face": face_library,
+    "frame": frame_library,
 }
 
 
@@ -438,12 +559,37 @@ def library_preset(name: str, **params: Any) -> LibrarySpec:
 # ---------------------------------------------------------------- terms of a spec
 
 
-def _resolve(names: tuple[str, ...], n_state: int, n_control: int) -> list[int]:
-    """Variable names -> sorted, distinct indices into x = [z, u]."""
+def _face_of(spec: LibrarySpec) -> FaceFrame | None:
+    """The spec's face frame (one, or equal ones), or None."""
+    found: set[FaceFrame] = set()
+
+    def walk(node: LibrarySpec) -> None:
+        if isinstance(node, FaceFrame):
+            found.add(dataclasses.replace(node, body=Constant()))
+            walk(node.body)
+        for child in getattr(node, "parts", ()) + getattr(node, "factors", ()):
+            walk(child)
+
+    walk(spec)
+    if len(found) > 1:
+        raise UserError(f"library {spec} defines the face variables twice, differently: use "
+                        "one FaceFrame around the whole library")
+    return next(iter(found), None)
+
+
+def _resolve(names: tuple[str, ...], n_state: int, n_control: int,
+             face: FaceFrame | None = None) -> list[int]:
+    """Variable names -> sorted, distinct indices into x = [z, u] (then a, n with a face)."""
     out: set[int] = set()
     for name in names:
         m = _VARIABLE.match(name)
         assert m is not None  # checked when the spec was made
+        if m.group(3) is not None:
+            if face is None:
+                raise UserError(f"library variable {name!r} is a face variable: wrap the "
+                                "library in FaceFrame(...) (library preset 'frame') to define it")
+            out.add(n_state + n_control + FACE_VARIABLES.index(name))
+            continue
         group, idx = m.group(1), m.group(2)
         size, offset = (n_state, 0) if group == "z" else (n_control, n_state)
         if idx is None:
@@ -459,19 +605,22 @@ def _resolve(names: tuple[str, ...], n_state: int, n_control: int) -> list[int]:
     return sorted(out)
 
 
-def _spec_terms(spec: LibrarySpec, n_state: int, n_control: int) -> list[_Term]:
+def _spec_terms(spec: LibrarySpec, n_state: int, n_control: int,
+                face: FaceFrame | None = None) -> list[_Term]:
+    if isinstance(spec, FaceFrame):
+        return _spec_terms(spec.body, n_state, n_control, face)
     if isinstance(spec, Sum):
-        return [t for part in spec.parts for t in _spec_terms(part, n_state, n_control)]
+        return [t for part in spec.parts for t in _spec_terms(part, n_state, n_control, face)]
     if isinstance(spec, Product):
         terms: list[_Term] = [()]
         for factor in spec.factors:
-            right = _spec_terms(factor, n_state, n_control)
+            right = _spec_terms(factor, n_state, n_control, face)
             # Each distinct product once, where it first appears (z2 * z3 = z3 * z2).
             terms = list(dict.fromkeys(_canonical(a + b) for a in terms for b in right))
         return terms
     if isinstance(spec, Constant):
         return [()]
-    variables = _resolve(spec.variables, n_state, n_control)
+    variables = _resolve(spec.variables, n_state, n_control, face)
     if isinstance(spec, Polynomial):
         # pysindy's order: by degree, then itertools.combinations_with_replacement.
         return [
@@ -504,11 +653,27 @@ def _term_name(term: _Term, var_names: Sequence[str]) -> str:
 # ---------------------------------------------------------------- torch modules
 
 
+#: A face frame as the torch modules and the control kernel take it: (index of the push
+#: angle in [z, u], indices of the orientation features c and s, frequency, sense, offset).
+FaceIndices = tuple[int, int, int, float, int, float]
+
+
+def face_variables(psi: torch.Tensor, c: torch.Tensor, s: torch.Tensor,
+                   face: FaceIndices) -> tuple[torch.Tensor, torch.Tensor]:
+    """(a, n) of :class:`FaceFrame` from the push angle ψ and the orientation features."""
+    f, sense, offset = face[3], face[4], face[5]
+    f_theta = sense * torch.atan2(s, c) + offset
+    a = (torch.remainder(f * psi - f_theta + math.pi, 2 * math.pi) - math.pi) / f
+    return a, psi - a
+
+
 class _ProductTerms(nn.Module):
-    """Terms given as rows of feature indices into F = [z, u, 1, trig...]; evaluates them.
+    """Terms given as rows of feature indices into F = [z, u, (a, n), 1, trig...]; evaluates
+    them.
 
     ``table`` (p, width) long buffer; ``trig`` lists the trig columns of F after the constant
-    as ``(variable index into [z, u], "sin" | "cos", frequency)``, sines first.
+    as ``(variable index into [z, u, (a, n)], "sin" | "cos", frequency)``, sines first;
+    ``face`` (:data:`FaceIndices`) defines the face variables (a, n), or None.
     """
 
     table: torch.Tensor  # (p, width) indices into the feature vector F
@@ -524,10 +689,12 @@ class _ProductTerms(nn.Module):
         table: torch.Tensor,
         names: list[str],
         trig: Sequence[tuple[int, str, float]],
+        face: FaceIndices | None = None,
     ) -> None:
         super().__init__()
         self.n_state = n_state
         self.n_control = n_control
+        self.face = face
         self.register_buffer("table", table, persistent=False)
         self.names = names
         self.trig: tuple[tuple[int, str, float], ...] = tuple(
@@ -542,19 +709,25 @@ class _ProductTerms(nn.Module):
             self.register_buffer(f"_{kind}_freq", torch.tensor(
                 [f for _, f in cols], dtype=torch.float64), persistent=False)
             setattr(self, f"_{kind}_scaled", any(f != 1 for _, f in cols))
-        self._one = n_state + n_control  # column of F holding the constant 1
+        # column of F holding the constant 1
+        self._one = n_state + n_control + (len(FACE_VARIABLES) if face is not None else 0)
 
     @property
     def n_terms(self) -> int:
         return int(self.table.shape[0])
 
     @property
+    def constant_column(self) -> int:
+        """F's column of the constant 1: the variables [z, u, (a, n)] come before it."""
+        return self._one
+
+    @property
     def n_features(self) -> int:
-        """Columns of F = [z, u, 1, trig...]."""
+        """Columns of F = [z, u, (a, n), 1, trig...]."""
         return self._one + 1 + len(self.trig)
 
     def _features(self, z: torch.Tensor, u: torch.Tensor | None) -> torch.Tensor:
-        """F = [z, u, 1, sin(x[sin_idx]), cos(x[cos_idx])]: (..., n_features)."""
+        """F = [z, u, (a, n), 1, sin(x[sin_idx]), cos(x[cos_idx])]: (..., n_features)."""
         if z.shape[-1] != self.n_state:
             raise ValueError(
                 f"library expects z with last dimension n_state={self.n_state}, "
@@ -569,8 +742,13 @@ class _ProductTerms(nn.Module):
                     f"to match z {tuple(z.shape)}, got {got}"
                 )
             parts.append(u.to(z.dtype))
+        if self.face is not None:
+            x = torch.cat(parts, dim=-1)
+            a, n = face_variables(x[..., self.face[0]], x[..., self.face[1]],
+                                  x[..., self.face[2]], self.face)
+            parts += [a.unsqueeze(-1), n.unsqueeze(-1)]
         parts.append(z.new_ones((*z.shape[:-1], 1)))
-        base = torch.cat(parts, dim=-1)  # (..., nz + nu + 1)
+        base = torch.cat(parts, dim=-1)  # (..., nz + nu (+ 2) + 1)
         if not self.trig:
             return base
         trig = [base]
@@ -612,7 +790,7 @@ class LibrarySubset(_ProductTerms):
 
     def __init__(self, parent: SindyLibrary, terms: torch.Tensor) -> None:
         rows = parent.table.index_select(0, terms.to(parent.table.device)).cpu()
-        one = parent.n_state + parent.n_control
+        one = parent._one
         used = sorted({int(c) for c in rows.flatten() if c > one})  # trig columns used
         remap = torch.arange(parent.n_features)
         remap[used] = torch.arange(one + 1, one + 1 + len(used))
@@ -622,6 +800,7 @@ class LibrarySubset(_ProductTerms):
             remap[rows].to(parent.table.device),
             [parent.names[i] for i in terms.tolist()],
             [parent.trig[c - one - 1] for c in used],
+            parent.face,
         )
         self.register_buffer("terms", terms.clone(), persistent=False)
 
@@ -651,8 +830,15 @@ class SindyLibrary(_ProductTerms):
                 f"n_control={n_control}"
             )
         spec = spec_from_dict(spec)
-        terms = _spec_terms(spec, n_state, n_control)
+        frame = _face_of(spec)
+        terms = _spec_terms(spec, n_state, n_control, frame)
         var_names = [f"z{i}" for i in range(n_state)] + [f"u{j}" for j in range(n_control)]
+        face: FaceIndices | None = None
+        if frame is not None:
+            psi, = _resolve((frame.angle,), n_state, n_control)
+            ca, cb = (_resolve((v,), n_state, n_control)[0] for v in frame.orientation)
+            face = (psi, ca, cb, frame.frequency, frame.sense, frame.offset)
+            var_names += list(FACE_VARIABLES)
         names = [_term_name(t, var_names) for t in terms]
         first: dict[str, int] = {}
         for i, name in enumerate(names):  # equal terms have equal names
@@ -661,7 +847,7 @@ class SindyLibrary(_ProductTerms):
                     f"library {spec} has the term {name!r} twice (or two frequencies that "
                     "print alike): remove the overlap between its parts"
                 )
-        one = n_state + n_control
+        one = len(var_names)
         # Trig columns of F: every (variable, function) some term uses, sines first.
         trig_keys = sorted({f for t in terms for f in t if f[1] != _IDENTITY}, key=_trig_order)
         column = {f: one + 1 + k for k, f in enumerate(trig_keys)}
@@ -674,6 +860,7 @@ class SindyLibrary(_ProductTerms):
             torch.tensor(rows, dtype=torch.long).reshape(len(rows), width),
             names,
             [(v, _FN_NAMES[fn], freq) for v, fn, freq in trig_keys],
+            face,
         )
         self.spec: LibrarySpec = spec
 

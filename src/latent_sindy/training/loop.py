@@ -83,9 +83,9 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
         raise UserError(f"--moment-order {order} does not match {cfg.data}: its block looks "
                         f"alike every {math.degrees(data.env_config.angle_period):g}°, so use "
                         f"--moment-order {round(2 * math.pi / data.env_config.angle_period)}")
-    if getattr(model_cfg.dynamics, "library", None) == "face" and (
-            data.env_config.push != "symmetric"):
-        raise UserError(f"--library face writes pushes given as world directions, but "
+    library = getattr(model_cfg.dynamics, "library", None)
+    if library in ("face", "frame") and data.env_config.push != "symmetric":
+        raise UserError(f"--library {library} writes pushes given as world directions, but "
                         f"{cfg.data} was collected with push style '{data.env_config.push}' "
                         "(the angle relative to the block): use --library push")
     record = {
