@@ -449,6 +449,7 @@ def test_the_face_variables_are_the_angle_from_the_nearest_face_normal() -> None
     a2, n2 = face_variables(psi, torch.cos(mirrored), torch.sin(mirrored),
                             (0, 0, 0, 4.0, -1, math.pi))
     torch.testing.assert_close(a2, a, rtol=0, atol=1e-9)
+    torch.testing.assert_close(n2, n, rtol=0, atol=1e-9)
 
 
 def test_the_frame_library_writes_a_push_along_the_face_normal_exactly() -> None:
@@ -474,7 +475,8 @@ def test_the_frame_library_writes_a_push_along_the_face_normal_exactly() -> None
     frame, face = SindyLibrary(frame_library(), 4, 3), SindyLibrary(face_library(), 4, 3)
     assert residual(frame, dx) < 1e-9 and residual(frame, -z[:, 3] * turn) < 1e-9
     assert residual(face, dx) > 1e-2
-    assert frame.n_terms == 8 + 4 * 10 and "u0 u2 a cos(n)" in frame.names
+    assert frame.n_terms == 8 + 9 + 4 * 10 and "u0 u2 a cos(n)" in frame.names
+    assert residual(frame, turn) < 1e-9  # the turn itself, for a model that turns by it
 
 
 def test_a_face_frame_round_trips_and_prints_its_definition() -> None:

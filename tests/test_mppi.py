@@ -582,3 +582,23 @@ def test_sparse_sindy_step_computes_the_face_variables_as_the_model(dtype, sense
         want = model.rollout(z0, actions)
     tol = 1e-4 if dtype == torch.float32 else 1e-9
     torch.testing.assert_close(step.rollout(z0, actions), want, rtol=tol, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_sparse_sindy_step_turns_the_pair_as_the_model(dtype) -> None:
+    # A turning model: z2's update is the angle by which (z2, z3) turns; the kernel turns and
+    # projects the pair as the model does, over a rollout.
+    from latent_sindy.sindy import frame_library
+
+    model = SindyDynamics(4, 3, library_spec=frame_library(), seed=3, init_scale=0.2,
+                          circle=(2, 3), turn=True).to(dtype)
+    model.threshold(0.1)
+    assert not model.mask[:, 3].any() and model.mask[:, 2].any()
+    step = SparseSindyStep(model)
+    gen = torch.Generator().manual_seed(5)
+    z0 = torch.randn(600, 4, generator=gen, dtype=dtype)
+    actions = torch.randn(600, 5, 3, generator=gen, dtype=dtype)
+    with torch.no_grad():
+        want = model.rollout(z0, actions)
+    tol = 1e-4 if dtype == torch.float32 else 1e-9
+    torch.testing.assert_close(step.rollout(z0, actions), want, rtol=tol, atol=tol)

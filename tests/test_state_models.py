@@ -232,6 +232,28 @@ def test_the_frame_library_predicts_the_push_closer_than_the_face_library(
     assert errors["frame"] < 0.8 * errors["face"] < 0.8 * still, (errors, still)
 
 
+def test_a_model_that_turns_its_orientation_predicts_the_turn_closer(symmetric_pushes) -> None:
+    """A push turns the block by up to about 45°, 180° of the square's orientation features
+    (cos 4θ, sin 4θ): updating the features term by term, then projecting, cannot follow
+    such turns; turning them by an angle that one equation gives (``turn``) can."""
+    from latent_sindy.models import SindyConfig
+    from latent_sindy.sindy import STLSQ
+
+    (Z, U, Zn), (Zv, Uv, Znv) = symmetric_pushes
+    period = math.pi / 2
+    errors, lines = {}, {}
+    for turn in (False, True):
+        model = SindyConfig(order=1, library="frame", include_sine=False).build(
+            4, 3, circle=(2, 3), turn=turn).double()
+        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(threshold=0.05))
+        with torch.no_grad():
+            errors[turn] = float(_angle_error_deg(model.step(Zv, Uv), Znv, period).mean())
+        lines[turn] = model.equations()
+    still = float(_angle_error_deg(Zv, Znv, period).mean())
+    assert errors[True] < 0.8 * errors[False] < 0.8 * still, (errors, still)
+    assert len(lines[True]) == 3 and lines[True][2].startswith("ω = turn of (z2, z3) = ")
+
+
 def test_the_study_writes_world_direction_pushes_with_the_face_library_only() -> None:
     """The face library's relative angle is ψ − θ for a push in a world direction ψ; where
     the push angle is measured from the block (the paper's and the marked world) the state

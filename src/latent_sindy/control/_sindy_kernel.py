@@ -31,11 +31,12 @@ def _sin(x):
 
 @_jit
 def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, terms, degree,
-                         start, ptr, rows, coefs, ca, cb, tiny, face_idx, face_par, feat,
+                         start, ptr, rows, coefs, ca, cb, tiny, turn, face_idx, face_par, feat,
                          prods):
     """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j),
     then for ca >= 0 the pair (z_ca, z_cb) divided by sqrt(z_ca² + z_cb² + tiny) (onto the unit
-    circle, before the next step reads it; ca = cb = -1: no projection).
+    circle, before the next step reads it; ca = cb = -1: no projection). With ``turn`` the
+    pair is first the step's start pair turned by ω = out_ca - z_ca: (z_ca + i z_cb) e^{iω}.
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
     repeats one start state); out (H, nz, K). Feature rows are [z, u, (a, n), trig]. For
@@ -116,6 +117,17 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
                     c = coefs[j]
                     for k in range(n):
                         o[k] += c * theta[k]
+            if turn:
+                oa = out[t, ca, k0:k0 + n]
+                ob = out[t, cb, k0:k0 + n]
+                za = feat[ca, :n]
+                zb = feat[cb, :n]
+                for k in range(n):
+                    w = oa[k] - za[k]
+                    cw = _sin(w + 1.5707963267948966)
+                    sw = _sin(w)
+                    oa[k] = za[k] * cw - zb[k] * sw
+                    ob[k] = zb[k] * cw + za[k] * sw
             if ca >= 0:  # separate loops: one that writes both rows does not vectorise
                 oa = out[t, ca, k0:k0 + n]
                 ob = out[t, cb, k0:k0 + n]

@@ -11,9 +11,11 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
 with F = [z, u, (a, n), trig] for the block ((a, n) the face variables of a library in a
 ``FaceFrame``; only the sines and cosines some term uses, of states, actions or face
-variables, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2) and b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's
-angle features) then has (out_a, out_b) divided by their norm, in the same pass, before the
-next step reads them: the projection of ``LatentDynamics.step``. Terms are sorted
+variables, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2) and
+b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's angle
+features) then has (out_a, out_b) divided by their norm, in the same pass, before the next
+step reads them: the projection of ``LatentDynamics.step`` (for a model with ``turn``,
+after turning (z_a, z_b) by the angle out_a - z_a). Terms are sorted
 lexicographically so a term reuses its predecessor's partial product over their common
 prefix (x0 x1 x2 after x0 x1: one multiply). Everything runs feature-major (nz, K): ``step``
 returns a transposed view, so the next step's input is contiguous again, and ``rollout`` a
@@ -80,6 +82,7 @@ class SparseSindyStep:
         self.nz, self.nu = nz, nu
         self.circle = sparse.circle
         self._circle = (-1, -1) if sparse.circle is None else sparse.circle  # the kernel's ca, cb
+        self._turn = bool(sparse.turn)
         # The library's feature layout: [z, u, (a, n), 1, trig...], trig column k being
         # library.trig[k] = (index into [z, u, (a, n)], "sin" | "cos", frequency).
         library = sparse.library
@@ -143,7 +146,7 @@ class SparseSindyStep:
             tiny = np_dtype.type(torch.finfo(dtype).tiny)  # as project_circle adds
             args = self._args[dtype] = (
                 self._trig_var, trig_scale, trig_shift, bias, terms, degree, start, ptr, rows,
-                coefs, *self._circle, tiny, self._face_idx, face_par,
+                coefs, *self._circle, tiny, self._turn, self._face_idx, face_par,
                 np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args

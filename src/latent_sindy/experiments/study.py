@@ -36,8 +36,8 @@ from latent_sindy.models.latent_model import LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig
 
 __all__ = ["SCALES", "SWEEPABLE", "Condition", "ModelSpec", "ReproduceConfig", "RunResult",
-           "Scale", "Study", "Sweep", "model_specs", "parse_seeds", "parse_sweeps",
-           "study_specs"]
+           "Scale", "Study", "Sweep", "model_specs", "moment_frame", "parse_seeds",
+           "parse_sweeps", "study_specs"]
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image"]
@@ -519,11 +519,12 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # 50 of 50; at 1e-3, 69 coefficients and 1.21 / 3.95 / 5.88 cm. The moments row at the
         # face row's settings keeps 10 terms (the push along the normal, the turn by p and a);
         # λ3 = 1e-3 kept 21 for 90 % strict and 1.80 cm after one push (conv decoder).
-        *((ModelSpec("state_sindy_frame", "SINDy (frame library), state",
-                     state(frame_dynamics), loss=LossWeights(lambda_l1=1e-4), cost=0.1,
-                     headline=True, epochs_factor=10),
-           ModelSpec("sindy_moments_frame", "SINDy (frame library), image moments",
-                     ModelConfig(encoder=moments, dynamics=dataclasses.replace(
+        *((ModelSpec("state_sindy_frame", "SINDy (frame library, turning), state",
+                     dataclasses.replace(state(frame_dynamics), turn=True),
+                     loss=LossWeights(lambda_l1=1e-4), cost=0.1, headline=True,
+                     epochs_factor=10),
+           ModelSpec("sindy_moments_frame", "SINDy (frame library, turning), image moments",
+                     ModelConfig(encoder=moments, turn=True, dynamics=dataclasses.replace(
                              frame_dynamics, frame_sense=moment_frame[0],
                              frame_offset=moment_frame[1])),
                      loss=LossWeights(lambda_pred_x=0.0, lambda_l1=3e-3), threshold=0.03,

@@ -69,6 +69,17 @@ __all__ = [
 Row = tuple[str, str, float]
 
 
+def turn_circle(z: torch.Tensor, z_next: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``z_next`` with its pair ``index`` = (a, b) replaced by z's pair turned by the angle
+    ω = z_next[a] − z[a]: z_a + i z_b multiplied by e^{iω}. Out of place, differentiable."""
+    a, b = index[0], index[1]
+    omega = z_next[..., a] - z[..., a]
+    cos, sin = torch.cos(omega), torch.sin(omega)
+    za, zb = z[..., a], z[..., b]
+    pair = torch.stack([za * cos - zb * sin, zb * cos + za * sin], -1)
+    return z_next.index_copy(-1, index, pair)
+
+
 def project_circle(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """z (..., nz) with the two coordinates ``index`` (2,) divided by their norm, so they lie on
     the unit circle: (z_a, z_b) / sqrt(z_a² + z_b² + tiny) (a pair at 0 stays 0). Out of place
@@ -91,12 +102,16 @@ class LatentDynamics(nn.Module):
         nz, nu: latent and action sizes.
         circle: the latent coordinates (a, b) of an angle's (cos, sin) features, kept on the
             unit circle after every step; None: none (the step is the model's own, unchanged).
+        turn: with a circle, the model's update of z_a is read as the angle ω by which the
+            pair turns (z_a + i z_b times e^{iω}, :func:`turn_circle`) and its update of z_b
+            is unused, before the projection: a turn is one equation, exact at any angle.
     """
 
     kind: ClassVar[str] = ""
     _circle_index: torch.Tensor  # (2,) long, or (0,) without a circle
 
-    def __init__(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> None:
+    def __init__(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+                 turn: bool = False) -> None:
         super().__init__()
         if nz < 1 or nu < 0:
             raise ValueError(f"need nz >= 1 and nu >= 0, got nz={nz}, nu={nu}")
@@ -108,7 +123,11 @@ class LatentDynamics(nn.Module):
                     0 <= i < nz for i in circle):
                 raise ValueError(f"circle {circle}: give two different latent coordinates "
                                  f"in 0..{nz - 1} (the cos and sin features), or None")
+        if turn and circle is None:
+            raise ValueError("turn needs a circle: the latent coordinates of the angle's "
+                             "(cos, sin) features")
         self.circle: tuple[int, int] | None = circle
+        self.turn = bool(turn)
         self.register_buffer("_circle_index", torch.tensor(circle or (), dtype=torch.long),
                              persistent=False)
 
@@ -121,6 +140,8 @@ class LatentDynamics(nn.Module):
         z_next = self._step(z, u)
         if self.circle is None:
             return z_next
+        if self.turn:
+            z_next = turn_circle(z, z_next, self._circle_index)
         return project_circle(z_next, self._circle_index)
 
     def forward(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -142,6 +163,8 @@ class LatentDynamics(nn.Module):
         """Constructor keyword arguments (nz and nu included) that rebuild this model."""
         if self.circle is None:
             return {"nz": self.nz, "nu": self.nu}
+        if self.turn:
+            return {"nz": self.nz, "nu": self.nu, "circle": self.circle, "turn": True}
         return {"nz": self.nz, "nu": self.nu, "circle": self.circle}
 
     # ---------------------------------------------------------------- self-description
@@ -154,6 +177,9 @@ class LatentDynamics(nn.Module):
         if self.circle is None:
             return []
         a, b = self.circle
+        if self.turn:
+            return [f"after every step (z{a}, z{b}) is turned by the angle ω that z{a}'s "
+                    f"equation gives (z{a} + i z{b} times e^(iω)) and scaled onto the unit circle"]
         return [f"after every step (z{a}, z{b}) is scaled onto the unit circle"]
 
     def coefficient_rows(self) -> list[Row] | None:
@@ -215,7 +241,8 @@ class SindyDynamics(LatentDynamics):
             :data:`~latent_sindy.sindy.library.LibrarySpec` or its ``to_dict()`` form (e.g.
             ``push_library(order=2, angle=1, length=2)``); then leave ``order``,
             ``include_sine`` and ``include_cosine`` at their defaults.
-        circle: see :class:`LatentDynamics`.
+        circle, turn: see :class:`LatentDynamics` (with ``turn``, z_b's column has no
+            candidates and counts in none of the sparsity figures).
     """
 
     kind = "sindy"
@@ -233,8 +260,9 @@ class SindyDynamics(LatentDynamics):
         seed: int | None = None,
         library_spec: LibrarySpec | Mapping[str, Any] | None = None,
         circle: Sequence[int] | None = None,
+        turn: bool = False,
     ) -> None:
-        super().__init__(nz, nu, circle)
+        super().__init__(nz, nu, circle, turn)
         init: dict[str, Any]
         if library_spec is None:
             self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
@@ -252,6 +280,9 @@ class SindyDynamics(LatentDynamics):
         gen = None if seed is None else torch.Generator().manual_seed(seed)
         self.psi = nn.Parameter(torch.randn(p, nz, generator=gen) * init_scale)  # (p, nz)
         self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
+        if self.turn:  # z_b's own update is unused: no candidates
+            self.mask[:, self.circle[1]] = False
+            self.psi.data[:, self.circle[1]] = 0.0
         self._init = {**init, "init_scale": init_scale, "seed": seed}
 
     @property
@@ -299,6 +330,8 @@ class SindyDynamics(LatentDynamics):
                 f"(terms, nz), got {tuple(coef.shape)} and {tuple(mask.shape)}"
             )
         self.mask.copy_(mask.to(self.mask.device, torch.bool))
+        if self.turn:
+            self.mask[:, self.circle[1]] = False
         self.psi.copy_(coef.to(self.psi.device, self.psi.dtype))
         self.psi.masked_fill_(~self.mask, 0.0)
         return self
@@ -318,8 +351,15 @@ class SindyDynamics(LatentDynamics):
         Z (N, nz), U (N, nu), Znext (N, nz). With ``restrict_to_mask`` only terms the current
         mask allows may be active (``STLSQ(threshold=0)`` then refits them by least squares).
         The regression fits the update before the circle's projection (which :meth:`step`
-        then applies).
+        then applies); with ``turn``, z_a's target is the angle from (z_a, z_b) to the next
+        pair and z_b's none.
         """
+        if self.turn:
+            a, b = self.circle
+            omega = torch.atan2(Z[:, a] * Znext[:, b] - Z[:, b] * Znext[:, a],
+                                Z[:, a] * Znext[:, a] + Z[:, b] * Znext[:, b])
+            Znext = Znext.clone()
+            Znext[:, a], Znext[:, b] = Z[:, a] + omega, Z[:, b]
         opt = sindy_fit.fit_state_data(
             self.library, Z, U, Znext, optimizer, mask=self.mask if restrict_to_mask else None
         )
@@ -335,7 +375,13 @@ class SindyDynamics(LatentDynamics):
 
     def sparsity(self) -> float:
         """Fraction of coefficients pruned by the mask (the paper's "sparsity")."""
-        return 1.0 - self.n_active() / self.mask.numel()
+        return 1.0 - self.n_active() / self.n_candidates()
+
+    def n_candidates(self) -> int:
+        """Coefficients that may be active: every term for every state (with ``turn``,
+        none for z_b, whose update is unused)."""
+        p, nz = self.mask.shape
+        return p * (nz - 1 if self.turn else nz)
 
     def active_terms(self) -> torch.Tensor:
         """Indices of library terms active in at least one state: (p_active,) long."""
@@ -359,24 +405,32 @@ class SindyDynamics(LatentDynamics):
         digits, e.g. ``z0[t+1] = z0 + 0.512 u0 - 0.0312 z1 z2``. The leading ``z0`` is the
         residual (identity) part of the model and is always there.
         """
-        return format_equations(self.coefficient_rows(), self.nz, precision, residual=True)
+        rows = self.coefficient_rows()
+        lines = format_equations(rows, self.nz, precision, residual=True)
+        if not self.turn:
+            return lines
+        a, b = self.circle
+        turn = [("z0", term, value) for state, term, value in rows if state == f"z{a}"]
+        omega = format_equations(turn, 1, precision, residual=False)[0]
+        lines[a] = omega.replace("z0[t+1] =", f"ω = turn of (z{a}, z{b}) =", 1)
+        return [line for j, line in enumerate(lines) if j != b]
 
     def summary(self) -> list[str]:
         p, nz = self.mask.shape
         return [f"SINDy latent dynamics, library {self.library.spec} ({p} candidate terms "
                 f"x {nz} states), z[t+1] = z + Θ(z, u) (M ⊙ Ψ)",
-                f"active coefficients: {self.n_active()} of {p * nz} (sparsity "
+                f"active coefficients: {self.n_active()} of {self.n_candidates()} (sparsity "
                 f"{100 * self.sparsity():.1f}%); terms used by some state: "
                 f"{int(self.mask.any(dim=1).sum())} of {p}", *self._circle_note()]
 
     def export_info(self) -> dict[str, Any]:
         return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
-                "n_coefficients": self.mask.numel(), "sparsity": self.sparsity(),
+                "n_coefficients": self.n_candidates(), "sparsity": self.sparsity(),
                 "terms": self.names}
 
     def stats(self) -> dict[str, float | None]:
         return {**super().stats(), "sindy/active": self.n_active(),
-                "sindy/coefficients": self.mask.numel(),
+                "sindy/coefficients": self.n_candidates(),
                 "sindy/terms_used": int(self.mask.any(dim=1).sum()),
                 "sindy/sparsity": self.sparsity()}
 
@@ -390,7 +444,7 @@ class SindyDynamics(LatentDynamics):
         return SparseSindyDynamics(self)
 
     def extra_repr(self) -> str:
-        return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.mask.numel()}"
+        return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
 
 
 class SparseSindyDynamics(LatentDynamics):
@@ -404,7 +458,7 @@ class SparseSindyDynamics(LatentDynamics):
     coef: torch.Tensor  # (|S|, nz)
 
     def __init__(self, model: SindyDynamics) -> None:
-        super().__init__(model.nz, model.nu, model.circle)
+        super().__init__(model.nz, model.nu, model.circle, model.turn)
         terms = model.active_terms()
         self.library: LibrarySubset = model.library.subset(terms)
         self.register_buffer("coef", model.coefficients().detach()[terms].clone())
@@ -427,8 +481,8 @@ class LinearDynamics(LatentDynamics):
     kind = "linear"
 
     def __init__(self, nz: int, nu: int, init_scale: float = 1e-3, seed: int | None = None,
-                 circle: Sequence[int] | None = None) -> None:
-        super().__init__(nz, nu, circle)
+                 circle: Sequence[int] | None = None, turn: bool = False) -> None:
+        super().__init__(nz, nu, circle, turn)
         gen = None if seed is None else torch.Generator().manual_seed(seed)
         self.A = nn.Parameter(torch.eye(nz) + init_scale * torch.randn(nz, nz, generator=gen))
         self.B = nn.Parameter(init_scale * torch.randn(nz, nu, generator=gen))
@@ -511,8 +565,9 @@ class MlpDynamics(LatentDynamics):
     kind = "mlp"
 
     def __init__(self, nz: int, nu: int, hidden: int = 128, layers: int = 2,
-                 harmonics: int = 0, angle: int = 1, circle: Sequence[int] | None = None) -> None:
-        super().__init__(nz, nu, circle)
+                 harmonics: int = 0, angle: int = 1, circle: Sequence[int] | None = None,
+                 turn: bool = False) -> None:
+        super().__init__(nz, nu, circle, turn)
         if layers < 1 or hidden < 1:
             raise ValueError(
                 f"MlpDynamics needs layers >= 1 and hidden >= 1, got layers={layers}, "
@@ -623,9 +678,11 @@ class SindyConfig:
                             "> 0 (4 for a square block)")
         _check_scale("SINDy", self.init_scale)
 
-    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> SindyDynamics:
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+              turn: bool = False) -> SindyDynamics:
         """The model for latent size nz and action size nu; ``circle``: the latent
-        coordinates kept on the unit circle (see :class:`LatentDynamics`)."""
+        coordinates kept on the unit circle, ``turn``: turned by z_a's update (see
+        :class:`LatentDynamics`)."""
         if self.library in ("push", "face", "frame") and nu < 3:
             raise UserError(f"the {self.library} library needs actions [p, angle, length], "
                             f"got {nu}")
@@ -648,8 +705,9 @@ class SindyConfig:
         else:
             return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
                                  include_cosine=self.include_cosine, init_scale=self.init_scale,
-                                 circle=circle)
-        return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle)
+                                 circle=circle, turn=turn)
+        return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle,
+                             turn=turn)
 
 
 @dataclass(frozen=True)
@@ -664,8 +722,9 @@ class LinearConfig:
     def __post_init__(self) -> None:
         _check_scale("linear", self.init_scale)
 
-    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> LinearDynamics:
-        return LinearDynamics(nz, nu, init_scale=self.init_scale, circle=circle)
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+              turn: bool = False) -> LinearDynamics:
+        return LinearDynamics(nz, nu, init_scale=self.init_scale, circle=circle, turn=turn)
 
 
 @dataclass(frozen=True)
@@ -689,12 +748,13 @@ class MlpConfig:
         if not 0 <= self.harmonics <= 64:
             raise UserError(f"--harmonics {self.harmonics}: use 0 to 64")
 
-    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None) -> MlpDynamics:
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+              turn: bool = False) -> MlpDynamics:
         if self.harmonics and nu < 2:
             raise UserError(f"--harmonics needs a push angle u1, but actions have {nu} "
                             "components")
         return MlpDynamics(nz, nu, hidden=self.hidden, layers=self.layers,
-                           harmonics=self.harmonics, angle=1, circle=circle)
+                           harmonics=self.harmonics, angle=1, circle=circle, turn=turn)
 
 
 #: The registry: every latent dynamics kind's config class (its ``kind`` names it).

@@ -94,6 +94,10 @@ class ModelConfig:
     pose features, x, y, cos fθ, sin fθ, f the block's symmetry, so a face library can write
     the dynamics on them).
     Control reads the goal's pose from the goal image, never the simulator."""
+    turn: bool = False
+    """A pose latent's orientation features (z2, z3) are turned, after every step, by the
+    angle ω that the dynamics give as z2's update (z2 + i z3 times e^(iω); z3's own update is
+    unused), instead of being updated like the others: a turn of any size is one equation."""
 
     def __post_init__(self) -> None:
         if self.action_dim is not None and self.action_dim < 1:
@@ -111,6 +115,9 @@ class ModelConfig:
                             "(z2, z3 = cos, sin of the angle): use it with the state encoder, the "
                             "moments encoder (--encoder moments --latent-dim 4) or --pose-head "
                             "coordinates, or use --library push")
+        if self.turn and not self.pose_latent:
+            raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
+                            "it with the state or moments encoder or --pose-head coordinates")
         if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "
@@ -205,7 +212,7 @@ class LatentModel(nn.Module):
         self.autoencoder = config.encoder.build()
         self.dynamics: LatentDynamics = config.dynamics.build(
             config.encoder.latent_dim, config.action_dim,
-            circle=ANGLE_FEATURES if config.pose_latent else None)
+            circle=ANGLE_FEATURES if config.pose_latent else None, turn=config.turn)
         self._has_l1 = hasattr(self.dynamics, "l1_penalty")
         # Built last, so that the autoencoder and the dynamics draw the same initial weights
         # with or without it.

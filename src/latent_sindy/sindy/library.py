@@ -502,16 +502,19 @@ def frame_library(
     angle_offset: float = 0.0,
 ) -> LibrarySpec:
     """A push written in the pushed face's frame (:class:`FaceFrame`): the state's monomials
-    up to ``order``, plus the push length times the face normal's direction or the
-    orientation features, times the monomials of the contact offset p and of the angle a
-    between the push and the face normal up to ``degree``:
+    up to ``order``, plus the push length times the monomials of the contact offset p and of
+    the angle a between the push and the face normal up to ``degree``, alone or times the
+    face normal's direction or the orientation features:
 
-        ℓ · {cos n, sin n, c, s} · {1, p, a, p², p a, a², .., a^degree}
+        ℓ · {p, a, p², p a, a², .., a^degree}
+        + ℓ · {cos n, sin n, c, s} · {1, p, a, p², p a, a², .., a^degree}
 
     (the block slides along the normal of the face it is pushed on, Δx = ℓ g(p, a) cos n −
-    ℓ h(p, a) sin n, and turns by ℓ r(p, a), Δc ≈ −f s Δθ, Δs ≈ f c Δθ). With the defaults
-    8 + 40 terms, such as ``u2 cos(n)``, ``u0 u2 a sin(n)`` and ``z3 u2 a^2``. Where the
-    face library spends harmonics of 4(ψ − θ) on the relative angle, this one reads it.
+    ℓ h(p, a) sin n, and turns by fΔθ = ℓ r(p, a): the first group, for a model that turns
+    its orientation features by an angle, ``LatentDynamics(turn=True)``; Δc ≈ −s fΔθ,
+    Δs ≈ c fΔθ for one that updates them). With the defaults 8 + 9 + 40 terms, such as
+    ``u2 cos(n)``, ``u0 u2 a sin(n)``, ``u2 a^3`` and ``z3 u2 a^2``. Where the face library
+    spends harmonics of 4(ψ − θ) on the relative angle, this one reads it.
 
     ``offset``, ``angle`` and ``length`` are the action indices of p, ψ (a world direction)
     and ℓ; ``orientation`` names the state's (cos fθ, sin fθ); ``sense`` and
@@ -525,9 +528,14 @@ def frame_library(
     if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
         raise UserError(f"frame library: degree {degree!r}: use an integer >= 0")
     orient = _as_variables(orientation)
-    shape = (Constant() if degree == 0
-             else Polynomial((f"u{offset}", "a"), degree, bias=True))
-    push = Identity(f"u{length}") * (Cosine("n") + Sine("n") + Identity(orient)) * shape
+    ell = Identity(f"u{length}")
+    directions = Cosine("n") + Sine("n") + Identity(orient)
+    if degree == 0:
+        push = ell * directions
+    else:
+        shape = (f"u{offset}", "a")
+        push = (ell * Polynomial(shape, degree, bias=False)
+                + ell * directions * Polynomial(shape, degree, bias=True))
     return FaceFrame(Polynomial(("z", "u"), order, bias=True) + push, angle=f"u{angle}",
                      orientation=orient, frequency=frequency, sense=sense,
                      offset=angle_offset)
