@@ -10,8 +10,9 @@ with t + h <= T):
   of the displacement along and across the face normal and of the turn, from the contact
   offset p, the push's angle a from the face normal and the push length: no functional form
   assumed, so its errors are near what the data and the world allow;
-* ``frame-lsq``: least squares on the frame library's 48 terms (no sparsity), the true pose
-  as the state: the library's own limit;
+* ``frame library, lsq``: least squares on every term of the frame library (no sparsity),
+  the true pose as the state, the orientation features updated and projected, or turned by
+  the angle one equation gives (``turn``): the library's own limit;
 * ``nothing moves``: the block stays where it was, for scale.
 
 Prints the position error (cm) and the orientation error (degrees, modulo the block's
@@ -29,7 +30,8 @@ import numpy as np
 import torch
 
 from latent_sindy.data.store import read_trajectories
-from latent_sindy.sindy import SindyLibrary, face_variables, frame_library
+from latent_sindy.models import SindyConfig
+from latent_sindy.sindy import STLSQ, face_variables
 
 HORIZONS = (1, 2, 5, 10)
 
@@ -94,22 +96,27 @@ def main() -> None:
         return pose + np.stack([y[:, 0] * np.cos(n) - y[:, 1] * np.sin(n),
                                 y[:, 0] * np.sin(n) + y[:, 1] * np.cos(n), y[:, 2]], -1)
 
-    lib = SindyLibrary(frame_library(frequency=f), 4, 3)
     z = _features(P, f)
     u = torch.as_tensor(U)
-    theta = lib(z[:, :-1].reshape(-1, 4), u.reshape(-1, 3)).numpy()
-    coef = np.linalg.lstsq(theta, (z[:, 1:] - z[:, :-1]).reshape(-1, 4).numpy(), rcond=None)[0]
+    Z, Zn = z[:, :-1].reshape(-1, 4), z[:, 1:].reshape(-1, 4)
 
-    def lsq_step(pose: np.ndarray, u: np.ndarray) -> np.ndarray:
-        s = _features(pose, f)
-        nxt = s.numpy() + lib(s, torch.as_tensor(u)).numpy() @ coef
-        return np.c_[nxt[:, :2], np.arctan2(nxt[:, 3], nxt[:, 2]) / f]
+    def sindy_step(turn: bool):
+        model = SindyConfig(order=1, library="frame", include_sine=False,
+                            angle_frequency=f).build(4, 3, circle=(2, 3), turn=turn).double()
+        model.fit_state_data(Z, u.reshape(-1, 3), Zn, optimizer=STLSQ(threshold=0.0))
+
+        @torch.no_grad()
+        def step(pose: np.ndarray, act: np.ndarray) -> np.ndarray:
+            nxt = model.step(_features(pose, f), torch.as_tensor(act)).numpy()
+            return np.c_[nxt[:, :2], np.arctan2(nxt[:, 3], nxt[:, 2]) / f]
+        return step
 
     Pt, Ut = test.poses.astype(np.float64), test.actions.astype(np.float64)
     print(f"{args.data}: {train.n} training and {test.n} test trajectories of {test.steps} "
           f"pushes; errors after h pushes, mean over every start (position cm / angle deg)")
     rows = {"extra-trees (true pose, face frame)": trees_step,
-            "frame-lsq (true pose, 48 terms)": lsq_step,
+            "frame library, lsq, projected": sindy_step(False),
+            "frame library, lsq, turning": sindy_step(True),
             "nothing moves": lambda pose, u: pose}
     print(f"{'model':38s}" + "".join(f"{f'h={h}':>16s}" for h in HORIZONS))
     for name, step in rows.items():

@@ -17,6 +17,38 @@ from latent_sindy.training import RunDir, read_metrics
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
+def test_sindy_on_a_fixed_encoder_starts_at_the_least_squares_fit(data: Path,
+                                                                   tmp_path: Path) -> None:
+    """--sindy-init auto fits the coefficients to the encoded training transitions before
+    the first epoch where the encoder learns nothing (the state's): the first epoch's
+    prediction loss is already far below a random start's, and the fit is reproducible."""
+    losses = {}
+    for init in ("random", "auto", "regression"):
+        out = tmp_path / init
+        assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "2",
+                     "--batch-size", "4", "--sindy-init", init, "--no-progress", "sindy",
+                     "--order", "1", "state"]) == 0
+        losses[init] = read_metrics(out)[0]["train/pred_z"]
+    assert losses["auto"] == losses["regression"] < 0.2 * losses["random"], losses
+    # a thresholded regression starts, and so ends, with fewer terms (pruning only removes)
+    out = tmp_path / "sparse"
+    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "2",
+                 "--batch-size", "4", "--sindy-init-threshold", "0.3", "--no-progress", "sindy",
+                 "--order", "1", "state"]) == 0
+    active = {name: RunDir(tmp_path / name).load().model.dynamics.n_active()
+              for name in ("regression", "sparse")}
+    assert 0 < active["sparse"] < active["regression"], active
+
+
+def test_regression_init_refuses_an_encoder_that_learns(data: Path, tmp_path: Path,
+                                                        capsys) -> None:
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--epochs", "1",
+                 "--sindy-init", "regression", "--no-progress", "sindy", "image",
+                 "--decoder", "conv"]) != 0
+    assert "--sindy-init regression fits the dynamics to fixed latents" in (
+        capsys.readouterr().err)
+
+
 def test_pose_features_equal_exactly_for_poses_the_camera_cannot_tell_apart() -> None:
     period = math.pi / 2
     poses = np.array([[0.5, 0.1, 0.3], [0.5, 0.1, 0.3 + period], [0.5, 0.1, 0.3 - 3 * period],
@@ -39,7 +71,8 @@ def data(tmp_path_factory) -> Path:
 def test_a_state_model_trains_on_poses_and_pushes(data: Path, tmp_path: Path, kind: str) -> None:
     out = tmp_path / kind
     assert main(["train", kind, "state", "--data", str(data), "--out", str(out), "--epochs", "30",
-                 "--batch-size", "4", "--lr", "1e-2", "--no-progress"]) == 0
+                 "--batch-size", "4", "--lr", "1e-2", "--sindy-init", "random",
+                 "--no-progress"]) == 0
     rows = read_metrics(out)
     assert all(r["train/recon"] == 0 for r in rows)  # the state is observed exactly
     assert rows[-1]["train/pred_z"] < rows[0]["train/pred_z"]
@@ -63,7 +96,8 @@ def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_pat
     write_trajectories(data, make_trajectories(n=6, steps=3))
     assert main(["train", "sindy", "--order", "1", "--library", "face", "--no-include-sine",
                  "--init-scale", "0.05", "state", "--data", str(data), "--out", str(out),
-                 "--epochs", "3", "--batch-size", "4", "--no-progress"]) == 0
+                 "--epochs", "3", "--batch-size", "4", "--sindy-init", "random",
+                 "--no-progress"]) == 0
     model = RunDir(out).load().model
     assert model.dynamics.circle == (2, 3)
     gen = torch.Generator().manual_seed(0)

@@ -339,6 +339,7 @@ def train_config(study: Study, spec: ModelSpec, seed: int, data: Path) -> TrainC
                        threshold=scale.threshold if spec.threshold is None else spec.threshold,
                        threshold_every=scale.threshold_every * spec.epochs_factor,
                        eval_every=scale.eval_every * spec.epochs_factor,
+                       sindy_init_threshold=spec.init_threshold,
                        batching=scale.batching, seed=seed,
                        device="auto" if study.config.gpus > 0 else "cpu")
 

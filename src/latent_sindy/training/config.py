@@ -81,6 +81,16 @@ class TrainConfig:
     """SINDy: prune coefficients with |Ψ| below this (the paper: 1e-3)."""
     threshold_every: int = 30
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
+    sindy_init: Literal["auto", "random", "regression"] = "auto"
+    """SINDy: where the coefficients start. "random" (the paper: small normal values, seeded);
+    "regression": least squares of the training split's encoded transitions on the library,
+    which needs an encoder that learns nothing (state, moments: its latents are fixed data);
+    "auto": regression where the encoder learns nothing, else random. Training then goes on
+    from there (the L1 term and the pruning make it sparser)."""
+    sindy_init_threshold: float = 0.0
+    """SINDy, regression start: the sequentially thresholded least squares' threshold, the
+    smallest share a term may contribute (on RMS-normalised library columns); the terms it
+    drops start pruned. 0: plain least squares, every term."""
     checkpoint_every: int = 10
     """Write checkpoint.pt every this many epochs (and always at the end)."""
     # Validation is a forward pass over 500 windows, about a seventh of an epoch at the
@@ -115,6 +125,8 @@ class TrainConfig:
              f"--weight-decay {self.weight_decay}: use a finite number >= 0"),
             (self.threshold >= 0 and finite(self.threshold),
              f"--threshold {self.threshold}: use a finite number >= 0"),
+            (self.sindy_init_threshold >= 0 and finite(self.sindy_init_threshold),
+             f"--sindy-init-threshold {self.sindy_init_threshold}: use a finite number >= 0"),
             (self.threshold_every >= 0,
              f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
             (self.checkpoint_every >= 1,

@@ -41,6 +41,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
+from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import (
     TrainConfig,
     resolve_batching,
@@ -377,6 +378,31 @@ def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
             "val_objective": last.get("val/objective"), "candidates_from": None}
 
 
+def _regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
+    """Whether SINDy's coefficients start at the least-squares fit (``--sindy-init``)."""
+    if not hasattr(model.dynamics, "fit_state_data") or cfg.sindy_init == "random":
+        return False
+    if model.learns_encoder:
+        if cfg.sindy_init == "regression":
+            raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
+                            "this model's encoder learns: use --sindy-init random or auto, or "
+                            "the state or moments encoder")
+        return False
+    return True
+
+
+@torch.no_grad()
+def _fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
+                  device: torch.device, threshold: float) -> None:
+    """Sparse regression (STLSQ at ``threshold``) of every encoded training transition
+    (x (N, T+1, ..), u (N, T, nu)) on the SINDy library: the coefficients and the mask
+    training starts from."""
+    z = model.encode(x.to(device).flatten(0, 1)).reshape(*x.shape[:2], -1)
+    nz, nu = z.shape[-1], u.shape[-1]
+    model.dynamics.fit_state_data(z[:, :-1].reshape(-1, nz), u.to(device).reshape(-1, nu),
+                                  z[:, 1:].reshape(-1, nz), optimizer=STLSQ(threshold=threshold))
+
+
 def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     """Train the model `cfg` describes into the run folder ``cfg.out``; returns that folder.
 
@@ -464,6 +490,9 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     if ckpt is None:  # a resumed model has its statistics in its state
         model.fit_statistics(train_windows.images.to(device),
                              train_windows.poses if model.pose_head is not None else None)
+        if _regression_init(cfg, model):
+            _fit_dynamics(model, *train_windows.trajectories(), device,
+                          cfg.sindy_init_threshold)
     if val.n == 0:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     sindy = hasattr(model.dynamics, "threshold")  # a sparse model: SINDy
