@@ -160,4 +160,6 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
         assert spec.model.encoder.moment_order == order
         assert spec.model.dynamics.library == library
         assert spec.loss.lambda_pred_x == 0
-        assert spec.threshold is not None and spec.threshold > SCALES["tiny"].threshold
+        # fitted by sparse regression on its fixed latents, then kept as fitted
+        assert spec.init_threshold > 0 and spec.loss.lambda_l1 == 0 and spec.threshold == 0
+        assert spec.model.encoder.decoder == "sprite"
