@@ -13,7 +13,10 @@ with t + h <= T):
 * ``frame library, lsq``: least squares on every term of the frame library (no sparsity),
   the true pose as the state, the orientation features updated and projected, or turned by
   the angle one equation gives (``turn``): the library's own limit;
-* ``nothing moves``: the block stays where it was, for scale.
+* ``nothing moves``: the block stays where it was, for scale;
+* with ``--replay N``: the simulator itself, N random test pushes replayed from a fresh reset
+  at the recorded pose (the arm starting at home rather than where the previous push left
+  it), against the recorded next pose: how repeatable the world is.
 
 Prints the position error (cm) and the orientation error (degrees, modulo the block's
 symmetry) per horizon. Uses the uniform block's world (pushes in world directions).
@@ -71,6 +74,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", required=True)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--replay", type=int, default=0, metavar="N",
+                    help="replay N random test pushes in the simulator (about 0.5 s each)")
     args = ap.parse_args()
     from sklearn.ensemble import ExtraTreesRegressor
 
@@ -123,6 +128,35 @@ def main() -> None:
         pos, ang = _rollout_errors(step, Pt, Ut, period)
         print(f"{name:38s}" + "".join(f"{pos[h - 1]:8.2f} /{ang[h - 1]:6.2f}" for h in HORIZONS
                                        if h <= len(pos)))
+    if args.replay:
+        pos, ang = _replay(test, args.replay, args.seed)
+        print(f"{'the simulator, replayed (h=1)':38s}{pos:8.2f} /{ang:6.2f}   "
+              f"({args.replay} pushes; median {np.median(_replay.last):.2f} cm)")
+
+
+def _replay(test, n: int, seed: int) -> tuple[float, float]:
+    """Mean position (cm) and angle (deg) gap between n recorded test pushes and the same
+    pushes replayed from a fresh reset at the recorded pose."""
+    from latent_sindy.envs import PandaPushEnv
+
+    env = PandaPushEnv(test.env_config)
+    rng = np.random.default_rng(seed)
+    pairs = [(i, t) for i in range(test.n) for t in range(test.steps)]
+    pos, ang = [], []
+    period = test.env_config.angle_period
+    try:
+        for k in rng.choice(len(pairs), size=min(n, len(pairs)), replace=False):
+            i, t = pairs[k]
+            env.reset(seed=seed, options={"start": tuple(float(v) for v in test.poses[i, t])})
+            env.step(test.actions[i, t].astype(np.float64))
+            got, want = np.asarray(env.world.block_pose()), test.poses[i, t + 1]
+            pos.append(100 * np.linalg.norm(got[:2] - want[:2]))
+            turn = np.remainder(got[2] - want[2] + period / 2, period) - period / 2
+            ang.append(np.degrees(abs(turn)))
+    finally:
+        env.close()
+    _replay.last = pos
+    return float(np.mean(pos)), float(np.mean(ang))
 
 
 if __name__ == "__main__":
