@@ -442,6 +442,12 @@ def push_library(
     return poly_library(order, include_sine) + push
 
 
+def _check_contact_indices(library: str, offset: int, angle: int, length: int) -> None:
+    if len({offset, angle, length}) < 3 or min(offset, angle, length) < 0:
+        raise UserError(f"{library} library: offset {offset}, angle {angle} and length "
+                        f"{length} must be different action indices >= 0")
+
+
 def face_library(
     order: int = 1,
     offset: int = 0,
@@ -472,11 +478,7 @@ def face_library(
     ``orientation`` names the state's orientation features. ``order`` > 1 repeats
     ``ℓ c``-type terms, which the library refuses.
     """
-    if len({offset, angle, length}) < 3 or min(offset, angle, length) < 0:
-        raise UserError(
-            f"face library: offset {offset}, angle {angle} and length {length} must be "
-            "different action indices >= 0"
-        )
+    _check_contact_indices("face", offset, angle, length)
     if isinstance(offset_degree, bool) or not isinstance(offset_degree, int) or (
             offset_degree < 0):
         raise UserError(f"face library: offset_degree {offset_degree!r}: use an integer >= 0")
@@ -520,11 +522,7 @@ def frame_library(
     and ℓ; ``orientation`` names the state's (cos fθ, sin fθ); ``sense`` and
     ``angle_offset`` map them to the world's orientation (:class:`FaceFrame`).
     """
-    if len({offset, angle, length}) < 3 or min(offset, angle, length) < 0:
-        raise UserError(
-            f"frame library: offset {offset}, angle {angle} and length {length} must be "
-            "different action indices >= 0"
-        )
+    _check_contact_indices("frame", offset, angle, length)
     if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
         raise UserError(f"frame library: degree {degree!r}: use an integer >= 0")
     orient = _as_variables(orientation)
