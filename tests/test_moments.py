@@ -163,3 +163,24 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
         # fitted by sparse regression on its fixed latents, then kept as fitted
         assert spec.init_threshold > 0 and spec.loss.lambda_l1 == 0 and spec.threshold == 0
         assert spec.model.encoder.decoder == "sprite"
+
+
+def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path,
+                                                                  capsys) -> None:
+    """The frame library reads the face variables from the orientation features, so on the
+    moments latent it must know how the camera shows the world's angles: a mismatch is
+    refused with the values that fit the data's camera, which then train."""
+    from latent_sindy.envs.camera import moment_frame
+
+    d = make_trajectories(n=6, steps=3)
+    data = tmp_path / "d.h5"
+    write_trajectories(data, d)
+    sense, offset = moment_frame(d.env_config)
+    train = ["train", "--data", str(data), "--epochs", "1", "--batch-size", "4",
+             "--no-progress"]
+    sindy = ["sindy", "--order", "1", "--library", "frame", "--no-include-sine"]
+    image = ["image", "--encoder", "moments", "--latent-dim", "4", "--decoder", "sprite"]
+    assert main([*train, "--out", str(tmp_path / "bad"), *sindy, *image]) == 2
+    assert f"use --frame-sense {sense} --frame-offset" in capsys.readouterr().err
+    assert main([*train, "--out", str(tmp_path / "ok"), *sindy, "--frame-sense", str(sense),
+                 "--frame-offset", repr(offset), *image]) == 0

@@ -248,12 +248,12 @@ def test_state_position_errors_of_a_perfect_and_a_still_predictor(moving):
 
 def test_the_moment_frame_turns_the_images_angle_into_the_worlds(world):
     """On rendered images, the moments latent's orientation features mapped through the
-    study's frame (:func:`moment_frame`, from the camera) give the frame library the face
+    camera's frame (:func:`moment_frame`) give the frame library the face
     variables of the true pose: the push's angle from the pushed face's normal to a few
     degrees (the moments read the orientation to about 4°, modulo the face's 90°)."""
     import math
 
-    from latent_sindy.experiments.study import moment_frame
+    from latent_sindy.envs.camera import moment_frame
     from latent_sindy.models import AutoencoderConfig
     from latent_sindy.models.autoencoder import MomentEncoder
     from latent_sindy.sindy import face_variables

@@ -9,7 +9,6 @@ import math
 import pytest
 
 from latent_sindy.control.closed_loop import wilson_interval
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.reproduce import reproduce
 from latent_sindy.experiments.study import (
@@ -17,7 +16,6 @@ from latent_sindy.experiments.study import (
     ReproduceConfig,
     Sweep,
     model_specs,
-    moment_frame,
     parse_seeds,
     study_specs,
 )
@@ -45,9 +43,7 @@ def test_a_sweep_makes_one_variant_per_value_of_the_models_it_applies_to(tmp_pat
     assert s.label == "SINDy-2, λ3=0.01, order=3"
     assert specs["linear.lambda_l1=0.001"].loss.lambda_l1 == 0.001
     plain = ReproduceConfig(scale="tiny", out=tmp_path)
-    frame = moment_frame(PushEnvConfig.named(plain.world))
-    # no sweep or --models: as it was
-    assert study_specs(plain) == model_specs(SCALES["tiny"], moment_frame=frame)
+    assert study_specs(plain) == model_specs(SCALES["tiny"])  # no sweep or --models: as it was
 
 
 def test_sweep_input_is_checked():

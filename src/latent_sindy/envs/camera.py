@@ -22,7 +22,7 @@ import numpy as np
 from latent_sindy.envs._bullet import pybullet as pb
 from latent_sindy.envs.config import PushEnvConfig
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "moment_frame"]
 
 
 class Camera:
@@ -79,3 +79,15 @@ class Camera:
         a, b = ends
         t = (height - a[..., 2]) / (b[..., 2] - a[..., 2])
         return (a + t[..., None] * (b - a))[..., :2]
+
+
+def moment_frame(cfg: PushEnvConfig) -> tuple[int, float]:
+    """(sense, offset) that map the angle nφ of the n-th angular moment of ``cfg``'s images
+    (image axes: x to the right, y down; n = 2π / the block's visible period) to the world's
+    fθ = sense · nφ + offset: what the frame library needs of the moments latent
+    (``SindyConfig.frame_sense``, ``frame_offset``). The camera maps a world angle β to the
+    image angle γ0 + sense · β (:meth:`Camera.angle_map`), and a square's 4th moment peaks at
+    its corners, π / n off its faces, so nφ = n (γ0 + sense θ) + π."""
+    sense, gamma0 = Camera(cfg).angle_map()
+    n = 2 * math.pi / cfg.angle_period
+    return sense, math.remainder(-sense * (math.pi + n * gamma0), 2 * math.pi)

@@ -26,7 +26,6 @@ import tyro
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planners import world_planner
-from latent_sindy.envs.camera import Camera
 from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.evaluation import Stat
@@ -36,8 +35,8 @@ from latent_sindy.models.latent_model import LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig
 
 __all__ = ["SCALES", "SWEEPABLE", "Condition", "ModelSpec", "ReproduceConfig", "RunResult",
-           "Scale", "Study", "Sweep", "model_specs", "moment_frame", "parse_seeds",
-           "parse_sweeps", "study_specs"]
+           "Scale", "Study", "Sweep", "model_specs", "parse_seeds", "parse_sweeps",
+           "study_specs"]
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image"]
@@ -426,8 +425,7 @@ SINGLE_STEP = "sindy2"
 
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                 angle_period: float = math.pi / 2,
-                push: Literal["symmetric", "paper"] = "symmetric",
-                moment_frame: tuple[int, float] = (1, 0.0)) -> tuple[ModelSpec, ...]:
+                push: Literal["symmetric", "paper"] = "symmetric") -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows, SINDy
     order 2 with the push library, and the same with a privileged pose head planning on its
     pose cost, all with the same autoencoder architecture; the pose latents (privileged, and
@@ -436,8 +434,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     ``angle_period`` is the world's visible symmetry, which sets the face library's angle
     frequency; ``push`` its push style: the face library writes pushes given as world
     directions, so a world whose push angle is relative to the block ("paper", "marked")
-    keeps the push library in those rows. ``moment_frame`` (sense, offset) maps the moments
-    latent's orientation features to the world's (:func:`moment_frame`)."""
+    keeps the push library in those rows."""
     h = scale.multistep_window
     auto = AutoencoderConfig(decoder=decoder)
     library = "face" if push == "symmetric" else "push"
@@ -542,23 +539,11 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     )
 
 
-def moment_frame(world: PushEnvConfig) -> tuple[int, float]:
-    """(sense, offset) of the frame library for the moments latent of ``world``'s images:
-    the world's fθ = sense · nφ + offset, from nφ, the argument of the images' n-th angular
-    moment (n = 2π / the visible period). The camera maps a world angle β to the image angle
-    γ0 + sense · β (:meth:`Camera.angle_map`), and a square's 4th moment peaks at its
-    corners, π / n off its faces: nφ = n (γ0 + sense θ) + π."""
-    sense, gamma0 = Camera(world).angle_map()
-    n = 2 * math.pi / world.angle_period
-    return sense, math.remainder(-sense * (math.pi + n * gamma0), 2 * math.pi)
-
-
 def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
     """The models of a study: :func:`model_specs`, those of ``--models``, and for each model
     one variant per combination of the ``--sweep`` values that apply to it."""
     world = PushEnvConfig.named(config.world)
-    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push,
-                        moment_frame(world))
+    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push)
     names = [s.name for s in specs]
     unknown = [m for m in config.models if m not in names]
     if unknown or len(set(config.models)) != len(config.models):

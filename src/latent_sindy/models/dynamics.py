@@ -649,8 +649,8 @@ class SindyConfig:
     from the face normal."""
     frame_sense: int = 1
     """"frame" library: the orientation features' sense against the world's, fθ =
-    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image; the study sets
-    it for the moments latent from the camera)."""
+    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image; on the moments
+    latent training checks both against the data's camera, envs.camera.moment_frame)."""
     frame_offset: float = 0.0
     """"frame" library: that offset (radians)."""
     init_scale: float = 1e-3

@@ -37,6 +37,7 @@ from latent_sindy.atomic import check_memory
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
+from latent_sindy.envs.camera import moment_frame
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
@@ -85,6 +86,15 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
                         f"alike every {math.degrees(data.env_config.angle_period):g}°, so use "
                         f"--moment-order {round(2 * math.pi / data.env_config.angle_period)}")
     library = getattr(model_cfg.dynamics, "library", None)
+    if library == "frame" and getattr(model_cfg.encoder, "encoder", None) == "moments":
+        sense, offset = moment_frame(data.env_config)
+        dyn = model_cfg.dynamics
+        if dyn.frame_sense != sense or abs(math.remainder(dyn.frame_offset - offset,
+                                                          2 * math.pi)) > 1e-6:
+            raise UserError(f"--library frame on the moments latent of {cfg.data}: its camera "
+                            f"shows the world's angles with sense {sense} and offset "
+                            f"{offset:.6g}: use --frame-sense {sense} --frame-offset "
+                            f"{offset:.6g}")
     if library in ("face", "frame") and data.env_config.push != "symmetric":
         raise UserError(f"--library {library} writes pushes given as world directions, but "
                         f"{cfg.data} was collected with push style '{data.env_config.push}' "
