@@ -89,6 +89,7 @@ def main() -> None:
     P, U = train.poses.astype(np.float64), train.actions.astype(np.float64)
     p, a, length, n = _face_frame(P[:, :-1], U, f)
     d = P[:, 1:] - P[:, :-1]
+    d[..., 2] = np.remainder(d[..., 2] + math.pi, 2 * math.pi) - math.pi  # θ is kept in (-π, π]
     along = d[..., 0] * np.cos(n) + d[..., 1] * np.sin(n)
     across = -d[..., 0] * np.sin(n) + d[..., 1] * np.cos(n)
     X = np.stack([p, a, length], -1).reshape(-1, 3)

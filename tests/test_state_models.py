@@ -299,3 +299,82 @@ def test_the_study_writes_world_direction_pushes_with_the_face_library_only() ->
         for name in ("state_sindy", "sindy_pose"):
             assert specs[name].model.dynamics.library == library, (push, name)
             assert library in specs[name].label
+
+
+def test_a_turning_frame_run_reloads_turning(data: Path, tmp_path: Path) -> None:
+    """--turn and the frame library survive saving and loading: the reloaded model, its
+    sparse form and MPPI's kernel turn the pair, z3's column stays free of terms, and the
+    coefficient files say that z2's coefficients are the turn."""
+    from latent_sindy.control import SparseSindyStep, latent_step
+
+    out = tmp_path / "run"
+    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "2",
+                 "--batch-size", "4", "--no-progress", "--turn", "sindy", "--order", "1",
+                 "--library", "frame", "--no-include-sine", "state"]) == 0
+    dyn = RunDir(out).load().model.dynamics
+    assert dyn.turn and not dyn.mask[:, 3].any() and dyn.mask[:, 2].any()
+    assert dyn.compile_sparse().turn
+    step = latent_step(dyn)
+    assert isinstance(step, SparseSindyStep) and step._turn
+    assert dyn.export_info()["turn"] is True and dyn.export_info()["circle"] == [2, 3]
+    # a state dict of a model that did not turn cannot switch z3's column back on
+    plain = type(dyn)(**{**dyn.hparams(), "turn": False})
+    dyn.load_state_dict(plain.state_dict())
+    assert not dyn.mask[:, 3].any() and 0 <= dyn.sparsity() <= 1
+
+
+def test_sindy_init_settings_that_would_be_ignored_are_refused(data: Path, tmp_path: Path,
+                                                               capsys) -> None:
+    from latent_sindy.errors import UserError
+    from latent_sindy.training import TrainConfig
+
+    common = ["train", "--data", str(data), "--epochs", "1", "--no-progress"]
+    assert main([*common, "--out", str(tmp_path / "a"), "--sindy-init", "regression",
+                 "linear", "state"]) != 0
+    assert "dynamics are linear" in capsys.readouterr().err
+    assert main([*common, "--out", str(tmp_path / "b"), "--sindy-init", "random",
+                 "--sindy-init-threshold", "0.1", "sindy", "state"]) != 0
+    assert "--sindy-init-threshold 0.1 is for a SINDy model" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    with pytest.raises(UserError, match="--sindy-init 'regresion'"):
+        TrainConfig(sindy_init="regresion")  # type: ignore[arg-type]
+
+
+def test_a_run_recorded_before_regression_starts_reads_as_random(data: Path,
+                                                                 tmp_path: Path) -> None:
+    import json
+
+    out = tmp_path / "old"
+    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "1",
+                 "--sindy-init", "random", "--no-progress", "sindy", "--order", "1",
+                 "state"]) == 0
+    config = json.loads((out / "config.json").read_text())
+    del config["train"]["sindy_init"], config["train"]["sindy_init_threshold"]
+    (out / "config.json").write_text(json.dumps(config))
+    assert RunDir(out).train_config().sindy_init == "random"
+
+
+def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
+        data: Path, tmp_path: Path, capsys) -> None:
+    from latent_sindy.errors import UserError
+    from latent_sindy.models import SindyConfig
+
+    with pytest.raises(UserError, match="nearest face normal"):
+        SindyConfig(order=1, library="frame", angle_frequency=1.0)
+    # the data's square looks alike every 90°: a face library at another frequency is refused
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--epochs", "1",
+                 "--no-progress", "sindy", "--order", "1", "--library", "face",
+                 "--angle-frequency", "2", "state"]) != 0
+    assert "use --angle-frequency 4" in capsys.readouterr().err
+
+
+def test_the_init_threshold_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
+    from latent_sindy.experiments.study import ReproduceConfig, Sweep, study_specs
+
+    cfg = ReproduceConfig(scale="tiny", out=tmp_path,
+                          models=("sindy2", "sindy_moments", "state_sindy"),
+                          sweep=(Sweep.parse("init_threshold=0,0.2"),))
+    names = [s.name for s in study_specs(cfg)]
+    assert names == ["sindy2", "sindy_moments.init_threshold=0",
+                     "sindy_moments.init_threshold=0.2", "state_sindy.init_threshold=0",
+                     "state_sindy.init_threshold=0.2"], names

@@ -88,6 +88,9 @@ def moment_frame(cfg: PushEnvConfig) -> tuple[int, float]:
     (``SindyConfig.frame_sense``, ``frame_offset``). The camera maps a world angle β to the
     image angle γ0 + sense · β (:meth:`Camera.angle_map`), and a square's 4th moment peaks at
     its corners, π / n off its faces, so nφ = n (γ0 + sense θ) + π."""
-    sense, gamma0 = Camera(cfg).angle_map()
     n = 2 * math.pi / cfg.angle_period
+    if n < 3:
+        raise ValueError(f"moment_frame needs a block that looks alike at least 3 times a turn "
+                         f"(its n-th moment then peaks at its corners), not {n:g}")
+    sense, gamma0 = Camera(cfg).angle_map()
     return sense, math.remainder(-sense * (math.pi + n * gamma0), 2 * math.pi)

@@ -240,7 +240,8 @@ SWEEPABLE: dict[str, Sweepable] = {
                         lambda spec, v: dataclasses.replace(spec, window=v)),
     "threshold": Sweepable(float, "τ", _is_sindy,
                            lambda spec, v: dataclasses.replace(spec, threshold=v)),
-    "init_threshold": Sweepable(float, "STLSQ threshold", _is_sindy,
+    "init_threshold": Sweepable(float, "STLSQ threshold",
+                                lambda spec: _is_sindy(spec) and spec.model.encoder.fixed_encoder,
                                 lambda spec, v: dataclasses.replace(spec, init_threshold=v)),
 }
 

@@ -147,6 +147,11 @@ class AutoencoderConfig:
         """Whether the latent is a pose (x, y, cos nφ, sin nφ), as a face library needs."""
         return self.encoder == "moments"
 
+    @property
+    def fixed_encoder(self) -> bool:
+        """Whether the encoder learns nothing (the moments'), so its latents are data."""
+        return self.encoder == "moments"
+
     def resolve(self, channels: int, image_size: int, source: str = "the data"
                 ) -> AutoencoderConfig:
         """This config with the data's image shape filled in; UserError if it contradicts it."""

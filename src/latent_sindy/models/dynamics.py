@@ -191,8 +191,12 @@ class LatentDynamics(nn.Module):
         return []
 
     def export_info(self) -> dict[str, Any]:
-        """What the coefficient files record besides the coefficients."""
-        return {}
+        """What the coefficient files record besides the coefficients: the circle, and
+        whether the model turns it (then z_a's coefficients give the angle ω, not z_a's
+        update)."""
+        if self.circle is None:
+            return {}
+        return {"circle": list(self.circle), "turn": self.turn}
 
     def stats(self) -> dict[str, float | None]:
         """Counts the study reports for every model: parameters, active coefficients and
@@ -426,7 +430,14 @@ class SindyDynamics(LatentDynamics):
     def export_info(self) -> dict[str, Any]:
         return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
                 "n_coefficients": self.n_candidates(), "sparsity": self.sparsity(),
-                "terms": self.names}
+                "terms": self.names, **super().export_info()}
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        if self.turn:  # a mask saved by a model that did not turn: z_b's column stays off
+            with torch.no_grad():
+                self.mask[:, self.circle[1]] = False
+                self.psi[:, self.circle[1]] = 0.0
 
     def stats(self) -> dict[str, float | None]:
         return {**super().stats(), "sindy/active": self.n_active(),
@@ -515,7 +526,7 @@ class LinearDynamics(LatentDynamics):
                 *self._circle_note()]
 
     def export_info(self) -> dict[str, Any]:
-        return {"n_coefficients": self.nz * (self.nz + self.nu + 1)}
+        return {"n_coefficients": self.nz * (self.nz + self.nu + 1), **super().export_info()}
 
     def stats(self) -> dict[str, float | None]:
         n = self.nz * (self.nz + self.nu + 1)
@@ -667,6 +678,12 @@ class SindyConfig:
             raise UserError(f"--library {self.library} with --order {self.order}: the "
                             f"{self.library} library's push terms already hold the "
                             "higher-order products; use --order 1")
+        if self.library == "frame" and (self.angle_frequency < 3
+                                        or self.angle_frequency != round(self.angle_frequency)):
+            raise UserError(f"--library frame with --angle-frequency {self.angle_frequency:g}: "
+                            "its angle a is measured from the nearest face normal of a block "
+                            "whose visible symmetry is its number of faces (a uniform square: "
+                            "4); use an integer >= 3, or --library face / push")
         if isinstance(self.frame_degree, bool) or not 0 <= self.frame_degree <= 4:
             raise UserError(f"--frame-degree {self.frame_degree}: use 0 to 4")
         if self.frame_sense not in (1, -1):

@@ -66,6 +66,11 @@ class StateConfig:
         """The latent is the pose features (a face library can write dynamics on it)."""
         return True
 
+    @property
+    def fixed_encoder(self) -> bool:
+        """The encoder learns nothing: the latents are the data's poses."""
+        return True
+
     def resolve(self, channels: int, image_size: int, source: str = "the data") -> StateConfig:
         return self  # the pose does not depend on the images
 

@@ -345,7 +345,7 @@ class FaceFrame(_SpecOps):
     def __str__(self) -> str:
         c, s = self.orientation
         sign = "" if self.sense == 1 else "-"
-        offset = f" + {self.offset:.4g}" if self.offset else ""
+        offset = f" {'-' if self.offset < 0 else '+'} {abs(self.offset):.4g}" if self.offset else ""
         theta = f"atan2({s}, {c}) / {self.frequency:g}"
         if sign or offset:
             theta = f"({sign}atan2({s}, {c}){offset}) / {self.frequency:g}"

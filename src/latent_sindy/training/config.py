@@ -125,6 +125,8 @@ class TrainConfig:
              f"--weight-decay {self.weight_decay}: use a finite number >= 0"),
             (self.threshold >= 0 and finite(self.threshold),
              f"--threshold {self.threshold}: use a finite number >= 0"),
+            (self.sindy_init in ("auto", "random", "regression"),
+             f"--sindy-init {self.sindy_init!r}: use auto, random or regression"),
             (self.sindy_init_threshold >= 0 and finite(self.sindy_init_threshold),
              f"--sindy-init-threshold {self.sindy_init_threshold}: use a finite number >= 0"),
             (self.threshold_every >= 0,

@@ -86,6 +86,13 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
                         f"alike every {math.degrees(data.env_config.angle_period):g}°, so use "
                         f"--moment-order {round(2 * math.pi / data.env_config.angle_period)}")
     library = getattr(model_cfg.dynamics, "library", None)
+    if library in ("face", "frame"):
+        f = 2 * math.pi / data.env_config.angle_period
+        if abs(model_cfg.dynamics.angle_frequency - f) > 1e-9:
+            raise UserError(f"--angle-frequency {model_cfg.dynamics.angle_frequency:g} does "
+                            f"not match {cfg.data}: its block looks alike every "
+                            f"{math.degrees(data.env_config.angle_period):g}°, so use "
+                            f"--angle-frequency {f:g}")
     if library == "frame" and getattr(model_cfg.encoder, "encoder", None) == "moments":
         sense, offset = moment_frame(data.env_config)
         dyn = model_cfg.dynamics
@@ -389,16 +396,22 @@ def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
 
 
 def _regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
-    """Whether SINDy's coefficients start at the least-squares fit (``--sindy-init``)."""
-    if not hasattr(model.dynamics, "fit_state_data") or cfg.sindy_init == "random":
-        return False
-    if model.learns_encoder:
-        if cfg.sindy_init == "regression":
-            raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
-                            "this model's encoder learns: use --sindy-init random or auto, or "
-                            "the state or moments encoder")
-        return False
-    return True
+    """Whether SINDy's coefficients start at the sparse-regression fit (``--sindy-init``);
+    UserError where a setting would be ignored."""
+    sindy = hasattr(model.dynamics, "fit_state_data")
+    if cfg.sindy_init == "regression" and not sindy:
+        raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
+                        f"dynamics are {model.dynamics.kind}: drop --sindy-init")
+    if cfg.sindy_init == "regression" and model.learns_encoder:
+        raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
+                        "this model's encoder learns: use --sindy-init random or auto, or "
+                        "the state or moments encoder")
+    regression = sindy and cfg.sindy_init != "random" and not model.learns_encoder
+    if cfg.sindy_init_threshold > 0 and not regression:
+        raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
+                        "model that starts from regression (a state or moments encoder, "
+                        "--sindy-init auto or regression): drop it")
+    return regression
 
 
 @torch.no_grad()
@@ -444,6 +457,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
         torch.manual_seed(cfg.seed)
         model = LatentModel(model_cfg)  # initialised on the CPU: the same weights everywhere
     model.to(device)
+    regression = _regression_init(cfg, model)  # (checks the settings before anything is written)
     opt = torch.optim.AdamW(
         model.parameters(), lr=cfg.lr, betas=cfg.betas, weight_decay=cfg.weight_decay
     )
@@ -500,7 +514,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None) -> Path:
     if ckpt is None:  # a resumed model has its statistics in its state
         model.fit_statistics(train_windows.images.to(device),
                              train_windows.poses if model.pose_head is not None else None)
-        if _regression_init(cfg, model):
+        if regression:
             _fit_dynamics(model, *train_windows.trajectories(), device,
                           cfg.sindy_init_threshold)
     if val.n == 0:

@@ -166,7 +166,10 @@ class RunDir:
 
     def train_config(self, record: Mapping[str, Any] | None = None) -> TrainConfig:
         record = self.read_record() if record is None else record
-        return from_json(TrainConfig, record["train"], f"{self.path / self.CONFIG}: train")
+        train = dict(record["train"])
+        # recorded before SINDy could start from a regression: it started at random
+        train.setdefault("sindy_init", "random")
+        return from_json(TrainConfig, train, f"{self.path / self.CONFIG}: train")
 
     def batching(self, record: Mapping[str, Any] | None = None) -> str:
         """How the run batched its training: "trajectories" or "windows" (its --batching,
