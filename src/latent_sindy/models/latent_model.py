@@ -231,13 +231,6 @@ class LatentModel(nn.Module):
         if self.pose_head is not None and poses is not None:
             self.pose_head.fit_statistics(poses)
 
-    @property
-    def learns_encoder(self) -> bool:
-        """Whether the encoder has parameters (the state's and the moments' have none: their
-        latents are fixed functions of the observation)."""
-        encoder = getattr(self.autoencoder, "encoder", self.autoencoder)
-        return any(True for _ in encoder.parameters())
-
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, S, S) normalised images -> z (..., nz)."""
         return self.autoencoder.encode(x)

@@ -402,11 +402,12 @@ def _regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
     if cfg.sindy_init == "regression" and not sindy:
         raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
                         f"dynamics are {model.dynamics.kind}: drop --sindy-init")
-    if cfg.sindy_init == "regression" and model.learns_encoder:
+    fixed = model.config.encoder.fixed_encoder  # its latents are data
+    if cfg.sindy_init == "regression" and not fixed:
         raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
                         "this model's encoder learns: use --sindy-init random or auto, or "
                         "the state or moments encoder")
-    regression = sindy and cfg.sindy_init != "random" and not model.learns_encoder
+    regression = sindy and cfg.sindy_init != "random" and fixed
     if cfg.sindy_init_threshold > 0 and not regression:
         raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
                         "model that starts from regression (a state or moments encoder, "
