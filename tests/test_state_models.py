@@ -378,3 +378,29 @@ def test_the_init_threshold_sweep_applies_to_fixed_encoders_only(tmp_path: Path)
     assert names == ["sindy2", "sindy_moments.init_threshold=0",
                      "sindy_moments.init_threshold=0.2", "state_sindy.init_threshold=0",
                      "state_sindy.init_threshold=0.2"], names
+
+
+def test_a_turning_models_coefficient_map_counts_its_candidates(data: Path, tmp_path: Path,
+                                                                 monkeypatch) -> None:
+    """The coefficient figure's sparsity is the model's own (z3's column is no candidate of
+    a turning model), not the mask's share."""
+    import matplotlib.pyplot as plt
+
+    from latent_sindy.experiments import figures
+
+    out = tmp_path / "run"
+    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "1",
+                 "--batch-size", "4", "--no-progress", "--turn", "sindy", "--order", "1",
+                 "--library", "frame", "--no-include-sine", "state"]) == 0
+    dyn = RunDir(out).load().model.dynamics
+    seen = {}
+    real = plt.Axes.set_title
+
+    def keep(ax, text, *args, **kwargs):
+        seen["title"] = text
+        return real(ax, text, *args, **kwargs)
+
+    monkeypatch.setattr(plt.Axes, "set_title", keep)
+    figures.coefficient_map(dyn, "m", tmp_path / "c.png")
+    assert f"of {dyn.n_candidates()} ({100 * dyn.sparsity():.1f}% sparse)" in seen["title"]
+    assert dyn.n_candidates() == 3 * dyn.mask.shape[0]

@@ -95,11 +95,15 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
                         bottom=0.85 / height)
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="#eeeeee")  # pruned: grey
     im = ax.imshow(data, aspect="auto", cmap=cmap, vmin=-lim, vmax=lim, interpolation="nearest")
-    ax.set_yticks(range(coef.shape[0]), [f"z{j}" for j in range(coef.shape[0])], fontsize=6)
+    rows = [f"z{j}" for j in range(coef.shape[0])]
+    if getattr(dyn, "turn", False):  # z_a's coefficients are the turn ω; z_b has none
+        a, b = dyn.circle
+        rows[a], rows[b] = "ω", f"(z{b})"
+    ax.set_yticks(range(coef.shape[0]), rows, fontsize=6)
     ax.set_xticks(range(len(cols)), [names[i] for i in cols], rotation=90,
                   fontsize=7 if len(cols) <= 60 else 5)
-    ax.set_title(f"{title}: {int(mask.sum())} active coefficients of {mask.size} "
-                 f"({100 * (1 - mask.mean()):.1f}% sparse); showing {shown}", fontsize=9)
+    ax.set_title(f"{title}: {dyn.n_active()} active coefficients of {dyn.n_candidates()} "
+                 f"({100 * dyn.sparsity():.1f}% sparse); showing {shown}", fontsize=9)
     fig.colorbar(im, ax=ax, fraction=0.02, pad=0.01)
     return _save(fig, path)
 

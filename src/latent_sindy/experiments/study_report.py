@@ -263,7 +263,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                 "moves; dotted: reading the true images (the measure's own error)")
     for m, p in files["coefficients"].items():
         r.image(p, f"Fig. 9/10: active coefficients of {study.labels[m]} (rows latent states, "
-                "columns candidate terms; grey: pruned)")
+                "columns candidate terms; grey: pruned; a turning model's row ω is the angle "
+                "by which its orientation features turn)")
 
     if files["gifs"]:
         r.heading(f"Closed-loop episodes (seed {cfg.seeds[0]}, first episode of each condition)")
