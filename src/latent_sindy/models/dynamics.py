@@ -284,9 +284,7 @@ class SindyDynamics(LatentDynamics):
         gen = None if seed is None else torch.Generator().manual_seed(seed)
         self.psi = nn.Parameter(torch.randn(p, nz, generator=gen) * init_scale)  # (p, nz)
         self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
-        if self.turn:  # z_b's own update is unused: no candidates
-            self.mask[:, self.circle[1]] = False
-            self.psi.data[:, self.circle[1]] = 0.0
+        self._free_turned_column()
         self._init = {**init, "init_scale": init_scale, "seed": seed}
 
     @property
@@ -334,10 +332,9 @@ class SindyDynamics(LatentDynamics):
                 f"(terms, nz), got {tuple(coef.shape)} and {tuple(mask.shape)}"
             )
         self.mask.copy_(mask.to(self.mask.device, torch.bool))
-        if self.turn:
-            self.mask[:, self.circle[1]] = False
         self.psi.copy_(coef.to(self.psi.device, self.psi.dtype))
         self.psi.masked_fill_(~self.mask, 0.0)
+        self._free_turned_column()
         return self
 
     def fit_state_data(
@@ -434,10 +431,14 @@ class SindyDynamics(LatentDynamics):
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        if self.turn:  # a mask saved by a model that did not turn: z_b's column stays off
-            with torch.no_grad():
-                self.mask[:, self.circle[1]] = False
-                self.psi[:, self.circle[1]] = 0.0
+        self._free_turned_column()  # a mask saved by a model that did not turn
+
+    @torch.no_grad()
+    def _free_turned_column(self) -> None:
+        """With ``turn``, z_b's own update is unused: its column has no candidates."""
+        if self.turn:
+            self.mask[:, self.circle[1]] = False
+            self.psi[:, self.circle[1]] = 0.0
 
     def stats(self) -> dict[str, float | None]:
         return {**super().stats(), "sindy/active": self.n_active(),

@@ -79,20 +79,12 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
 
     _, _, channels, size, _ = data.images.shape
     model_cfg = cfg.model.resolve(channels, size, data.actions.shape[-1], source=str(cfg.data))
-    order = getattr(model_cfg.encoder, "moment_order", None)
-    if getattr(model_cfg.encoder, "encoder", None) == "moments" and (
-            abs(order - 2 * math.pi / data.env_config.angle_period) > 1e-9):
-        raise UserError(f"--moment-order {order} does not match {cfg.data}: its block looks "
-                        f"alike every {math.degrees(data.env_config.angle_period):g}°, so use "
-                        f"--moment-order {round(2 * math.pi / data.env_config.angle_period)}")
+    if getattr(model_cfg.encoder, "encoder", None) == "moments":
+        _check_symmetry("--moment-order", model_cfg.encoder.moment_order, data, cfg.data)
     library = getattr(model_cfg.dynamics, "library", None)
     if library in ("face", "frame"):
-        f = 2 * math.pi / data.env_config.angle_period
-        if abs(model_cfg.dynamics.angle_frequency - f) > 1e-9:
-            raise UserError(f"--angle-frequency {model_cfg.dynamics.angle_frequency:g} does "
-                            f"not match {cfg.data}: its block looks alike every "
-                            f"{math.degrees(data.env_config.angle_period):g}°, so use "
-                            f"--angle-frequency {f:g}")
+        _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data,
+                        cfg.data)
     if library == "frame" and getattr(model_cfg.encoder, "encoder", None) == "moments":
         sense, offset = moment_frame(data.env_config)
         dyn = model_cfg.dynamics
@@ -393,6 +385,14 @@ def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
                 "val_objective": best.objective, "candidates_from": best.since}
     return {"epoch": cfg.epochs, "selection": "last epoch",
             "val_objective": last.get("val/objective"), "candidates_from": None}
+
+
+def _check_symmetry(flag: str, value: float, data: Trajectories, path: Path) -> None:
+    """UserError unless ``value`` is the data's visible symmetry, 2π / its angle period."""
+    f = 2 * math.pi / data.env_config.angle_period
+    if abs(value - f) > 1e-9:
+        raise UserError(f"{flag} {value:g} does not match {path}: its block looks alike every "
+                        f"{math.degrees(data.env_config.angle_period):g}°, so use {flag} {f:g}")
 
 
 def _regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
