@@ -14,6 +14,14 @@ with t + h <= T):
   the true pose as the state, the orientation features updated and projected, or turned by
   the angle one equation gives (``turn``): the library's own limit;
 * ``nothing moves``: the block stays where it was, for scale;
+* ``... , unchanged pushes known``: the same two models fitted on the pushes that moved the
+  block, rolled out with the pushes that left the image unchanged (pixel for pixel: the arm
+  could not reach the push's start, or the push was too short to show) known to leave the
+  block where it was: what foreseeing the arm's reach would buy;
+* ``... , from the image's reading``: rolled out from the pose the image moments read
+  (:class:`~latent_sindy.models.autoencoder.MomentEncoder`, mapped to the world by least
+  squares on the training images) rather than the true one: what an image model that
+  reads the start as well as the moments do can reach, before its predicted image is read;
 * with ``--replay N``: the simulator itself, N random test pushes replayed from a fresh reset
   at the recorded pose (the arm starting at home rather than where the previous push left
   it), against the recorded next pose: how repeatable the world is.
@@ -33,7 +41,9 @@ import numpy as np
 import torch
 
 from latent_sindy.data.store import read_trajectories
+from latent_sindy.data.windows import Normalizer
 from latent_sindy.models import SindyConfig
+from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
 from latent_sindy.sindy import STLSQ, face_variables
 
 HORIZONS = (1, 2, 5, 10)
@@ -53,15 +63,109 @@ def _features(poses: np.ndarray, f: float) -> torch.Tensor:
                                      np.sin(f * poses[..., 2])], -1))
 
 
-def _rollout_errors(step, poses: np.ndarray, actions: np.ndarray, period: float
+def _unchanged(images: np.ndarray) -> np.ndarray:
+    """(N, T) pushes whose next image equals the one before, pixel for pixel."""
+    return (images[:, 1:] == images[:, :-1]).all(axis=(2, 3, 4))
+
+
+def _cm(poses: np.ndarray, true: np.ndarray) -> float:
+    return float(100 * np.linalg.norm(poses[..., :2] - true[..., :2], axis=-1).mean())
+
+
+def _deg(poses: np.ndarray, true: np.ndarray, period: float) -> float:
+    turn = np.remainder(poses[..., 2] - true[..., 2] + period / 2, period) - period / 2
+    return float(np.degrees(np.abs(turn)).mean())
+
+
+def _fit_trees(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, seed: int):
+    """A step of extra trees on (p, a, ℓ) -> the displacement in the pushed face's frame and
+    the turn, fitted on the training pushes ``mask`` (N, T)."""
+    from sklearn.ensemble import ExtraTreesRegressor
+
+    p, a, length, n = _face_frame(P[:, :-1], U, f)
+    d = P[:, 1:] - P[:, :-1]
+    d[..., 2] = np.remainder(d[..., 2] + math.pi, 2 * math.pi) - math.pi  # θ is kept in (-π, π]
+    along = d[..., 0] * np.cos(n) + d[..., 1] * np.sin(n)
+    across = -d[..., 0] * np.sin(n) + d[..., 1] * np.cos(n)
+    X = np.stack([p, a, length], -1)[mask]
+    Y = np.stack([along, across, d[..., 2]], -1)[mask]
+    trees = ExtraTreesRegressor(400, min_samples_leaf=2, random_state=seed).fit(X, Y)
+
+    def step(pose: np.ndarray, u: np.ndarray) -> np.ndarray:
+        p, a, length, n = _face_frame(pose, u, f)
+        y = trees.predict(np.stack([p, a, length], -1))
+        return pose + np.stack([y[:, 0] * np.cos(n) - y[:, 1] * np.sin(n),
+                                y[:, 0] * np.sin(n) + y[:, 1] * np.cos(n), y[:, 2]], -1)
+    return step
+
+
+def _fit_frame(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, turn: bool = True):
+    """Every term of the frame library, least squares on the training pushes ``mask``."""
+    z, u, m = _features(P, f), torch.as_tensor(U), torch.as_tensor(mask.reshape(-1))
+    model = SindyConfig(order=1, library="frame", include_sine=False,
+                        angle_frequency=f).build(4, 3, circle=(2, 3), turn=turn).double()
+    model.fit_state_data(z[:, :-1].reshape(-1, 4)[m], u.reshape(-1, 3)[m],
+                         z[:, 1:].reshape(-1, 4)[m], optimizer=STLSQ(threshold=0.0))
+    return _frame_step(model, f)
+
+
+def _frame_step(model, f: float):
+    @torch.no_grad()
+    def step(pose: np.ndarray, act: np.ndarray) -> np.ndarray:
+        nxt = model.step(_features(pose, f), torch.as_tensor(act)).numpy()
+        return np.c_[nxt[:, :2], np.arctan2(nxt[:, 3], nxt[:, 2]) / f]
+    return step
+
+
+def _moment_reading(train, test) -> np.ndarray:
+    """(N, T+1, 3) the test images' poses as the image moments read them: the moments
+    encoder's centroid mapped to the world's (x, y) and its angle to θ by least squares on
+    the training images (an affine map; the sense and offset of the angle that fit best)."""
+    period = test.env_config.angle_period
+    n = round(2 * math.pi / period)
+    cfg = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite", moment_order=n,
+                            channels=train.images.shape[2], image_size=train.images.shape[-1])
+    encoder = MomentEncoder(cfg)
+    norm = Normalizer.from_trajectories(train)
+    encoder.fit_statistics(norm.normalize(train.images).flatten(0, 1))
+
+    @torch.no_grad()
+    def read(split) -> np.ndarray:
+        return encoder(norm.normalize(split.images).flatten(0, 1)).double().numpy()
+
+    z_tr, z_te = read(train), read(test)
+    pose_tr = train.poses.reshape(-1, 3).astype(np.float64)
+    affine = np.linalg.lstsq(np.c_[z_tr[:, :2], np.ones(len(z_tr))], pose_tr[:, :2],
+                             rcond=None)[0]
+    angle_tr, angle_te = np.arctan2(z_tr[:, 3], z_tr[:, 2]), np.arctan2(z_te[:, 3], z_te[:, 2])
+    best = None
+    for sense in (1, -1):  # n φ = sense n θ + offset
+        rest = angle_tr - sense * n * pose_tr[:, 2]
+        offset = float(np.angle(np.exp(1j * rest).mean()))
+        miss = np.abs(np.angle(np.exp(1j * (rest - offset)))).mean()
+        if best is None or miss < best[0]:
+            best = (miss, sense, offset)
+    _, sense, offset = best
+    xy = np.c_[z_te[:, :2], np.ones(len(z_te))] @ affine
+    theta = (angle_te - offset) / (sense * n)
+    return np.c_[xy, theta].reshape(*test.poses.shape)
+
+
+def _rollout_errors(step, poses: np.ndarray, actions: np.ndarray, period: float,
+                    still: np.ndarray | None = None, starts: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Mean position (cm) and angle (deg) error per horizon of ``step(pose, action)``."""
+    """Mean position (cm) and angle (deg) error per horizon of ``step(pose, action)``.
+
+    ``still`` (N, T): pushes known to leave the block where it was; ``starts`` (N, T+1, 3):
+    the poses the rollouts start from (default: the true ones)."""
     steps = actions.shape[1]
+    starts = poses if starts is None else starts
     pos, ang, count = np.zeros(steps), np.zeros(steps), np.zeros(steps)
     for t0 in range(steps):
-        pose = poses[:, t0].copy()
+        pose = starts[:, t0].copy()
         for h in range(1, steps - t0 + 1):
-            pose = step(pose, actions[:, t0 + h - 1])
+            nxt = step(pose, actions[:, t0 + h - 1])
+            pose = nxt if still is None else np.where(still[:, t0 + h - 1, None], pose, nxt)
             true = poses[:, t0 + h]
             pos[h - 1] += 100 * np.linalg.norm(pose[:, :2] - true[:, :2], axis=1).sum()
             turn = np.remainder(pose[:, 2] - true[:, 2] + period / 2, period) - period / 2
@@ -77,7 +181,6 @@ def main() -> None:
     ap.add_argument("--replay", type=int, default=0, metavar="N",
                     help="replay N random test pushes in the simulator (about 0.5 s each)")
     args = ap.parse_args()
-    from sklearn.ensemble import ExtraTreesRegressor
 
     data = read_trajectories(args.data)
     if data.env_config.push != "symmetric":
@@ -87,47 +190,31 @@ def main() -> None:
     f = 2 * math.pi / period
     train, test = data.split("train"), data.split("test")
     P, U = train.poses.astype(np.float64), train.actions.astype(np.float64)
-    p, a, length, n = _face_frame(P[:, :-1], U, f)
-    d = P[:, 1:] - P[:, :-1]
-    d[..., 2] = np.remainder(d[..., 2] + math.pi, 2 * math.pi) - math.pi  # θ is kept in (-π, π]
-    along = d[..., 0] * np.cos(n) + d[..., 1] * np.sin(n)
-    across = -d[..., 0] * np.sin(n) + d[..., 1] * np.cos(n)
-    X = np.stack([p, a, length], -1).reshape(-1, 3)
-    Y = np.stack([along, across, d[..., 2]], -1).reshape(-1, 3)
-    trees = ExtraTreesRegressor(400, min_samples_leaf=2, random_state=args.seed).fit(X, Y)
-
-    def trees_step(pose: np.ndarray, u: np.ndarray) -> np.ndarray:
-        p, a, length, n = _face_frame(pose, u, f)
-        y = trees.predict(np.stack([p, a, length], -1))
-        return pose + np.stack([y[:, 0] * np.cos(n) - y[:, 1] * np.sin(n),
-                                y[:, 0] * np.sin(n) + y[:, 1] * np.cos(n), y[:, 2]], -1)
-
-    z = _features(P, f)
-    u = torch.as_tensor(U)
-    Z, Zn = z[:, :-1].reshape(-1, 4), z[:, 1:].reshape(-1, 4)
-
-    def sindy_step(turn: bool):
-        model = SindyConfig(order=1, library="frame", include_sine=False,
-                            angle_frequency=f).build(4, 3, circle=(2, 3), turn=turn).double()
-        model.fit_state_data(Z, u.reshape(-1, 3), Zn, optimizer=STLSQ(threshold=0.0))
-
-        @torch.no_grad()
-        def step(pose: np.ndarray, act: np.ndarray) -> np.ndarray:
-            nxt = model.step(_features(pose, f), torch.as_tensor(act)).numpy()
-            return np.c_[nxt[:, :2], np.arctan2(nxt[:, 3], nxt[:, 2]) / f]
-        return step
+    moved = ~_unchanged(train.images)
+    fits = {"": np.ones_like(moved), "moved": moved}
+    trees = {k: _fit_trees(P, U, f, m, args.seed) for k, m in fits.items()}
+    frame = {k: _fit_frame(P, U, f, m) for k, m in fits.items()}
 
     Pt, Ut = test.poses.astype(np.float64), test.actions.astype(np.float64)
+    still = _unchanged(test.images)
+    reading = _moment_reading(train, test)
     print(f"{args.data}: {train.n} training and {test.n} test trajectories of {test.steps} "
           f"pushes; errors after h pushes, mean over every start (position cm / angle deg)")
-    rows = {"extra-trees (true pose, face frame)": trees_step,
-            "frame library, lsq, projected": sindy_step(False),
-            "frame library, lsq, turning": sindy_step(True),
-            "nothing moves": lambda pose, u: pose}
-    print(f"{'model':38s}" + "".join(f"{f'h={h}':>16s}" for h in HORIZONS))
-    for name, step in rows.items():
-        pos, ang = _rollout_errors(step, Pt, Ut, period)
-        print(f"{name:38s}" + "".join(f"{pos[h - 1]:8.2f} /{ang[h - 1]:6.2f}" for h in HORIZONS
+    print(f"pushes that left the image unchanged: {(~moved).sum()} of {moved.size} (training), "
+          f"{still.sum()} of {still.size} (test); the moments read the test images' block "
+          f"{_cm(reading, Pt):.2f} cm and {_deg(reading, Pt, period):.2f} deg off")
+    rows = [("extra-trees (true pose, face frame)", trees[""], {}),
+            ("frame library, lsq, projected", _fit_frame(P, U, f, fits[""], turn=False), {}),
+            ("frame library, lsq, turning", frame[""], {}),
+            ("nothing moves", lambda pose, u: pose, {}),
+            ("extra-trees, unchanged pushes known", trees["moved"], {"still": still}),
+            ("frame, turning, unchanged pushes known", frame["moved"], {"still": still}),
+            ("extra-trees, from the image's reading", trees[""], {"starts": reading}),
+            ("frame, turning, from the image's reading", frame[""], {"starts": reading})]
+    print(f"{'model':42s}" + "".join(f"{f'h={h}':>16s}" for h in HORIZONS))
+    for name, step, kw in rows:
+        pos, ang = _rollout_errors(step, Pt, Ut, period, **kw)
+        print(f"{name:42s}" + "".join(f"{pos[h - 1]:8.2f} /{ang[h - 1]:6.2f}" for h in HORIZONS
                                        if h <= len(pos)))
     if args.replay:
         pos, ang = _replay(test, args.replay, args.seed)
