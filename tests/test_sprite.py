@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from latent_sindy.data.store import write_trajectories
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.models import AutoencoderConfig
+from latent_sindy.models.autoencoder import SpriteDecoder
 from latent_sindy.training import RunDir
 from synthetic import make_trajectories
 from test_moments import SIDE, TABLE, draw, poses
@@ -160,3 +162,15 @@ def test_training_with_decoder_sprite_keeps_the_background_and_the_template(
     fresh.load_state_dict(torch.load(path))
     assert torch.equal(fresh.decoder.background, dec.background)
     assert torch.equal(fresh.decoder.template, dec.template)
+
+
+def test_sprite_side_follows_the_image_side_unless_given():
+    """A resolved config states the template's side: 11 at 32 pixels, 23 at 64, or the one
+    given; the decoder's template has it."""
+    base = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite")
+    assert base.resolve(1, 32).sprite_size == 11
+    assert base.resolve(1, 64).sprite_size == 23
+    assert base.resolve(1, 16).sprite_size == 5
+    given = dataclasses.replace(base, sprite_size=7).resolve(1, 64)
+    assert given.sprite_size == 7
+    assert SpriteDecoder(base.resolve(1, 64)).template.shape == (1, 23, 23)

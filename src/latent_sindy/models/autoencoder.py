@@ -79,9 +79,10 @@ class AutoencoderConfig:
     empty table, (x, y, cos nφ, sin nφ); latent_dim 4)."""
     keypoint_channels: int = 16
     """keypoints encoder: feature maps of its two hidden 5×5 convolutions."""
-    sprite_size: int = 11
-    """sprite decoder: side P of its template in pixels (odd; 11 holds the demo's 4-pixel
-    block turned by any angle, with its sides and shading)."""
+    sprite_size: int | None = None
+    """sprite decoder: side P of its template in pixels (odd); None: from the image side S,
+    2 ⌊5.5 S / 32⌋ + 1 (11 at 32 pixels, which holds the demo's 4-pixel block turned by any
+    angle, with its sides and shading; 23 at 64)."""
     sprite_supersample: int = 2
     """sprite decoder: draw at this many times the image side, then average-pool (1: draw at
     the image's resolution)."""
@@ -124,8 +125,9 @@ class AutoencoderConfig:
             raise UserError(f"the sprite decoder draws the block at the moments encoder's pose: "
                             f"use it with --encoder moments (got {self.encoder!r}), or "
                             f"--decoder conv")
-        if self.sprite_size < 1 or self.sprite_size % 2 == 0 or (
-                self.image_size is not None and self.sprite_size > self.image_size):
+        if self.sprite_size is not None and (
+                self.sprite_size < 1 or self.sprite_size % 2 == 0
+                or (self.image_size is not None and self.sprite_size > self.image_size)):
             raise UserError(f"sprite_size {self.sprite_size}: use an odd number of pixels "
                             f"(the template's centre is a pixel), at most the image side")
         if self.sprite_supersample < 1:
@@ -141,6 +143,16 @@ class AutoencoderConfig:
     @property
     def resolved(self) -> bool:
         return self.channels is not None and self.image_size is not None
+
+    @property
+    def sprite_side(self) -> int:
+        """The sprite decoder's template side P: ``sprite_size``, or the one for the image
+        side (a resolved config states it)."""
+        if self.sprite_size is not None:
+            return self.sprite_size
+        if self.image_size is None:
+            raise ValueError("the sprite's side follows the image side: resolve() first")
+        return 2 * math.floor(5.5 * self.image_size / 32) + 1
 
     @property
     def pose_latent(self) -> bool:
@@ -162,7 +174,8 @@ class AutoencoderConfig:
                     f"model {name} is {mine} but {source} has {name} {value}: "
                     f"leave model {name} unset to use the data's"
                 )
-        return dataclasses.replace(self, channels=channels, image_size=image_size)
+        resolved = dataclasses.replace(self, channels=channels, image_size=image_size)
+        return dataclasses.replace(resolved, sprite_size=resolved.sprite_side)
 
     def build(self) -> Autoencoder:
         return Autoencoder(self)
@@ -401,7 +414,7 @@ class SpriteDecoder(nn.Module):
 
     def __init__(self, cfg: AutoencoderConfig) -> None:
         super().__init__()
-        c, s, p = cfg.channels, cfg.image_size, cfg.sprite_size
+        c, s, p = cfg.channels, cfg.image_size, cfg.sprite_side
         self.order = cfg.moment_order
         self.supersample = cfg.sprite_supersample
         self.shape = (c, s, s)
