@@ -168,8 +168,9 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
 def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path,
                                                                   capsys) -> None:
     """The frame library reads the face variables from the orientation features, so on the
-    moments latent it must know how the camera shows the world's angles: a mismatch is
-    refused with the values that fit the data's camera, which then train."""
+    moments latent it must know how the camera shows the world's angles: left out, training
+    takes them from the data's camera and the run's record states them; a mismatch is
+    refused with the values that fit, which then train."""
     from latent_sindy.envs.camera import moment_frame
 
     d = make_trajectories(n=6, steps=3)
@@ -180,7 +181,11 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
              "--no-progress"]
     sindy = ["sindy", "--order", "1", "--library", "frame", "--no-include-sine"]
     image = ["image", "--encoder", "moments", "--latent-dim", "4", "--decoder", "sprite"]
-    assert main([*train, "--out", str(tmp_path / "bad"), *sindy, *image]) == 2
+    assert main([*train, "--out", str(tmp_path / "bad"), *sindy, "--frame-sense",
+                 str(-sense), *image]) == 2
     assert f"use --frame-sense {sense} --frame-offset" in capsys.readouterr().err
     assert main([*train, "--out", str(tmp_path / "ok"), *sindy, "--frame-sense", str(sense),
                  "--frame-offset", repr(offset), *image]) == 0
+    assert main([*train, "--out", str(tmp_path / "auto"), *sindy, *image]) == 0
+    dyn = RunDir(tmp_path / "auto").load().model.config.dynamics
+    assert (dyn.frame_sense, dyn.frame_offset) == (sense, pytest.approx(offset))

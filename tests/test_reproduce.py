@@ -213,3 +213,19 @@ def test_config_is_validated(tmp_path):
                 {"scale": "huge"}):
         with pytest.raises(UserError):
             ReproduceConfig(out=tmp_path, **bad)
+
+
+def test_image_size_sets_the_collected_world_and_must_match_given_data(study, tmp_path):
+    """--image-size is the camera resolution of the data the study collects; a size the world
+    cannot render, or a reused file of another size, is one clear error."""
+    assert ReproduceConfig(out=tmp_path, image_size=64).env_config().image_size == 64
+    assert ReproduceConfig(out=tmp_path).env_config().image_size == 32
+    with pytest.raises(UserError, match="--image-size 7"):
+        ReproduceConfig(out=tmp_path, image_size=7)
+    with pytest.raises(UserError, match="holds 32x32 images"):
+        reproduce(replace(study["cfg"], image_size=16), lambda line: None)
+    given = replace(study["cfg"], out=tmp_path / "other", data=study["out"] / "data.h5",
+                    image_size=16)
+    with pytest.raises(UserError, match="holds 32x32 images"):
+        reproduce(given, lambda line: None)
+    assert not (tmp_path / "other" / "runs").exists()

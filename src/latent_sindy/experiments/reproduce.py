@@ -57,7 +57,6 @@ from latent_sindy.configs import to_json
 from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Executor, ExecutorOptions, Resources, make_executor
 from latent_sindy.experiments import figures
@@ -119,19 +118,28 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     path, scale = cfg.data_path, cfg.preset
     if cfg.data is not None and path.exists():
         say(f"[1/4] data: using {path} as given")
-        return path
-    plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed,
-                          env=PushEnvConfig.named(cfg.world))
+        return _check_image_size(cfg, path)
+    plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
     if path.exists():
         say(f"[1/4] data: reusing {path}")
-    else:
-        say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
-            f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
+        return _check_image_size(cfg, path)
+    say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
+        f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
 
     def progress(it, total, initial):
         return bar(it, total, initial, desc="collect", unit="traj", leave=False)
 
     return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
+
+
+def _check_image_size(cfg: ReproduceConfig, path: Path) -> Path:
+    """``path``, if it holds images of ``--image-size`` (when given)."""
+    if cfg.image_size is not None:
+        side = read_trajectories(path).env_config.image_size
+        if side != cfg.image_size:
+            raise UserError(f"--image-size {cfg.image_size}, but {path} holds {side}x{side} "
+                            f"images: drop --image-size, or use another --out or --data")
+    return path
 
 
 # ----------------------------------------------------------------------------- stage 2: runs

@@ -659,12 +659,15 @@ class SindyConfig:
     frame_degree: int = 3
     """"frame" library: highest degree of the monomials of the contact offset and the angle
     from the face normal."""
-    frame_sense: int = 1
+    frame_sense: int | None = None
     """"frame" library: the orientation features' sense against the world's, fθ =
-    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image; on the moments
-    latent training checks both against the data's camera, envs.camera.moment_frame)."""
-    frame_offset: float = 0.0
-    """"frame" library: that offset (radians)."""
+    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image). None: the
+    latent's own, which training states in the run's record: on the moments latent the
+    data's camera's (envs.camera.moment_frame; a value given must match it), on a pose
+    latent in world angles (the state, a coordinates pose head) 1."""
+    frame_offset: float | None = None
+    """"frame" library: that offset (radians); None: the latent's own, as ``frame_sense``
+    (the moments latent's camera's, else 0)."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
 
@@ -687,9 +690,9 @@ class SindyConfig:
                             "4); use an integer >= 3, or --library face / push")
         if isinstance(self.frame_degree, bool) or not 0 <= self.frame_degree <= 4:
             raise UserError(f"--frame-degree {self.frame_degree}: use 0 to 4")
-        if self.frame_sense not in (1, -1):
+        if self.frame_sense not in (None, 1, -1):
             raise UserError(f"--frame-sense {self.frame_sense}: use 1 or -1")
-        if not math.isfinite(self.frame_offset):
+        if self.frame_offset is not None and not math.isfinite(self.frame_offset):
             raise UserError(f"--frame-offset {self.frame_offset}: use a finite angle (radians)")
         if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
             raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
@@ -710,8 +713,9 @@ class SindyConfig:
                             "use the state or moments encoder or --pose-head coordinates")
         if self.library == "frame":
             spec = frame_library(self.order, frequency=self.angle_frequency,
-                                 degree=self.frame_degree, sense=self.frame_sense,
-                                 angle_offset=self.frame_offset)
+                                 degree=self.frame_degree,
+                                 sense=1 if self.frame_sense is None else self.frame_sense,
+                                 angle_offset=self.frame_offset or 0.0)
             if self.include_sine:
                 spec = spec + Sine("z")
         elif self.library == "face":

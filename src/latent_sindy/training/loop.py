@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import functools
 import json
 import math
@@ -85,15 +86,8 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
     if library in ("face", "frame"):
         _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data,
                         cfg.data)
-    if library == "frame" and getattr(model_cfg.encoder, "encoder", None) == "moments":
-        sense, offset = moment_frame(data.env_config)
-        dyn = model_cfg.dynamics
-        if dyn.frame_sense != sense or abs(math.remainder(dyn.frame_offset - offset,
-                                                          2 * math.pi)) > 1e-6:
-            raise UserError(f"--library frame on the moments latent of {cfg.data}: its camera "
-                            f"shows the world's angles with sense {sense} and offset "
-                            f"{offset:.6g}: use --frame-sense {sense} --frame-offset "
-                            f"{offset:.6g}")
+    if library == "frame":
+        model_cfg = _resolve_frame(model_cfg, data, cfg.data)
     if library in ("face", "frame") and data.env_config.push != "symmetric":
         raise UserError(f"--library {library} writes pushes given as world directions, but "
                         f"{cfg.data} was collected with push style '{data.env_config.push}' "
@@ -385,6 +379,26 @@ def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
                 "val_objective": best.objective, "candidates_from": best.since}
     return {"epoch": cfg.epochs, "selection": "last epoch",
             "val_objective": last.get("val/objective"), "candidates_from": None}
+
+
+def _resolve_frame(model_cfg: ModelConfig, data: Trajectories, path: Path) -> ModelConfig:
+    """The frame library's orientation sense and offset stated: on the moments latent the
+    data's camera's (a value given must match), on a pose latent in world angles 1 and 0."""
+    dyn = model_cfg.dynamics
+    if getattr(model_cfg.encoder, "encoder", None) == "moments":
+        sense, offset = moment_frame(data.env_config)
+        off = dyn.frame_offset is not None and abs(
+            math.remainder(dyn.frame_offset - offset, 2 * math.pi)) > 1e-6
+        if dyn.frame_sense not in (None, sense) or off:
+            raise UserError(f"--library frame on the moments latent of {path}: its camera "
+                            f"shows the world's angles with sense {sense} and offset "
+                            f"{offset:.6g}: use --frame-sense {sense} --frame-offset "
+                            f"{offset:.6g}, or leave both out")
+    else:
+        sense = 1 if dyn.frame_sense is None else dyn.frame_sense
+        offset = 0.0 if dyn.frame_offset is None else dyn.frame_offset
+    return dataclasses.replace(model_cfg, dynamics=dataclasses.replace(
+        dyn, frame_sense=sense, frame_offset=offset))
 
 
 def _check_symmetry(flag: str, value: float, data: Trajectories, path: Path) -> None:
