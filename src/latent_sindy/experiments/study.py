@@ -521,6 +521,19 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                   loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
                   init_threshold=0.2,
                   cost=0.6, headline=True),
+        # The frame library on the moments latent (its orientation sense and offset taken
+        # from the data's camera at training), fitted as the face row but at STLSQ threshold
+        # 0.05: the image row that predicts pushes best, at less sparsity. Demo data: 33 of
+        # 171 coefficients, 86 % strict, the block 1.10 / 2.58 / 3.86 cm off after 1 / 5 / 10
+        # pushes (0.1: 17 terms, 88 %, 1.29 / 2.95 / 4.31; 0.2: 6 terms, 84 %,
+        # 1.58 / 4.10 / 6.24); the same data at 64×64 pixels (--image-size 64): 21
+        # coefficients, 100 %, 0.90 / 2.44 / 3.84 cm.
+        *((ModelSpec("sindy_moments_frame", "SINDy (frame library, turning), image moments",
+                     dataclasses.replace(ModelConfig(encoder=moments, dynamics=frame_dynamics),
+                                         turn=True),
+                     loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
+                     init_threshold=0.05, cost=0.6, headline=True),
+           ) if frame else ()),
         # The face library: the push as it is (x += 0.080 ℓ cos ψ, y += 0.080 ℓ sin ψ) and the
         # turn, through the push angle relative to the pushed face (sin 4ψ, cos 4ψ times the
         # orientation features). On the demo data (50 random tasks, 3 task seeds) it met the
