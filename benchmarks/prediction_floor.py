@@ -158,13 +158,18 @@ def _foresee_unchanged(train, test, reading_train, reading_test, seed: int) -> s
     reading and the push) fitted on the training pushes, scored on the test pushes."""
     from sklearn.neural_network import MLPClassifier
 
+    f = 2 * math.pi / train.env_config.angle_period
+
     def inputs(reading: np.ndarray, split) -> np.ndarray:
-        u = split.actions.astype(np.float64)
-        return np.concatenate([reading[:, :-1], u[..., :1], np.cos(u[..., 1:2]),
-                               np.sin(u[..., 1:2]), u[..., 2:]], -1).reshape(-1, 7)
+        u, pose = split.actions.astype(np.float64), reading[:, :-1]
+        return np.concatenate([pose[..., :2], np.cos(f * pose[..., 2:]),
+                               np.sin(f * pose[..., 2:]), u[..., :1], np.cos(u[..., 1:2]),
+                               np.sin(u[..., 1:2]), u[..., 2:]], -1).reshape(-1, 8)
 
     x_tr, x_te = inputs(reading_train, train), inputs(reading_test, test)
     y_tr, y_te = _unchanged(train.images).reshape(-1), _unchanged(test.images).reshape(-1)
+    if y_tr.all() or not y_tr.any():
+        return "every training push alike (all changed or all unchanged): nothing to learn"
     mu, sd = x_tr.mean(0), x_tr.std(0) + 1e-12
     clf = MLPClassifier((64, 64), alpha=1e-3, max_iter=3000, random_state=seed)
     said = clf.fit((x_tr - mu) / sd, y_tr).predict((x_te - mu) / sd)

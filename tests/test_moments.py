@@ -183,7 +183,7 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
     image = ["image", "--encoder", "moments", "--latent-dim", "4", "--decoder", "sprite"]
     assert main([*train, "--out", str(tmp_path / "bad"), *sindy, "--frame-sense",
                  str(-sense), *image]) == 2
-    assert f"use --frame-sense {sense} --frame-offset" in capsys.readouterr().err
+    assert f"give --frame-sense {sense} --frame-offset" in capsys.readouterr().err
     assert main([*train, "--out", str(tmp_path / "ok"), *sindy, "--frame-sense", str(sense),
                  "--frame-offset", repr(offset), *image]) == 0
     assert main([*train, "--out", str(tmp_path / "auto"), *sindy, *image]) == 0

@@ -222,10 +222,43 @@ def test_image_size_sets_the_collected_world_and_must_match_given_data(study, tm
     assert ReproduceConfig(out=tmp_path).env_config().image_size == 32
     with pytest.raises(UserError, match="--image-size 7"):
         ReproduceConfig(out=tmp_path, image_size=7)
-    with pytest.raises(UserError, match="holds 32x32 images"):
+    with pytest.raises(UserError, match="already exists with other collection settings"):
         reproduce(replace(study["cfg"], image_size=16), lambda line: None)
     given = replace(study["cfg"], out=tmp_path / "other", data=study["out"] / "data.h5",
                     image_size=16)
     with pytest.raises(UserError, match="holds 32x32 images"):
         reproduce(given, lambda line: None)
-    assert not (tmp_path / "other" / "runs").exists()
+    assert not (tmp_path / "other").exists()
+
+
+def test_reused_study_data_must_match_the_collection_plan(study):
+    """OUT/data.h5 is reused only if it was collected to the study's plan: another data seed
+    or world is refused, not silently used."""
+    for other in ({"data_seed": 7}, {"world": "paper"}):
+        with pytest.raises(UserError, match="already exists with other collection settings"):
+            reproduce(replace(study["cfg"], **other), lambda line: None)
+
+
+@pytest.mark.parametrize("name", ["sindy2", "sindy_moments", "state_sindy_frame"])
+def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, name):
+    """Runs recorded when the sprite's side and the frame library's sense and offset were
+    plain defaults (11, 1, 0.0 in the asked settings) are compared on what their model was
+    built with, so they are reused; a model built otherwise is still refused."""
+    src = study["out"] / "runs" / "seed0" / name
+    run = tmp_path / name
+    shutil.copytree(src, run)
+    record = json.loads((run / "config.json").read_text())
+    asked = record["train"]["model"]
+    for part, key, before in (("encoder", "sprite_size", 11), ("dynamics", "frame_sense", 1),
+                              ("dynamics", "frame_offset", 0.0)):
+        if key in asked[part]:
+            asked[part][key] = before
+    (run / "config.json").write_text(json.dumps(record))
+    cfg = replace(RunDir(src).train_config(), out=run)
+    assert ensure_trained(cfg) == "reused"
+    built = record["model"]
+    if "sprite_size" in built["encoder"]:
+        built["encoder"]["sprite_size"] = 23
+        (run / "config.json").write_text(json.dumps(record))
+        with pytest.raises(UserError, match="sprite_size"):
+            ensure_trained(cfg)

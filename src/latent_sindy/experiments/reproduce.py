@@ -118,13 +118,13 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     path, scale = cfg.data_path, cfg.preset
     if cfg.data is not None and path.exists():
         say(f"[1/4] data: using {path} as given")
-        return _check_image_size(cfg, path)
+        return path
     plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
-    if path.exists():
+    if path.exists():  # collect() returns it if it was collected to this plan, else refuses
         say(f"[1/4] data: reusing {path}")
-        return _check_image_size(cfg, path)
-    say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
-        f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
+    else:
+        say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
+            f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
 
     def progress(it, total, initial):
         return bar(it, total, initial, desc="collect", unit="traj", leave=False)
@@ -132,14 +132,12 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
 
 
-def _check_image_size(cfg: ReproduceConfig, path: Path) -> Path:
-    """``path``, if it holds images of ``--image-size`` (when given)."""
-    if cfg.image_size is not None:
-        side = read_trajectories(path).env_config.image_size
-        if side != cfg.image_size:
-            raise UserError(f"--image-size {cfg.image_size}, but {path} holds {side}x{side} "
-                            f"images: drop --image-size, or use another --out or --data")
-    return path
+def _check_given_data(cfg: ReproduceConfig, data: Trajectories) -> None:
+    """A given trajectory file must hold images of ``--image-size``, where that is given."""
+    side = data.env_config.image_size
+    if cfg.image_size is not None and side != cfg.image_size:
+        raise UserError(f"--image-size {cfg.image_size}, but {cfg.data} holds {side}x{side} "
+                        f"images: drop --image-size, or give another --data")
 
 
 # ----------------------------------------------------------------------------- stage 2: runs
@@ -407,7 +405,8 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     say = progress or (say_stderr if config.verbose else (lambda _: None))
     out = check_output_dir(config.out, "--out")
     if config.data is not None and config.data.exists():
-        read_trajectories(config.data)  # a foreign or damaged file is refused before any output
+        # a foreign or damaged file, or one of another image size, is refused before any output
+        _check_given_data(config, read_trajectories(config.data))
     out.mkdir(parents=True, exist_ok=True)
     specs = study_specs(config)
     runs = {s: {m.name: out / "runs" / f"seed{s}" / m.name for m in specs} for s in config.seeds}

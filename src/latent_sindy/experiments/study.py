@@ -385,10 +385,7 @@ class ReproduceConfig:
         world = PushEnvConfig.named(self.world)
         if self.image_size is None:
             return world
-        try:
-            return dataclasses.replace(world, image_size=self.image_size)
-        except UserError as e:
-            raise UserError(f"--image-size {self.image_size}: {e}") from None
+        return dataclasses.replace(world, image_size=self.image_size)
 
 
 @dataclass(frozen=True)

@@ -664,7 +664,8 @@ class SindyConfig:
     sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image). None: the
     latent's own, which training states in the run's record: on the moments latent the
     data's camera's (envs.camera.moment_frame; a value given must match it), on a pose
-    latent in world angles (the state, a coordinates pose head) 1."""
+    latent in world angles (the state, a coordinates pose head) 1. A model built from an
+    unresolved config reads None as 1 and its offset as 0."""
     frame_offset: float | None = None
     """"frame" library: that offset (radians); None: the latent's own, as ``frame_sense``
     (the moments latent's camera's, else 0)."""

@@ -86,7 +86,7 @@ def run_record(cfg: TrainConfig, data: Trajectories) -> dict[str, Any]:
     if library in ("face", "frame"):
         _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data,
                         cfg.data)
-    if library == "frame":
+    if library is not None:
         model_cfg = _resolve_frame(model_cfg, data, cfg.data)
     if library in ("face", "frame") and data.env_config.push != "symmetric":
         raise UserError(f"--library {library} writes pushes given as world directions, but "
@@ -382,18 +382,21 @@ def _kept(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
 
 
 def _resolve_frame(model_cfg: ModelConfig, data: Trajectories, path: Path) -> ModelConfig:
-    """The frame library's orientation sense and offset stated: on the moments latent the
-    data's camera's (a value given must match), on a pose latent in world angles 1 and 0."""
+    """A SINDy config with the frame library's orientation sense and offset stated: for the
+    frame library on the moments latent the data's camera's (a value given must match), else
+    1 and 0 where unset (world angles; the other libraries do not read them)."""
     dyn = model_cfg.dynamics
-    if getattr(model_cfg.encoder, "encoder", None) == "moments":
+    moments = getattr(model_cfg.encoder, "encoder", None) == "moments"
+    if dyn.library == "frame" and moments:
         sense, offset = moment_frame(data.env_config)
         off = dyn.frame_offset is not None and abs(
-            math.remainder(dyn.frame_offset - offset, 2 * math.pi)) > 1e-6
+            math.remainder(dyn.frame_offset - offset, 2 * math.pi)) > 1e-4
         if dyn.frame_sense not in (None, sense) or off:
             raise UserError(f"--library frame on the moments latent of {path}: its camera "
                             f"shows the world's angles with sense {sense} and offset "
-                            f"{offset:.6g}: use --frame-sense {sense} --frame-offset "
-                            f"{offset:.6g}, or leave both out")
+                            f"{offset:.6f}: leave --frame-sense and --frame-offset out to "
+                            f"use them, or give --frame-sense {sense} --frame-offset "
+                            f"{offset:.6f}")
     else:
         sense = 1 if dyn.frame_sense is None else dyn.frame_sense
         offset = 0.0 if dyn.frame_offset is None else dyn.frame_offset

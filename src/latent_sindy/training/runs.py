@@ -67,6 +67,16 @@ Task = Literal["paper", "random"]
 Space = Literal["latent", "image", "pose"]
 
 
+#: Model settings that training derives from the data where left unset, as (part, key, the
+#: value runs recorded before it was derived were built with): runs are compared on what
+#: their model was built with (the record's resolved "model"), not on what was asked.
+DERIVED: tuple[tuple[str, str, Any], ...] = (
+    ("encoder", "sprite_size", 11),
+    ("dynamics", "frame_sense", 1),
+    ("dynamics", "frame_offset", 0.0),
+)
+
+
 class Run(NamedTuple):
     """What :meth:`RunDir.load` rebuilds from a run folder."""
 
@@ -279,6 +289,11 @@ class RunDir:
             # it batched
             tc = dataclasses.replace(self.train_config(r), batching=self.batching(r))
             train = json.loads(json.dumps(to_json(tc)))
+            # settings derived at training when left unset: what the model was built with
+            for part, key, before in DERIVED:
+                asked = train["model"].get(part, {})
+                if key in asked:
+                    asked[key] = r["model"].get(part, {}).get(key, before)
             return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
 
         was, now = flat(old), flat(record)
