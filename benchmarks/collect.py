@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from latent_sindy.data.collect import CollectionPlan, collect
-from latent_sindy.envs.panda_push import PandaPushEnv
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
+from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
 
 def time_collection(trajectories: int, steps: int, workers: int) -> tuple[float, float]:

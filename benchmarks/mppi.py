@@ -36,9 +36,9 @@ import pytorch_mppi
 import torch
 
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig, latent_step
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.models import LatentDynamics, SindyDynamics, make_dynamics
 from latent_sindy.training import load_run
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 ENV = PushEnvConfig()
 NZ, NU = 16, ENV.action_dim

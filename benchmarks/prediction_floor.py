@@ -253,7 +253,7 @@ def main() -> None:
 def _replay(test, n: int, seed: int) -> tuple[float, float]:
     """Mean position (cm) and angle (deg) gap between n recorded test pushes and the same
     pushes replayed from a fresh reset at the recorded pose."""
-    from latent_sindy.envs import PandaPushEnv
+    from latent_sindy.worlds.push import PandaPushEnv
 
     env = PandaPushEnv(test.env_config)
     rng = np.random.default_rng(seed)

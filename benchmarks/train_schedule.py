@@ -61,9 +61,9 @@ import numpy as np
 import torch
 
 from latent_sindy.data.store import Trajectories, write_trajectories
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig, autoencoder
 from latent_sindy.training import TrainConfig, loop, train
+from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
 
 BEFORE_MINUTES = 46  # the paper schedule's wall time on this machine before (RESULTS.md)
 

@@ -1,6 +1,6 @@
 """Which pushing world should be the default? Measures each named world design side by side.
 
-For every design (``latent_sindy.envs.config.ENV_PRESETS``: "symmetric", "marked", "paper"):
+For every design (``latent_sindy.worlds.push.config.ENV_PRESETS``: "symmetric", "marked", "paper"):
 
   (i)   look-alike test: pairs of poses whose images are identical (theta and theta + pi/2 of
         the uniform square block), pushed with the same random action from a fresh world:
@@ -10,7 +10,7 @@ For every design (``latent_sindy.envs.config.ENV_PRESETS``: "symmetric", "marked
         action uniform in the world's box), overall and in 8 bins of the push direction
         relative to the direction from the robot's base to the block (0 = away from it);
   (iii) control with perfect information: ~150 random trajectories of 10 pushes collected
-        with ``latent_sindy.data.collect``, a small residual MLP fitted on the true poses
+        with ``latent_sindy.worlds.push.collect``, a small residual MLP fitted on the true poses
         encoded as the images can show them, (x, y, cos 2 pi theta/P, sin 2 pi theta/P) with
         P the world's ``angle_period``, and actions with angles as cos/sin, then the project's
         MPPI (cost: squared distance to the goal position) on random tasks: success within 20
@@ -59,8 +59,8 @@ _envs: dict = {}
 
 def _env(design: str):
     if design not in _envs:
-        from latent_sindy.envs.config import PushEnvConfig
-        from latent_sindy.envs.panda_push import PandaPushEnv
+        from latent_sindy.worlds.push.config import PushEnvConfig
+        from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
         _envs[design] = PandaPushEnv(PushEnvConfig.named(design))
     return _envs[design]
@@ -267,9 +267,9 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(1)
-    from latent_sindy.data.collect import CollectionPlan, collect
     from latent_sindy.data.store import read_trajectories
-    from latent_sindy.envs.config import PushEnvConfig
+    from latent_sindy.worlds.push.collect import CollectionPlan, collect
+    from latent_sindy.worlds.push.config import PushEnvConfig
 
     t_all = time.perf_counter()
     ctx = mp.get_context("spawn")
@@ -312,7 +312,7 @@ def main() -> None:
 
 
 def report(results: dict[str, Result], args, t_probe: float, total: float) -> None:
-    from latent_sindy.envs.config import PushEnvConfig
+    from latent_sindy.worlds.push.config import PushEnvConfig
 
     print(f"\nworld designs, seed {args.seed}: {args.pushes}+ random pushes each, "
           f"{args.trajectories}x{args.steps} training pushes, {args.tasks} tasks, "

@@ -10,7 +10,7 @@ from synthetic import make_trajectories
 
 @pytest.fixture(scope="module")
 def env():
-    from latent_sindy.envs.panda_push import PandaPushEnv
+    from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     e = PandaPushEnv()
     yield e

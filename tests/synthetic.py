@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from latent_sindy.data.store import Trajectories
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
 
 
 def make_trajectories(n: int = 6, steps: int = 4, channels: int = 1, seed: int = 0,

@@ -23,10 +23,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from latent_sindy.cli import main
-from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.experiments.reproduce import reproduce
 from latent_sindy.experiments.study import ReproduceConfig
 from latent_sindy.training.runs import RunDir
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 TINY = ["--latent-dim", "3", "--encoder-hidden", "8", "--decoder-hidden", "16"]
@@ -295,7 +295,7 @@ def test_random_settings_get_one_clean_line_and_touch_nothing(world: Path, tmp_p
 def test_control_plans_with_the_worlds_planner_unless_told(world: Path, tmp_path: Path) -> None:
     """No planner option: the study's planner of the run's world (the symmetric push's here);
     any planner option: the user's settings, course defaults for the rest."""
-    from latent_sindy.control.planners import PLANNERS
+    from latent_sindy.worlds.push.planner import PLANNERS
 
     base = ["control", str(world / "run"), "--max-steps", "1", "--gif-episodes", "0",
             "--no-progress"]

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import read_trajectories, write_trajectories
 from latent_sindy.errors import UserError
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 PLAN = CollectionPlan(trajectories=6, steps=2, seed=3, val_fraction=1 / 3, test_fraction=1 / 6)
 
@@ -84,14 +84,14 @@ def test_damaged_journal_entry_is_redone(tmp_path, reference, monkeypatch):
     def fail_at_assembly(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("latent_sindy.data.collect.write_trajectories", fail_at_assembly)
+    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_trajectories", fail_at_assembly)
     with pytest.raises(OSError):
         collect(out, PLAN, workers=1)
     assert not out.exists()
     entries = sorted((tmp_path / "d.h5.partial").glob("traj_*.npz"))
     assert len(entries) == 6
     entries[2].write_bytes(entries[2].read_bytes()[:100])  # a torn file, as after a crash
-    monkeypatch.setattr("latent_sindy.data.collect.write_trajectories", write_trajectories)
+    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_trajectories", write_trajectories)
     collect(out, PLAN, workers=1)
     assert same_data(read_trajectories(out), reference)
 
@@ -162,8 +162,8 @@ class _RecordingEnv:
 
 @pytest.mark.parametrize("world", ["symmetric", "paper"])
 def test_actions_are_drawn_from_the_worlds_own_box(world):
-    from latent_sindy.data.collect import collect_one
-    from latent_sindy.envs.config import PushEnvConfig
+    from latent_sindy.worlds.push.collect import collect_one
+    from latent_sindy.worlds.push.config import PushEnvConfig
 
     cfg = PushEnvConfig.named(world)
     plan = CollectionPlan(trajectories=1, steps=200, seed=0, val_fraction=0, test_fraction=0,

@@ -13,13 +13,13 @@ import torch
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.data.collect import CollectionPlan
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.study import SCALES, ReproduceConfig, Scale
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
 from latent_sindy.training import RunDir, TrainConfig, load_run
+from latent_sindy.worlds.push.collect import CollectionPlan
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 DATA = Path(__file__).parent / "data"
 

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig
-from latent_sindy.envs.panda_push import PandaPushEnv
-from latent_sindy.envs.world import PushWorld
+from latent_sindy.worlds.push.panda_push import PandaPushEnv
+from latent_sindy.worlds.push.world import PushWorld
 
 pytestmark = pytest.mark.slow
 

@@ -13,13 +13,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import latent_sindy  # noqa: F401  (registers the environment)
 from latent_sindy.configs import to_json
-from latent_sindy.envs import ENV_ID, PAPER_GOAL, PAPER_START, PushEnvConfig
-from latent_sindy.envs.config import ENV_PRESETS
-from latent_sindy.envs.panda_push import PandaPushEnv
-from latent_sindy.envs.world import wrap_angle
 from latent_sindy.errors import UserError
+from latent_sindy.worlds.push import PAPER_GOAL, PAPER_START, PushEnvConfig, register_env
+from latent_sindy.worlds.push.config import ENV_PRESETS
+from latent_sindy.worlds.push.panda_push import PandaPushEnv
+from latent_sindy.worlds.push.world import wrap_angle
 
 
 @pytest.fixture(scope="module")
@@ -187,7 +186,7 @@ def test_paper_world_refuses_pushes_beyond_its_box(paper, env):
 
 
 def test_rgb_observation_and_render():
-    e = gym.make(ENV_ID, render_mode="rgb_array", channels=3)
+    e = gym.make(register_env(), render_mode="rgb_array", channels=3)
     obs, _ = e.reset(seed=1, options={"task": "paper"})
     assert obs.shape == (3, 32, 32)
     frame = e.render()

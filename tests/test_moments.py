@@ -149,8 +149,8 @@ def test_training_fits_the_background_and_checks_the_order_against_the_world(
 
 
 def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
-    from latent_sindy.envs.config import PushEnvConfig
     from latent_sindy.experiments.study import SCALES, model_specs
+    from latent_sindy.worlds.push.config import PushEnvConfig
 
     for world, library, order in (("symmetric", "face", 4), ("marked", "push", 1)):
         w = PushEnvConfig.named(world)
@@ -171,7 +171,7 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
     moments latent it must know how the camera shows the world's angles: left out, training
     takes them from the data's camera and the run's record states them; a mismatch is
     refused with the values that fit, which then train."""
-    from latent_sindy.envs.camera import moment_frame
+    from latent_sindy.worlds.push.camera import moment_frame
 
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"

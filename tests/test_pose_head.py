@@ -17,8 +17,6 @@ from latent_sindy.control.closed_loop import COSTS, ControlConfig, Controller
 from latent_sindy.control.costs import PoseCost
 from latent_sindy.data.store import Trajectories, write_trajectories
 from latent_sindy.data.windows import pose_features
-from latent_sindy.envs.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
-from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import latent_probe
 from latent_sindy.experiments.study import SCALES, model_specs
@@ -27,6 +25,8 @@ from latent_sindy.models.dynamics import SindyConfig
 from latent_sindy.models.latent_model import LatentModel, LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig, pose_cost_weights
 from latent_sindy.training import RunDir, TrainConfig, train
+from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.worlds.push.world import CameraView
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -9,8 +9,6 @@ import torch
 
 from latent_sindy.data.store import Trajectories
 from latent_sindy.data.windows import Normalizer, pose_features
-from latent_sindy.envs.config import PushEnvConfig
-from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import (
     block_position,
@@ -18,6 +16,8 @@ from latent_sindy.experiments.probe import (
     position_errors,
     state_position_errors,
 )
+from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.world import CameraView
 
 HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
 
@@ -253,10 +253,10 @@ def test_the_moment_frame_turns_the_images_angle_into_the_worlds(world):
     degrees (the moments read the orientation to about 4°, modulo the face's 90°)."""
     import math
 
-    from latent_sindy.envs.camera import moment_frame
     from latent_sindy.models import AutoencoderConfig
     from latent_sindy.models.autoencoder import MomentEncoder
     from latent_sindy.sindy import face_variables
+    from latent_sindy.worlds.push.camera import moment_frame
 
     poses = random_poses(world, 40, seed=5)
     images = torch.tensor(np.stack([world.observe(p) for p in poses]), dtype=torch.float32)

@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from latent_sindy.cli import main
-from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.windows import pose_features
 from latent_sindy.training import RunDir, read_metrics
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

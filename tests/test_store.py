@@ -12,8 +12,8 @@ from latent_sindy.data.store import (
     read_trajectories,
     write_trajectories,
 )
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
+from latent_sindy.worlds.push.config import PushEnvConfig
 from synthetic import make_trajectories
 
 

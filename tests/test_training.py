@@ -19,7 +19,6 @@ import pytest
 import torch
 
 from latent_sindy.configs import from_json
-from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import read_trajectories, write_trajectories
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.equations import equations_report
@@ -42,6 +41,7 @@ from latent_sindy.training import (
 )
 from latent_sindy.training.config import resolve_device
 from latent_sindy.training.loop import run_record
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 KINDS = ("sindy", "linear", "mlp")
 TINY_AE = {"latent_dim": 4, "encoder_hidden": 16, "decoder_hidden": (32,)}

@@ -1,6 +1,8 @@
-"""latent-sindy: sparse, interpretable latent dynamics learned from images, for pushing.
+"""latent-sindy: sparse, interpretable latent dynamics (SINDy) learned from images.
 
-Importing the package registers the gymnasium environment ``latent_sindy/PandaPush-v0``.
+The core (``sindy``, ``models``, ``data``, ``training``, ``control``) knows no world; worlds
+(``latent_sindy.worlds``) plug in. Importing the package loads no simulator: the pushing
+world's gymnasium environment ``latent_sindy/PandaPush-v0`` registers when that world is used.
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -9,5 +11,3 @@ try:
     __version__ = version("latent-sindy")
 except PackageNotFoundError:  # running from a source tree without installation
     __version__ = "0.0.0+unknown"
-
-from latent_sindy import envs  # noqa: F401  (registers the environment)

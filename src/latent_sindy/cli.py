@@ -33,11 +33,11 @@ import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.control.closed_loop import ControlConfig
-from latent_sindy.data.collect import CollectionPlan
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.study import ReproduceConfig
 from latent_sindy.progress import bar
 from latent_sindy.training.config import TrainConfig
+from latent_sindy.worlds.push.collect import CollectionPlan
 
 Flat = tyro.conf.OmitArgPrefixes
 
@@ -73,7 +73,7 @@ class Collect:
     """Show a progress bar."""
 
     def run(self) -> None:
-        from latent_sindy.data.collect import collect
+        from latent_sindy.worlds.push.collect import collect
 
         plan = self.plan
         existed = self.out.exists()
@@ -207,8 +207,8 @@ class Control:
 
         from latent_sindy.control.closed_loop import format_summary, run_control
         from latent_sindy.control.mppi import MPPIConfig
-        from latent_sindy.control.planners import world_planner
         from latent_sindy.training import RunDir
+        from latent_sindy.worlds.push.planner import world_planner
 
         s = self.settings
         _check_threads(self.threads, auto=False)

@@ -8,7 +8,7 @@ A field typed as a union of dataclasses that carry a ``kind`` class variable (a 
 union*, like the latent dynamics configs) is written with its ``kind`` and read back as the
 class of that kind.
 
-    >>> from latent_sindy.envs.config import PushEnvConfig
+    >>> from latent_sindy.worlds.push.config import PushEnvConfig
     >>> d = to_json(PushEnvConfig(channels=3))
     >>> from_json(PushEnvConfig, d, "environment") == PushEnvConfig(channels=3)
     True

@@ -34,9 +34,9 @@ from latent_sindy.configs import to_json
 from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models.state import pose_cost_weights
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 
 @dataclass(frozen=True)
@@ -304,7 +304,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
                 progress: Callable[[Iterable, int], Iterable] | None = None,
                 ) -> tuple[list[EpisodeResult], dict]:
     """Run every episode, write results.json, results.csv and episode GIFs into `out`."""
-    from latent_sindy.envs.panda_push import PandaPushEnv
+    from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     out = check_output_dir(out, "--out")
     mppi = settings.mppi

@@ -34,8 +34,8 @@ import numpy as np
 
 from latent_sindy.atomic import atomic_path
 from latent_sindy.configs import to_json
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 FORMAT = "latent-sindy-trajectories"
 FORMAT_VERSION = 1

@@ -7,7 +7,7 @@ the block.
   and scored on the held-out ones;
 * :func:`block_position`: the block's (x, y) in metres read from images: the centroid of the
   pixels darker than the table, back-projected through the camera of the world's config
-  (:class:`~latent_sindy.envs.camera.Camera`) onto the plane of the block's centre;
+  (:class:`~latent_sindy.worlds.push.camera.Camera`) onto the plane of the block's centre;
 * :func:`position_errors`: the block position error (cm) of the model's decoded open-loop
   predictions h = 1..T pushes ahead against the true pose, beside reading the true images
   (the reader's own error) and "nothing moves" (the block where the first image shows it);
@@ -29,11 +29,11 @@ import torch
 
 from latent_sindy.data.store import Trajectories
 from latent_sindy.data.windows import Normalizer, pose_features
-from latent_sindy.envs.camera import Camera
-from latent_sindy.envs.config import BLOCK_SIZE, PushEnvConfig
-from latent_sindy.envs.world import CameraView
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
+from latent_sindy.worlds.push.camera import Camera
+from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
+from latent_sindy.worlds.push.world import CameraView
 
 __all__ = ["FEATURES", "GRAY", "block_levels", "block_position", "latent_probe",
            "position_errors", "state_position_errors"]

@@ -54,7 +54,6 @@ import torch
 
 from latent_sindy.atomic import check_output_dir
 from latent_sindy.configs import to_json
-from latent_sindy.data.collect import CollectionPlan, collect
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
@@ -68,6 +67,7 @@ from latent_sindy.experiments.study_report import write_report
 from latent_sindy.experiments.table import write_sweep_table, write_table1
 from latent_sindy.progress import bar, say_stderr
 from latent_sindy.training import RunDir, TrainConfig, load_run, read_metrics
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 __all__ = ["reproduce", "train_config", "versions"]
 

@@ -25,14 +25,14 @@ import tyro
 
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.planners import world_planner
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig
+from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.planner import world_planner
 
 __all__ = ["SCALES", "SWEEPABLE", "Condition", "ModelSpec", "ReproduceConfig", "RunResult",
            "Scale", "Study", "Sweep", "model_specs", "parse_seeds", "parse_sweeps",
@@ -121,7 +121,7 @@ class Scale:
     """Run episodes until the strict criterion (so both criteria are measured) or the course's."""
     mppi: MPPIConfig | None = None
     """The planner of every condition; None: the world's
-    (:func:`~latent_sindy.control.planners.world_planner`)."""
+    (:func:`~latent_sindy.worlds.push.planner.world_planner`)."""
 
     def all_conditions(self) -> tuple[Condition, ...]:
         """Every kind of closed-loop condition, in report order (episodes of a headline row)."""

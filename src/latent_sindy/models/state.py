@@ -2,7 +2,7 @@
 
 A state-space model sees the pose (x, y, θ) encoded so that poses the camera cannot tell apart
 are equal: s = (x, y, cos(2πθ/P), sin(2πθ/P)), P the block's visible rotational symmetry
-(:attr:`~latent_sindy.envs.config.PushEnvConfig.angle_period`). The encoding is done by the
+(:attr:`~latent_sindy.worlds.push.config.PushEnvConfig.angle_period`). The encoding is done by the
 data pipeline (:mod:`latent_sindy.data.windows`); here encoder and decoder are the identity,
 so the same latent model, loss (its reconstruction term is then 0) and trainer fit the
 dynamics directly on states. These models are the upper bound the image models are measured

@@ -38,7 +38,6 @@ from latent_sindy.atomic import check_memory
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import Trajectories, read_trajectories
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
-from latent_sindy.envs.camera import moment_frame
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights, ModelConfig
 from latent_sindy.plots import loss_histories
@@ -51,6 +50,7 @@ from latent_sindy.training.config import (
     resolve_parallel,
 )
 from latent_sindy.training.runs import METRIC_COLUMNS, RUN_FORMAT, RUN_FORMAT_VERSION, RunDir
+from latent_sindy.worlds.push.camera import moment_frame
 
 __all__ = ["BestValidation", "TrainingDiverged", "evaluate", "run_record", "train"]
 

@@ -42,10 +42,10 @@ import torch
 from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, ModelConfig
 from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
            "read_metrics"]

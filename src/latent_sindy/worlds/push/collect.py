@@ -30,9 +30,9 @@ import tyro
 from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
-from latent_sindy.envs.config import PushEnvConfig
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Executor
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 MAX_ATTEMPTS = 50
 
@@ -112,7 +112,7 @@ _worker_env = None
 
 def _worker_init(env_config: dict) -> None:
     global _worker_env
-    from latent_sindy.envs.panda_push import PandaPushEnv
+    from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     _worker_env = PandaPushEnv(from_json(PushEnvConfig, env_config, "environment"))
 
@@ -124,7 +124,7 @@ def _worker_run(job: tuple[int, CollectionPlan]) -> tuple[int, dict]:
 
 def collect_shard(plan: CollectionPlan, indices: tuple[int, ...]) -> list[tuple[int, dict]]:
     """Trajectories ``indices`` of ``plan`` in one environment: one job of an executor."""
-    from latent_sindy.envs.panda_push import PandaPushEnv
+    from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     env = PandaPushEnv(plan.env)
     try:
@@ -243,7 +243,7 @@ def _run(todo: list[int], plan: CollectionPlan, workers: int):
     if not todo:
         return
     if workers == 1:
-        from latent_sindy.envs.panda_push import PandaPushEnv
+        from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
         env = PandaPushEnv(plan.env)
         try:

@@ -22,8 +22,9 @@ import gymnasium as gym
 import numpy as np
 
 from latent_sindy.configs import from_json, to_json
-from latent_sindy.envs.config import PAPER_GOAL, PAPER_START, PushEnvConfig
-from latent_sindy.envs.world import PushWorld, wrap_angle
+from latent_sindy.worlds.push import register_env
+from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, PushEnvConfig
+from latent_sindy.worlds.push.world import PushWorld, wrap_angle
 
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
 
@@ -149,3 +150,5 @@ class PandaPushEnv(gym.Env):
             "in_bounds": in_bounds,
             "push_executed": self._world.last_push_executed,
         }
+
+register_env()  # gymnasium.make("latent_sindy/PandaPush-v0") works once this module is loaded

@@ -1,6 +1,6 @@
 """The overhead camera's geometry: world points to image pixels and back.
 
-PyBullet's own view and projection matrices of a :class:`~latent_sindy.envs.config.
+PyBullet's own view and projection matrices of a :class:`~latent_sindy.worlds.push.config.
 CameraConfig` (pure functions: no physics client), so the mapping is the one the renderer
 uses. Pixel coordinates are (row, col), pixel (0, 0) the top-left one, each pixel at its
 integer coordinates. TinyRenderer samples pixel (row, col) at viewport point (col, S - 1 -
@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from latent_sindy.envs._bullet import pybullet as pb
-from latent_sindy.envs.config import PushEnvConfig
+from latent_sindy.worlds.push._bullet import pybullet as pb
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 __all__ = ["Camera", "moment_frame"]
 

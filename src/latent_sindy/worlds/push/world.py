@@ -1,4 +1,4 @@
-"""The PyBullet scene behind :class:`~latent_sindy.envs.panda_push.PandaPushEnv`.
+"""The PyBullet scene behind :class:`~latent_sindy.worlds.push.panda_push.PandaPushEnv`.
 
 Two physics clients, both headless (DIRECT):
 
@@ -15,7 +15,7 @@ Everything from just before contact until the pusher has backed off the block is
 at PyBullet's 240 Hz with IK and joint position control, and the block is then left to come
 to rest.
 
-    python -c "from latent_sindy.envs.world import PushWorld; w = PushWorld(); \
+    python -c "from latent_sindy.worlds.push.world import PushWorld; w = PushWorld(); \
 w.reset((0.5, 0, 0), (0.7, 0, 0)); w.push(0, 0, 1); print(w.block_pose())"
 """
 
@@ -26,10 +26,10 @@ import math
 
 import numpy as np
 
-from latent_sindy.envs._bullet import BulletClient, pybullet_data, quiet_c_output
-from latent_sindy.envs._bullet import pybullet as pb
-from latent_sindy.envs.camera import Camera
-from latent_sindy.envs.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
+from latent_sindy.worlds.push._bullet import BulletClient, pybullet_data, quiet_c_output
+from latent_sindy.worlds.push._bullet import pybullet as pb
+from latent_sindy.worlds.push.camera import Camera
+from latent_sindy.worlds.push.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
 
 EE_LINK = 11  # panda_grasptarget: between the fingertips
 ARM_JOINTS = list(range(7))

@@ -12,7 +12,7 @@ any world direction (the symmetric world) need more exploration of the angle: a 
 from __future__ import annotations
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.envs.config import PushEnvConfig
+from latent_sindy.worlds.push.config import PushEnvConfig
 
 __all__ = ["PLANNERS", "world_planner"]
 
