@@ -18,6 +18,7 @@ from latent_sindy.models.dynamics import (
     MlpDynamics,
     SindyConfig,
     SindyDynamics,
+    SparseDynamics,
     SparseSindyDynamics,
     make_dynamics,
 )
@@ -50,6 +51,7 @@ __all__ = [
     "ModelConfig",
     "SindyConfig",
     "SindyDynamics",
+    "SparseDynamics",
     "SparseSindyDynamics",
     "StateConfig",
     "make_dynamics",

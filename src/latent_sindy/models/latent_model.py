@@ -54,7 +54,12 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig
-from latent_sindy.models.dynamics import DynamicsConfig, LatentDynamics, SindyConfig
+from latent_sindy.models.dynamics import (
+    DynamicsConfig,
+    LatentDynamics,
+    SindyConfig,
+    SparseDynamics,
+)
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
 from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
 
@@ -213,7 +218,6 @@ class LatentModel(nn.Module):
         self.dynamics: LatentDynamics = config.dynamics.build(
             config.encoder.latent_dim, config.action_dim,
             circle=ANGLE_FEATURES if config.pose_latent else None, turn=config.turn)
-        self._has_l1 = hasattr(self.dynamics, "l1_penalty")
         # Built last, so that the autoencoder and the dynamics draw the same initial weights
         # with or without it.
         self.pose_head: PoseHead | None = (
@@ -253,7 +257,7 @@ class LatentModel(nn.Module):
 
     def l1_penalty(self) -> torch.Tensor:
         """‖M ⊙ Ψ‖₁ for SINDy, a zero scalar for the other models."""
-        if self._has_l1:
+        if isinstance(self.dynamics, SparseDynamics):
             return self.dynamics.l1_penalty()
         return next(self.parameters()).new_zeros(())
 

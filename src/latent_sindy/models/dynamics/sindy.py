@@ -1,0 +1,394 @@
+"""SINDy latent dynamics: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library, its
+frozen fast form for control, and its config.
+
+Ψ is trained (or fitted by sparse regression, :meth:`SindyDynamics.fit_state_data`) and the
+mask M only ever pruned, so :class:`SindyDynamics` is a
+:class:`~latent_sindy.models.dynamics.base.SparseDynamics`. Any library of
+:mod:`latent_sindy.sindy` can be given (``library_spec``); the config names a few.
+
+    >>> model = SindyConfig(order=2).build(nz=16, nu=3)
+    >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
+    >>> fast = model.compile_sparse()  # same step, only the active library terms
+    >>> from latent_sindy.sindy import Polynomial, Sine  # any composed library spec
+    >>> lib = SindyDynamics(16, 3, library_spec=Polynomial(2, ("z", "u")) + Sine("z"))
+    >>> lib.fit_state_data(Z, U, Znext)  # sparse regression (STLSQ) on states: (N, nz), ...
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import torch
+from torch import nn
+
+from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics.base import (
+    LatentDynamics,
+    Row,
+    SparseDynamics,
+    check_init_scale,
+    format_equations,
+)
+from latent_sindy.sindy import fit as sindy_fit
+from latent_sindy.sindy.library import (
+    VALID_ORDERS,
+    CandidateLibrary,
+    LibrarySpec,
+    LibrarySubset,
+    SindyLibrary,
+    Sine,
+    face_library,
+    frame_library,
+    push_library,
+    spec_from_dict,
+)
+from latent_sindy.sindy.optimizers import STLSQ
+
+__all__ = ["SindyConfig", "SindyDynamics", "SparseSindyDynamics"]
+
+
+class SindyDynamics(SparseDynamics):
+    """Residual SINDy step ``z_{t+1} = z_t + Θ(z_t, u_t) (M ⊙ Ψ)``.
+
+    Ψ (p, nz) is a parameter; M (p, nz) is a persistent boolean buffer (part of the state
+    dict) that :meth:`threshold` only ever turns off. Column j of ``M ⊙ Ψ`` holds the
+    coefficients of latent state j.
+
+    Args:
+        nz, nu: latent and action sizes.
+        order: polynomial order of the classic library (1-4).
+        include_sine, include_cosine: add sin(z_i) / cos(z_i) candidates to it.
+        init_scale: standard deviation of the normal initialisation of Ψ.
+        seed: seed for that initialisation; None draws from the global torch generator.
+        library_spec: any library instead of the classic one: a
+            :data:`~latent_sindy.sindy.library.LibrarySpec` or its ``to_dict()`` form (e.g.
+            ``push_library(order=2, angle=1, length=2)``); then leave ``order``,
+            ``include_sine`` and ``include_cosine`` at their defaults.
+        circle, turn: see :class:`LatentDynamics` (with ``turn``, z_b's column has no
+            candidates and counts in none of the sparsity figures).
+    """
+
+    kind = "sindy"
+    mask: torch.Tensor  # (p, nz) bool
+    library: SindyLibrary
+
+    def __init__(
+        self,
+        nz: int,
+        nu: int,
+        order: int = 2,
+        include_sine: bool = True,
+        include_cosine: bool = False,
+        init_scale: float = 1e-3,
+        seed: int | None = None,
+        library_spec: LibrarySpec | Mapping[str, Any] | None = None,
+        circle: Sequence[int] | None = None,
+        turn: bool = False,
+    ) -> None:
+        super().__init__(nz, nu, circle, turn)
+        init: dict[str, Any]
+        if library_spec is None:
+            self.library = CandidateLibrary(nz, nu, order, include_sine, include_cosine)
+            init = {"order": order, "include_sine": include_sine, "include_cosine": include_cosine}
+        else:
+            if (order, include_sine, include_cosine) != (2, True, False):
+                raise ValueError(
+                    f"SindyDynamics got library_spec and order={order}, include_sine="
+                    f"{include_sine}, include_cosine={include_cosine}: put the polynomial "
+                    "order and trig terms in the spec (e.g. poly_library(order, ...)) instead"
+                )
+            self.library = SindyLibrary(spec_from_dict(library_spec), nz, nu)
+            init = {"library_spec": self.library.spec.to_dict()}
+        p = self.library.n_terms
+        gen = None if seed is None else torch.Generator().manual_seed(seed)
+        self.psi = nn.Parameter(torch.randn(p, nz, generator=gen) * init_scale)  # (p, nz)
+        self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
+        self._free_turned_column()
+        self._init = {**init, "init_scale": init_scale, "seed": seed}
+
+    @property
+    def names(self) -> list[str]:
+        """Library term names, one per row of Ψ."""
+        return self.library.names
+
+    def hparams(self) -> dict[str, Any]:
+        return {**super().hparams(), **self._init}
+
+    def coefficients(self) -> torch.Tensor:
+        """The effective coefficients M ⊙ Ψ: (p, nz)."""
+        return self.psi * self.mask
+
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        theta = self.library(z, u)  # (K, p)
+        return z + theta @ self.coefficients()  # (K, nz)
+
+    @torch.no_grad()
+    def threshold(self, tau: float) -> int:
+        """Prune active coefficients with ``|Ψ| < tau``; return how many were newly pruned.
+
+        Compares magnitudes, so negative coefficients are judged like positive ones. The mask
+        only goes from on to off; pruned entries of Ψ are set to 0.
+        """
+        if tau < 0 or math.isnan(tau):
+            raise ValueError(f"threshold tau must be a non-negative number, got {tau}")
+        newly = self.mask & (self.psi.abs() < tau)
+        self.mask &= ~newly
+        self.psi.masked_fill_(~self.mask, 0.0)
+        return int(newly.sum())
+
+    @torch.no_grad()
+    def set_coefficients(
+        self, coef: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> SindyDynamics:
+        """Set Ψ = ``coef`` (p, nz) and M = ``mask`` (p, nz) bool, default ``coef != 0``;
+        returns ``self``. Unlike :meth:`threshold` this replaces the mask (it may turn terms
+        back on); Ψ is set to 0 where the mask is off."""
+        coef = torch.as_tensor(coef)
+        mask = coef != 0 if mask is None else torch.as_tensor(mask)
+        if coef.shape != self.psi.shape or mask.shape != self.mask.shape:
+            raise ValueError(
+                f"set_coefficients expects coef and mask of shape {tuple(self.psi.shape)} "
+                f"(terms, nz), got {tuple(coef.shape)} and {tuple(mask.shape)}"
+            )
+        self.mask.copy_(mask.to(self.mask.device, torch.bool))
+        self.psi.copy_(coef.to(self.psi.device, self.psi.dtype))
+        self.psi.masked_fill_(~self.mask, 0.0)
+        self._free_turned_column()
+        return self
+
+    def fit_state_data(
+        self,
+        Z: torch.Tensor,
+        U: torch.Tensor,
+        Znext: torch.Tensor,
+        optimizer: STLSQ | None = None,
+        restrict_to_mask: bool = False,
+    ) -> SindyDynamics:
+        """Fit Ψ and M to transitions by sparse regression; returns ``self``.
+
+        ``Znext − Z = Θ(Z, U) (M ⊙ Ψ)`` is linear in Ψ: ``optimizer`` (default ``STLSQ()``,
+        fitted in place, so pass one to read its ``n_iter_`` etc.) solves it in closed form.
+        Z (N, nz), U (N, nu), Znext (N, nz). With ``restrict_to_mask`` only terms the current
+        mask allows may be active (``STLSQ(threshold=0)`` then refits them by least squares).
+        The regression fits the update before the circle's projection (which :meth:`step`
+        then applies); with ``turn``, z_a's target is the angle from (z_a, z_b) to the next
+        pair and z_b's none.
+        """
+        if self.turn:
+            a, b = self.circle
+            omega = torch.atan2(Z[:, a] * Znext[:, b] - Z[:, b] * Znext[:, a],
+                                Z[:, a] * Znext[:, a] + Z[:, b] * Znext[:, b])
+            Znext = Znext.clone()
+            Znext[:, a], Znext[:, b] = Z[:, a] + omega, Z[:, b]
+        opt = sindy_fit.fit_state_data(
+            self.library, Z, U, Znext, optimizer, mask=self.mask if restrict_to_mask else None
+        )
+        return self.set_coefficients(opt.coef_, opt.mask_)
+
+    def n_candidates(self) -> int:
+        """Coefficients that may be active: every term for every state (with ``turn``,
+        none for z_b, whose update is unused)."""
+        p, nz = self.mask.shape
+        return p * (nz - 1 if self.turn else nz)
+
+    @torch.no_grad()
+    def coefficient_rows(self) -> list[Row]:
+        """Active coefficients as ``(state, term, value)`` rows, by state then library order."""
+        coef = self.coefficients().detach().cpu()
+        names = self.names
+        rows = []
+        for j in range(self.nz):
+            for i in self.mask[:, j].nonzero().flatten().tolist():
+                rows.append((f"z{j}", names[i], float(coef[i, j])))
+        return rows
+
+    def equations(self, precision: int = 3) -> list[str]:
+        """One readable update rule per latent state, active terms only.
+
+        Right-hand variables are at time t, coefficients rounded to ``precision`` significant
+        digits, e.g. ``z0[t+1] = z0 + 0.512 u0 - 0.0312 z1 z2``. The leading ``z0`` is the
+        residual (identity) part of the model and is always there.
+        """
+        rows = self.coefficient_rows()
+        lines = format_equations(rows, self.nz, precision, residual=True)
+        if not self.turn:
+            return lines
+        a, b = self.circle
+        turn = [("z0", term, value) for state, term, value in rows if state == f"z{a}"]
+        omega = format_equations(turn, 1, precision, residual=False)[0]
+        lines[a] = omega.replace("z0[t+1] =", f"ω = turn of (z{a}, z{b}) =", 1)
+        return [line for j, line in enumerate(lines) if j != b]
+
+    def summary(self) -> list[str]:
+        p, nz = self.mask.shape
+        return [f"SINDy latent dynamics, library {self.library.spec} ({p} candidate terms "
+                f"x {nz} states), z[t+1] = z + Θ(z, u) (M ⊙ Ψ)",
+                f"active coefficients: {self.n_active()} of {self.n_candidates()} (sparsity "
+                f"{100 * self.sparsity():.1f}%); terms used by some state: "
+                f"{int(self.mask.any(dim=1).sum())} of {p}", *self._circle_note()]
+
+    def export_info(self) -> dict[str, Any]:
+        return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
+                "n_coefficients": self.n_candidates(), "sparsity": self.sparsity(),
+                "terms": self.names, **super().export_info()}
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._free_turned_column()  # a mask saved by a model that did not turn
+
+    @torch.no_grad()
+    def _free_turned_column(self) -> None:
+        """With ``turn``, z_b's own update is unused: its column has no candidates."""
+        if self.turn:
+            self.mask[:, self.circle[1]] = False
+            self.psi[:, self.circle[1]] = 0.0
+
+    def stats(self) -> dict[str, float | None]:
+        return {**super().stats(), "sindy/active": self.n_active(),
+                "sindy/coefficients": self.n_candidates(),
+                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
+                "sindy/sparsity": self.sparsity()}
+
+    def compile_sparse(self) -> SparseSindyDynamics:
+        """A frozen copy of the current model that evaluates only the active library terms.
+
+        Its ``step`` equals this model's ``step`` to float precision (the circle's projection
+        included). It holds a snapshot of the coefficients (no gradient): compile again after
+        further training or pruning.
+        """
+        return SparseSindyDynamics(self)
+
+    def extra_repr(self) -> str:
+        return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
+
+
+class SparseSindyDynamics(LatentDynamics):
+    """Fast, frozen SINDy step over the terms active in any state (for control).
+
+    ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
+    C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer; the model's circle, if any, is kept.
+    """
+
+    kind = "sindy-sparse"
+    coef: torch.Tensor  # (|S|, nz)
+
+    def __init__(self, model: SindyDynamics) -> None:
+        super().__init__(model.nz, model.nu, model.circle, model.turn)
+        terms = model.active_terms()
+        self.library: LibrarySubset = model.library.subset(terms)
+        self.register_buffer("coef", model.coefficients().detach()[terms].clone())
+
+    @property
+    def names(self) -> list[str]:
+        return self.library.names
+
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        return z + self.library(z, u) @ self.coef  # (K, nz)
+
+
+@dataclass(frozen=True)
+class SindyConfig:
+    """SINDy: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library of [z, u]."""
+
+    kind: ClassVar[str] = "sindy"
+    model_class: ClassVar[type[LatentDynamics]] = SindyDynamics
+    order: int = 2
+    """Polynomial order of the candidate library (1-4)."""
+    include_sine: bool = True
+    """Add sin(z_i) candidates."""
+    include_cosine: bool = False
+    """Add cos(z_i) candidates ("poly" library only)."""
+    library: Literal["poly", "push", "face", "frame"] = "poly"
+    """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
+    length times the sine and cosine of the push angle, alone and times each state (what a
+    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (order 1, on the
+    pose: state models or --pose-head coordinates; pushes given as world directions, the
+    symmetric world): the push length times the push direction or the orientation features
+    (z2, z3), times powers of the contact offset and the push angle relative to the pushed
+    face (the library's face_library); "frame" (order 1, on the pose, world-direction
+    pushes): the push in the pushed face's frame, the push length times the face normal's
+    direction (cos n, sin n) or the orientation features, times the monomials of the contact
+    offset and of the push's angle a from the face normal (the library's frame_library)."""
+    angle_frequency: float = 4.0
+    """"face" library: f of the orientation features (cos fθ, sin fθ), the block's visible
+    symmetry: 4 for a square block (2π over the visible period). The relative push angle
+    enters as sin(f u1), cos(f u1) times those features."""
+    frame_degree: int = 3
+    """"frame" library: highest degree of the monomials of the contact offset and the angle
+    from the face normal."""
+    frame_sense: int | None = None
+    """"frame" library: the orientation features' sense against the world's, fθ =
+    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image). None: the
+    latent's own, which training states in the run's record: on the moments latent the
+    data's camera's (envs.camera.moment_frame; a value given must match it), on a pose
+    latent in world angles (the state, a coordinates pose head) 1. A model built from an
+    unresolved config reads None as 1 and its offset as 0."""
+    frame_offset: float | None = None
+    """"frame" library: that offset (radians); None: the latent's own, as ``frame_sense``
+    (the moments latent's camera's, else 0)."""
+    init_scale: float = 1e-3
+    """Standard deviation of the initial coefficients Ψ."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
+            raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
+        if self.library not in ("poly", "push", "face", "frame"):
+            raise UserError(f"--library {self.library!r}: use poly, push, face or frame")
+        if self.library != "poly" and self.include_cosine:
+            raise UserError("--include-cosine is for the poly library only")
+        if self.library in ("face", "frame") and self.order != 1:
+            raise UserError(f"--library {self.library} with --order {self.order}: the "
+                            f"{self.library} library's push terms already hold the "
+                            "higher-order products; use --order 1")
+        if self.library == "frame" and (self.angle_frequency < 3
+                                        or self.angle_frequency != round(self.angle_frequency)):
+            raise UserError(f"--library frame with --angle-frequency {self.angle_frequency:g}: "
+                            "its angle a is measured from the nearest face normal of a block "
+                            "whose visible symmetry is its number of faces (a uniform square: "
+                            "4); use an integer >= 3, or --library face / push")
+        if isinstance(self.frame_degree, bool) or not 0 <= self.frame_degree <= 4:
+            raise UserError(f"--frame-degree {self.frame_degree}: use 0 to 4")
+        if self.frame_sense not in (None, 1, -1):
+            raise UserError(f"--frame-sense {self.frame_sense}: use 1 or -1")
+        if self.frame_offset is not None and not math.isfinite(self.frame_offset):
+            raise UserError(f"--frame-offset {self.frame_offset}: use a finite angle (radians)")
+        if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
+            raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
+                            "> 0 (4 for a square block)")
+        check_init_scale("SINDy", self.init_scale)
+
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+              turn: bool = False) -> SindyDynamics:
+        """The model for latent size nz and action size nu; ``circle``: the latent
+        coordinates kept on the unit circle, ``turn``: turned by z_a's update (see
+        :class:`LatentDynamics`)."""
+        if self.library in ("push", "face", "frame") and nu < 3:
+            raise UserError(f"the {self.library} library needs actions [p, angle, length], "
+                            f"got {nu}")
+        if self.library in ("face", "frame") and nz < 4:
+            raise UserError(f"the {self.library} library needs the pose (x, y, cos fθ, sin fθ) "
+                            f"as the first four latent coordinates, got a latent of size {nz}: "
+                            "use the state or moments encoder or --pose-head coordinates")
+        if self.library == "frame":
+            spec = frame_library(self.order, frequency=self.angle_frequency,
+                                 degree=self.frame_degree,
+                                 sense=1 if self.frame_sense is None else self.frame_sense,
+                                 angle_offset=self.frame_offset or 0.0)
+            if self.include_sine:
+                spec = spec + Sine("z")
+        elif self.library == "face":
+            spec = face_library(self.order, frequency=self.angle_frequency)
+            if self.include_sine:
+                spec = spec + Sine("z")
+        elif self.library == "push":
+            spec = push_library(self.order, angle=1, length=2, include_sine=self.include_sine)
+        else:
+            return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
+                                 include_cosine=self.include_cosine, init_scale=self.init_scale,
+                                 circle=circle, turn=turn)
+        return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle,
+                             turn=turn)
+
