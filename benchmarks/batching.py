@@ -4,7 +4,7 @@ Trains SINDy-2 with the conv decoder (the study's image model) once per seed and
 ``--batching`` (windows: the trainer as it was; trajectories: every frame encoded and
 reconstructed once) and prints, per run, what model selection kept: the epoch, its
 validation objective, the test split's loss terms on single-step windows (the study's
-``loss/*``, :func:`latent_sindy.training.loop.evaluate`), the active SINDy terms, and the
+``loss/*``, :func:`latent_sindy.training.core.evaluate`), the active SINDy terms, and the
 training time (wall and process CPU). Runs go one after another in this process, on
 ``--threads`` torch threads.
 
@@ -24,11 +24,11 @@ from pathlib import Path
 
 import torch
 
-from latent_sindy.data.store import read_trajectories
+from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import WindowDataset
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
 from latent_sindy.training import TrainConfig, load_run, train
-from latent_sindy.training.loop import evaluate
+from latent_sindy.training.core import evaluate
 
 
 def load() -> str:
@@ -47,7 +47,7 @@ def main() -> None:
     p.add_argument("--batchings", nargs="+", default=["windows", "trajectories"])
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    data = read_trajectories(args.data)
+    data = read_sequences(args.data)
     print(f"torch {torch.__version__}, {args.threads} thread(s); SINDy-2, conv decoder; "
           f"{args.epochs} epochs, batch {args.batch_size}, pruning every "
           f"{args.threshold_every}, validation every {args.eval_every}; data {args.data} "

@@ -17,7 +17,7 @@ import math
 import numpy as np
 import torch
 
-from latent_sindy.data.store import read_trajectories
+from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
 
@@ -26,7 +26,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", required=True)
     args = ap.parse_args()
-    data = read_trajectories(args.data)
+    data = read_sequences(args.data)
     order = round(2 * math.pi / data.env_config.angle_period)
     _, _, c, s, _ = data.images.shape
     enc = MomentEncoder(AutoencoderConfig(channels=c, image_size=s, latent_dim=4,

@@ -40,7 +40,7 @@ import math
 import numpy as np
 import torch
 
-from latent_sindy.data.store import read_trajectories
+from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.models import SindyConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
@@ -208,7 +208,7 @@ def main() -> None:
                     help="replay N random test pushes in the simulator (about 0.5 s each)")
     args = ap.parse_args()
 
-    data = read_trajectories(args.data)
+    data = read_sequences(args.data)
     if data.env_config.push != "symmetric":
         raise SystemExit(f"{args.data}: pushes relative to the block; this reference is for "
                          "the symmetric world's world-direction pushes")

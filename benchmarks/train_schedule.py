@@ -60,10 +60,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from latent_sindy.data.store import Trajectories, write_trajectories
+from latent_sindy.data import write_sequences
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig, autoencoder
-from latent_sindy.training import TrainConfig, loop, train
+from latent_sindy.training import TrainConfig, core, loop, train
 from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.worlds.push.data import push_data
 
 BEFORE_MINUTES = 46  # the paper schedule's wall time on this machine before (RESULTS.md)
 
@@ -81,7 +82,7 @@ def synthetic_data(path: Path, train: int = 100, val: int = 50, test: int = 50,
     actions = rng.uniform(ACTION_LOW, ACTION_HIGH, size=(n, steps, 3)).astype(np.float32)
     poses = rng.uniform(-0.3, 0.7, size=(n, steps + 1, 3)).astype(np.float32)
     splits = np.repeat(np.array([0, 1, 2], dtype=np.uint8), [train, val, test])
-    write_trajectories(path, Trajectories(images, actions, poses, splits, PushEnvConfig(),
+    write_sequences(path, push_data(images, actions, poses, splits, PushEnvConfig(),
                                           seed=0))
     return path
 
@@ -172,9 +173,9 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
     the first epoch + final save and plot), page faults and kernel seconds per timed epoch."""
     torch.set_num_threads(v.threads)
     if not v.inference_mode:  # the trainer as it was: validation under no_grad
-        loop.evaluate = torch.no_grad()(loop.evaluate.__wrapped__)
+        core.evaluate = torch.no_grad()(core.evaluate.__wrapped__)
     if not v.keep_memory:  # the trainer as it was: glibc's default malloc thresholds
-        loop._keep_freed_memory = lambda: None
+        loop.keep_freed_memory = lambda: None
     old_layers(v.native_last, v.pool_first)
     model = ModelConfig(encoder=AutoencoderConfig(decoder=args.decoder),
                         dynamics=SindyConfig(order=2))

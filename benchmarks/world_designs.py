@@ -267,7 +267,7 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(1)
-    from latent_sindy.data.store import read_trajectories
+    from latent_sindy.data import read_sequences
     from latent_sindy.worlds.push.collect import CollectionPlan, collect
     from latent_sindy.worlds.push.config import PushEnvConfig
 
@@ -294,7 +294,7 @@ def main() -> None:
                            plan, workers=args.workers)
             t_collect = time.perf_counter() - t0
             t0 = time.perf_counter()
-            state, stats, val_loss = fit_reference(read_trajectories(path), cfg, args.epochs,
+            state, stats, val_loss = fit_reference(read_sequences(path), cfg, args.epochs,
                                                    args.seed)
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from latent_sindy.data.store import Trajectories
+from latent_sindy.data import SequenceData
 from synthetic import make_trajectories
 
 
@@ -29,5 +29,5 @@ def one_torch_thread():
 
 
 @pytest.fixture
-def trajectories() -> Trajectories:
+def trajectories() -> SequenceData:
     return make_trajectories()

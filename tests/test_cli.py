@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from latent_sindy.cli import main
-from latent_sindy.data.store import write_trajectories
+from latent_sindy.data import write_sequences
 from synthetic import make_trajectories
 
 
@@ -58,7 +58,7 @@ def test_info_on_missing_foreign_and_valid_files(tmp_path):
     junk.write_text("hello")
     assert_one_line_error(run("info", str(junk)), str(junk), "not an HDF5 file")
     good = tmp_path / "good.h5"
-    write_trajectories(good, make_trajectories())
+    write_sequences(good, make_trajectories())
     r = run("info", str(good))
     assert r.returncode == 0 and "valid latent-sindy trajectory file" in r.stdout
 
@@ -90,7 +90,7 @@ def test_collect_info_preview_end_to_end(tmp_path):
 
 def test_train_equations_control_smoke(tmp_path):
     data = tmp_path / "d.h5"
-    write_trajectories(data, make_trajectories(n=6, steps=3))
+    write_sequences(data, make_trajectories(n=6, steps=3))
     run_dir = tmp_path / "run"
     r = run("train", "sindy", "--data", str(data), "--order", "1", "--epochs", "2",
             "--threshold-every", "1", "--out", str(run_dir), "--no-progress")

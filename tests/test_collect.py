@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latent_sindy.data.store import read_trajectories, write_trajectories
+from latent_sindy.data import read_sequences, write_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
@@ -24,7 +24,7 @@ def reference(tmp_path_factory):
     """An uninterrupted single-process collection of PLAN."""
     path = tmp_path_factory.mktemp("ref") / "ref.h5"
     collect(path, PLAN, workers=1)
-    return read_trajectories(path)
+    return read_sequences(path)
 
 
 def same_data(a, b) -> bool:
@@ -45,13 +45,13 @@ def test_collected_file_is_valid_and_shows_motion(reference):
 def test_same_seed_same_data_with_two_workers(tmp_path, reference):
     path = tmp_path / "par.h5"
     collect(path, PLAN, workers=2)
-    assert same_data(read_trajectories(path), reference)
+    assert same_data(read_sequences(path), reference)
 
 
 def test_other_seed_other_data(tmp_path, reference):
     path = tmp_path / "other.h5"
     collect(path, CollectionPlan(6, 2, seed=4, val_fraction=1 / 3, test_fraction=1 / 6), 1)
-    assert not np.array_equal(read_trajectories(path).actions, reference.actions)
+    assert not np.array_equal(read_sequences(path).actions, reference.actions)
 
 
 def test_resume_after_kill(tmp_path, reference):
@@ -74,7 +74,7 @@ def test_resume_after_kill(tmp_path, reference):
     done = len(list(partial.glob("traj_*.npz")))
     assert 2 <= done < 6
     collect(out, PLAN, workers=1)  # the same command again finishes the job
-    assert same_data(read_trajectories(out), reference)
+    assert same_data(read_sequences(out), reference)
     assert not partial.exists()
 
 
@@ -84,16 +84,16 @@ def test_damaged_journal_entry_is_redone(tmp_path, reference, monkeypatch):
     def fail_at_assembly(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_trajectories", fail_at_assembly)
+    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_sequences", fail_at_assembly)
     with pytest.raises(OSError):
         collect(out, PLAN, workers=1)
     assert not out.exists()
     entries = sorted((tmp_path / "d.h5.partial").glob("traj_*.npz"))
     assert len(entries) == 6
     entries[2].write_bytes(entries[2].read_bytes()[:100])  # a torn file, as after a crash
-    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_trajectories", write_trajectories)
+    monkeypatch.setattr("latent_sindy.worlds.push.collect.write_sequences", write_sequences)
     collect(out, PLAN, workers=1)
-    assert same_data(read_trajectories(out), reference)
+    assert same_data(read_sequences(out), reference)
 
 
 def test_complete_file_is_kept_and_other_settings_refused(tmp_path, reference):

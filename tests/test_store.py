@@ -6,14 +6,11 @@ import h5py
 import numpy as np
 import pytest
 
-from latent_sindy.data.store import (
-    FORMAT,
-    Trajectories,
-    read_trajectories,
-    write_trajectories,
-)
+from latent_sindy.data import read_sequences, write_sequences
+from latent_sindy.data.store import FORMAT
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.data import push_data
 from synthetic import make_trajectories
 
 
@@ -21,8 +18,8 @@ from synthetic import make_trajectories
 def test_round_trip(tmp_path, channels):
     data = make_trajectories(channels=channels)
     path = tmp_path / "d.h5"
-    write_trajectories(path, data)
-    back = read_trajectories(path)
+    write_sequences(path, data)
+    back = read_sequences(path)
     for name in ("images", "actions", "poses", "split_ids"):
         assert np.array_equal(getattr(back, name), getattr(data, name)), name
     assert back.images.dtype == np.uint8 and back.actions.dtype == np.float32
@@ -55,14 +52,14 @@ def test_write_is_atomic_and_leaves_no_temporary(tmp_path, trajectories, monkeyp
 
     monkeypatch.setattr(h5py.Group, "create_dataset", disk_full)
     with pytest.raises(OSError, match="disk full"):
-        write_trajectories(path, trajectories)
+        write_sequences(path, trajectories)
     assert path.read_bytes() == b"previous content"
     assert [p.name for p in tmp_path.iterdir()] == ["d.h5"]
 
 
 def _error(path) -> str:
     with pytest.raises(UserError) as e:
-        read_trajectories(path)
+        read_sequences(path)
     msg = str(e.value)
     assert "\n" not in msg and str(path) in msg
     return msg
@@ -80,15 +77,42 @@ def test_foreign_and_truncated_files(tmp_path, trajectories):
     foreign = tmp_path / "foreign.h5"
     with h5py.File(foreign, "w") as f:
         f["x"] = np.zeros(3)
-    assert "not a latent-sindy trajectory file" in _error(foreign)
+    assert "lacks the dataset 'images'" in _error(foreign)
 
     good = tmp_path / "good.h5"
-    write_trajectories(good, trajectories)
+    write_sequences(good, trajectories)
     cut = tmp_path / "cut.h5"
     raw = good.read_bytes()
     cut.write_bytes(raw[: len(raw) // 2])
     msg = _error(cut)
     assert "re-collect" in msg or "not an HDF5" in msg
+
+
+def write_legacy(path, t) -> None:
+    """A pushing-world file as version 1 wrote it: block poses in /poses, the world's
+    settings in the attribute env_config."""
+    import json
+
+    from latent_sindy.configs import to_json
+
+    with h5py.File(path, "w") as f:
+        f["images"], f["actions"], f["poses"] = t.images, t.actions, t.poses
+        f["split"] = t.split_ids
+        f.attrs.update(format="latent-sindy-trajectories", format_version=1, seed=0,
+                       env_config=json.dumps(to_json(t.env_config)), collection="{}")
+
+
+def test_version_1_files_still_load(tmp_path, trajectories):
+    """The pushing world's files of format version 1 load: poses become states x, y, θ."""
+    path = tmp_path / "v1.h5"
+    write_legacy(path, trajectories)
+    back = read_sequences(path)
+    assert back.world == "push" and back.state_names == ("x", "y", "θ")
+    assert back.fingerprint() == trajectories.fingerprint()
+    assert back.env_config == trajectories.env_config
+    with h5py.File(path, "a") as f:
+        del f["poses"]
+    assert "lacks dataset(s) poses" in _error(path)
 
 
 def _tamper(path, **datasets):
@@ -102,8 +126,9 @@ def _tamper(path, **datasets):
     ("change", "expected"),
     [
         (lambda t: {"actions": t.actions[:, :-1]}, "actions have shape"),
-        (lambda t: {"images": t.images.astype(np.float32)}, "images must be uint8"),
-        (lambda t: {"poses": t.poses[:-1]}, "poses have shape"),
+        (lambda t: {"images": t.images.astype(np.float32)}, "must lie in [0, 1]"),
+        (lambda t: {"images": t.images.astype(np.float32) / 255}, "images are uint8"),
+        (lambda t: {"states": t.poses[:-1]}, "states have shape"),
         (lambda t: {"actions": np.where(np.arange(3) == 1, np.nan, t.actions)}, "NaN"),
         (lambda t: {"actions": t.actions + np.array([0, 0, 2.0], np.float32)}, "outside"),
         (lambda t: {"split": np.full(t.n, 7, np.uint8)}, "split labels"),
@@ -111,18 +136,18 @@ def _tamper(path, **datasets):
 )
 def test_wrong_contents(tmp_path, trajectories, change, expected):
     path = tmp_path / "d.h5"
-    write_trajectories(path, trajectories)
+    write_sequences(path, trajectories)
     _tamper(path, **change(trajectories))
     assert expected in _error(path)
 
 
 def test_missing_dataset_and_version(tmp_path, trajectories):
     path = tmp_path / "d.h5"
-    write_trajectories(path, trajectories)
+    write_sequences(path, trajectories)
     with h5py.File(path, "a") as f:
-        del f["poses"]
-    assert "lacks dataset(s) poses" in _error(path)
-    write_trajectories(path, trajectories)
+        del f["states"]
+    assert "state_names or state_periods given without states" in _error(path)
+    write_sequences(path, trajectories)
     with h5py.File(path, "a") as f:
         f.attrs["format_version"] = 99
     assert "format version 99" in _error(path)
@@ -131,7 +156,7 @@ def test_missing_dataset_and_version(tmp_path, trajectories):
 def test_channels_must_match_recorded_environment():
     t = make_trajectories(channels=1)
     with pytest.raises(UserError, match="recorded environment"):
-        Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig(channels=3))
+        push_data(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig(channels=3))
 
 
 # ---------------------------------------------------------------- the world owns the action box
@@ -140,12 +165,12 @@ def test_file_without_push_setting_reads_as_the_paper_world(tmp_path, trajectori
     import json
 
     path = tmp_path / "old.h5"
-    write_trajectories(path, trajectories)
+    write_legacy(path, trajectories)
     with h5py.File(path, "a") as f:
         old = json.loads(f.attrs["env_config"])
         del old["push"], old["block_look"]
         f.attrs["env_config"] = json.dumps(old)
-    back = read_trajectories(path)
+    back = read_sequences(path)
     assert back.env_config.push == "paper"
     assert back.env_config == PushEnvConfig.named("paper")
     with h5py.File(path, "a") as f:
@@ -156,10 +181,10 @@ def test_file_without_push_setting_reads_as_the_paper_world(tmp_path, trajectori
 def test_actions_are_checked_against_the_recorded_worlds_box(tmp_path):
     t = make_trajectories()
     t.actions[0, 1, 1] = 2.0  # a push direction beyond +-pi/2: any direction is fine ...
-    Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig())
+    push_data(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig())
     with pytest.raises(UserError, match=r"action 1 \(phi\) of step 1 of trajectory 0 is 2") as e:
         # ... but not in the paper's world, where phi is relative to the block within +-pi/2
-        Trajectories(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig.named("paper"))
+        push_data(t.images, t.actions, t.poses, t.split_ids, PushEnvConfig.named("paper"))
     assert "'paper' world" in str(e.value)
 
 
@@ -167,4 +192,4 @@ def test_actions_must_have_the_worlds_size():
     t = make_trajectories()
     wide = np.concatenate([t.actions, np.zeros((*t.actions.shape[:2], 1), np.float32)], axis=2)
     with pytest.raises(UserError, match=r"expected \(6, 4, 3\) \(p, psi, ell"):
-        Trajectories(t.images, wide, t.poses, t.split_ids, PushEnvConfig())
+        push_data(t.images, wide, t.poses, t.split_ids, PushEnvConfig())

@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from latent_sindy.configs import from_json
-from latent_sindy.data.store import read_trajectories, write_trajectories
+from latent_sindy.data import read_sequences, write_sequences
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
@@ -40,7 +40,7 @@ from latent_sindy.training import (
     train,
 )
 from latent_sindy.training.config import resolve_device
-from latent_sindy.training.loop import run_record
+from latent_sindy.training.record import run_record
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 
 KINDS = ("sindy", "linear", "mlp")
@@ -118,9 +118,9 @@ def test_end_to_end_learns_recognisable_images(data: Path, tmp_path: Path) -> No
     assert rows[-1]["train/objective"] < 0.1 * rows[0]["train/objective"]
     assert rows[-1]["sindy/active"] < rows[0]["sindy/active"]  # pruned at 30, 60, 90, 120
 
-    model, norm, loaded_cfg, _ = load_run(run)
+    model, norm, loaded_cfg, *_ = load_run(run)
     assert loaded_cfg == cfg
-    d = read_trajectories(data).split("train")
+    d = read_sequences(data).split("train")
     x = norm.normalize(d.images)  # (4, 4, 1, 32, 32)
     with torch.no_grad():
         x_rec = model.decode(model.encode(x))
@@ -305,7 +305,7 @@ def test_resume_with_other_settings_names_them(data: Path, tmp_path: Path) -> No
 def reference_model(cfg: TrainConfig) -> tuple[LatentModel, list[float]]:
     """The training arithmetic of the trainer before eval_every and devices (commit cfda25a),
     without its run folder: the model and the validation objective of every epoch."""
-    data = read_trajectories(cfg.data)
+    data = read_sequences(cfg.data)
     record = run_record(cfg, data)
     norm = Normalizer.from_dict(record["normalizer"])
     with torch.random.fork_rng(devices=[]):
@@ -410,7 +410,7 @@ def test_batchings_see_the_same_predictions(data: Path, tmp_path: Path) -> None:
     auto = read_metrics(train(config(data, tmp_path / "a", **kw)))  # window 1: trajectories
     for term in ("pred_x", "pred_z", "l1"):
         assert math.isclose(traj[0][f"train/{term}"], win[0][f"train/{term}"], rel_tol=1e-5)
-    d = read_trajectories(data)
+    d = read_sequences(data)
     cfg = config(data, tmp_path / "x")
     with torch.random.fork_rng(devices=[]):  # the trainer's initial model
         torch.manual_seed(cfg.seed)
@@ -474,14 +474,14 @@ def test_the_record_holds_what_auto_batching_resolved_to(data: Path, tmp_path: P
 def scripted_validation(monkeypatch, objectives: list[float]) -> None:
     """The trainer's validation reports these objectives, one per evaluation in order (the
     other terms are the real ones); training itself is untouched."""
-    from latent_sindy.training import loop
+    from latent_sindy.training import core as fit_module
 
-    real, values = loop.evaluate, iter(objectives)
+    real, values = fit_module.evaluate, iter(objectives)
 
     def scripted(*args, **kwargs):
         return {**real(*args, **kwargs), "objective": next(values)}
 
-    monkeypatch.setattr(loop, "evaluate", scripted)
+    monkeypatch.setattr(fit_module, "evaluate", scripted)
 
 
 def test_the_best_validation_epoch_is_kept(data: Path, tmp_path: Path, monkeypatch) -> None:
@@ -648,10 +648,10 @@ def test_bad_inputs(data: Path, tmp_path: Path) -> None:
 
 
 def test_no_validation_split(data: Path, tmp_path: Path) -> None:
-    d = read_trajectories(data)
+    d = read_sequences(data)
     d.split_ids = np.zeros_like(d.split_ids)
     path = tmp_path / "all_train.h5"
-    write_trajectories(path, d)
+    write_sequences(path, d)
     progress = Recorder()
     run = train(config(path, tmp_path / "run", epochs=2), progress)
     assert any(c[0] == "note" and "no validation" in c[1] for c in progress.calls)
@@ -677,7 +677,7 @@ def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
     """--parallel batch: the slices' loss terms and gradients, weighted by their share and
     added, are those of the whole batch (to float rounding), the pose head's unused
     parameters stay without a gradient, and the same batch gives the same bits again."""
-    from latent_sindy.training.loop import _Gradients
+    from latent_sindy.training.core import Gradients as _Gradients
 
     torch.manual_seed(0)
     cfg = ModelConfig(encoder=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),

@@ -34,7 +34,7 @@ import tyro
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.study import ReproduceConfig
+from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.progress import bar
 from latent_sindy.training.config import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan
@@ -95,9 +95,9 @@ class Info:
     """Trajectory file (.h5)."""
 
     def run(self) -> None:
-        from latent_sindy.data.store import read_trajectories
+        from latent_sindy.data import read_sequences
 
-        d = read_trajectories(self.data)
+        d = read_sequences(self.data)
         mean, std = d.pixel_stats()
         step = d.poses[:, 1:, :2] - d.poses[:, :-1, :2]
         print(f"{self.data}: valid latent-sindy trajectory file")
@@ -117,17 +117,17 @@ class Preview:
     out: Path | None = None
     """PNG to write (default: beside the data, same name, .png)."""
     rows: int = 6
-    """Trajectories to show."""
+    """SequenceData to show."""
 
     def run(self) -> None:
+        from latent_sindy.data import read_sequences
         from latent_sindy.data.preview import save_preview
-        from latent_sindy.data.store import read_trajectories
 
         if self.rows < 1:
             raise UserError(f"--rows {self.rows}: show at least 1 trajectory")
         out = check_output_file(self.out or self.data.with_suffix(".png"), "--out", (".png",),
                                 inputs=(self.data,))
-        out = save_preview(read_trajectories(self.data), out, self.rows)
+        out = save_preview(read_sequences(self.data), out, self.rows)
         print(f"wrote {out}")
 
 

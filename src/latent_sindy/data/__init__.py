@@ -1,4 +1,11 @@
-"""Trajectory data: collection (workers, resume), the HDF5 trajectory file, training windows.
+"""Data: :class:`SequenceData` (images, actions, optional states, names, dt), its HDF5 file,
+training windows and normalisation. Collection belongs to the worlds.
 
-    latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
+    from latent_sindy.data import read_sequences
+    data = read_sequences("data/push.h5")
 """
+
+from latent_sindy.data.sequence import SPLITS, SequenceData, seeded_split
+from latent_sindy.data.store import read_sequences, write_sequences
+
+__all__ = ["SPLITS", "SequenceData", "read_sequences", "seeded_split", "write_sequences"]

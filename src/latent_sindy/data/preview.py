@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from latent_sindy.atomic import atomic_path
-from latent_sindy.data.store import SPLITS, Trajectories
+from latent_sindy.data import SPLITS, SequenceData
 
 
-def save_preview(data: Trajectories, out: str | os.PathLike, rows: int = 6) -> Path:
+def save_preview(data: SequenceData, out: str | os.PathLike, rows: int = 6) -> Path:
     """Save a PNG grid of the first `rows` trajectories (every frame) with the true poses."""
     import matplotlib
 

@@ -10,7 +10,7 @@ t = 0..T-H of every trajectory of a split gives one. Images are normalised with 
 mean and std computed on the training split only (as the course did), so validation and
 test data never inform the normalisation.
 
-    data = read_trajectories("data/push.h5")
+    data = read_sequences("data/push.h5")
     norm = Normalizer.from_trajectories(data)
     train = WindowDataset(data.split("train"), window=4, normalizer=norm)
     x, u = train[0]  # (5, C, 32, 32) float32, (4, 3) float32
@@ -18,13 +18,14 @@ test data never inform the normalisation.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from latent_sindy.data.store import Trajectories
+from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 
 
@@ -41,7 +42,7 @@ class Normalizer:
                             "the training images are constant or corrupt")
 
     @classmethod
-    def from_trajectories(cls, data: Trajectories) -> Normalizer:
+    def from_trajectories(cls, data: SequenceData) -> Normalizer:
         return cls(*data.pixel_stats())
 
     def normalize(self, images: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -61,12 +62,30 @@ class Normalizer:
         return cls(float(d["mean"]), float(d["std"]))
 
 
+def state_features(states: np.ndarray, periods: Sequence[float | None]) -> torch.Tensor:
+    """States (..., ns) -> features float32: each state as it is, each angle state of period
+    P as (cos(2πθ/P), sin(2πθ/P)), so that states the camera cannot tell apart are equal."""
+    p = torch.as_tensor(np.asarray(states), dtype=torch.float64)
+    columns = []
+    for i, period in enumerate(periods):
+        if period is None:
+            columns.append(p[..., i])
+        else:
+            a = p[..., i] * (2 * np.pi / period)
+            columns += [torch.cos(a), torch.sin(a)]
+    return torch.stack(columns, -1).float()
+
+
 def pose_features(poses: np.ndarray, period: float) -> torch.Tensor:
-    """(x, y, θ) (..., 3) -> (x, y, cos(2πθ/P), sin(2πθ/P)) (..., 4) float32: equal for poses
-    whose images are equal (P: the block's visible rotational symmetry)."""
-    p = torch.as_tensor(np.asarray(poses), dtype=torch.float64)
-    a = p[..., 2] * (2 * np.pi / period)
-    return torch.stack([p[..., 0], p[..., 1], torch.cos(a), torch.sin(a)], -1).float()
+    """(x, y, θ) (..., 3) -> (x, y, cos(2πθ/P), sin(2πθ/P)) (..., 4) float32."""
+    return state_features(poses, (None, None, period))
+
+
+def data_features(data: SequenceData) -> torch.Tensor | None:
+    """The data's state features (N, T+1, nf), or None for data without states."""
+    if data.states is None:
+        return None
+    return state_features(data.states, data.state_periods)
 
 
 class ImageObservations:
@@ -75,11 +94,11 @@ class ImageObservations:
     kind = "image"
 
     @staticmethod
-    def normalizer(data: Trajectories) -> Normalizer:
+    def normalizer(data: SequenceData) -> Normalizer:
         return Normalizer.from_trajectories(data)
 
     @staticmethod
-    def batch(data: Trajectories, normalizer: Normalizer) -> torch.Tensor:
+    def batch(data: SequenceData, normalizer: Normalizer) -> torch.Tensor:
         """(N, T+1, C, S, S)"""
         return normalizer.normalize(data.images)
 
@@ -96,13 +115,15 @@ class StateObservations:
     kind = "state"
 
     @staticmethod
-    def normalizer(data: Trajectories) -> Normalizer:
+    def normalizer(data: SequenceData) -> Normalizer:
         return Normalizer(0.0, 1.0)
 
     @staticmethod
-    def batch(data: Trajectories, normalizer: Normalizer) -> torch.Tensor:
+    def batch(data: SequenceData, normalizer: Normalizer) -> torch.Tensor:
         """(N, T+1, 4)"""
-        return pose_features(data.poses, data.env_config.angle_period)
+        if data.states is None:
+            raise UserError(f"{data.source} has no states: a state model needs them")
+        return data_features(data)
 
     @staticmethod
     def one(image: np.ndarray, pose: np.ndarray, normalizer: Normalizer,
@@ -120,7 +141,7 @@ class WindowDataset(Dataset):
     (normalised images by default), as torch tensors; :meth:`pose_tensors` gives the true
     poses of the same windows (for a privileged pose head)."""
 
-    def __init__(self, data: Trajectories, window: int, normalizer: Normalizer,
+    def __init__(self, data: SequenceData, window: int, normalizer: Normalizer,
                  kind: str = "image") -> None:
         if not 1 <= window <= data.steps:
             raise UserError(f"window {window} is impossible for trajectories of {data.steps} "
@@ -128,7 +149,7 @@ class WindowDataset(Dataset):
         self.window = window
         self.images = OBSERVATIONS[kind].batch(data, normalizer)  # (N, T+1, *observation)
         self.actions = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, 3)
-        self.poses = pose_features(data.poses, data.env_config.angle_period)  # (N, T+1, 4)
+        self.poses = data_features(data)  # (N, T+1, nf) state features, or None
         starts = np.arange(data.steps - window + 1)
         traj = np.repeat(np.arange(data.n), len(starts))
         self._index = np.stack([traj, np.tile(starts, data.n)], axis=1)  # (W, 2)
@@ -157,7 +178,9 @@ class WindowDataset(Dataset):
         return x, u
 
     def pose_tensors(self) -> torch.Tensor:
-        """The pose features of every window, in :meth:`tensors`' order: (W, H+1, 4)."""
+        """The state features of every window, in :meth:`tensors`' order: (W, H+1, nf)."""
+        if self.poses is None:
+            raise UserError("this data has no states: a pose head needs them")
         i = torch.as_tensor(self._index[:, 0])
         t = torch.as_tensor(self._index[:, 1])
         return self.poses[i[:, None], t[:, None] + torch.arange(self.window + 1)]

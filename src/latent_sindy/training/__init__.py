@@ -1,17 +1,22 @@
-"""Training a latent model on a trajectory file, and the run folder it writes.
+"""Training a latent model: the one gradient loop and the run folder around it.
 
-``config`` holds the settings (:class:`TrainConfig`), ``runs`` the run folder
-(:class:`RunDir`: every file name, reading and writing them), ``loop`` the training loop and
-its schedule (:func:`train`).
+``core`` holds the loop (:func:`~latent_sindy.training.core.fit`, in memory), ``prepare`` the
+tensors it trains on and the model's start, ``record`` what config.json records, ``runs`` the
+run folder (:class:`RunDir`: every file name, reading and writing them), ``loop`` training into
+a run folder with resume and checkpoints (:func:`train`), ``config`` the settings.
 
     from latent_sindy.training import TrainConfig, train, load_run
     run = train(TrainConfig(data=Path("data/push.h5"), out=Path("runs/sindy2")))
-    model, normalizer, cfg, env_config = load_run(run)
+    model, normalizer, cfg, description, world_record = load_run(run)
 """
 
 from latent_sindy.training.config import RESUMABLE, TrainConfig, default_threads
-from latent_sindy.training.loop import TrainingDiverged, evaluate, train
-from latent_sindy.training.runs import METRIC_COLUMNS, Run, RunDir, load_run, read_metrics
+from latent_sindy.training.core import FitResult, TrainingDiverged, evaluate, fit
+from latent_sindy.training.loop import train
+from latent_sindy.training.metrics import METRIC_COLUMNS
+from latent_sindy.training.record import run_record
+from latent_sindy.training.runs import Run, RunDir, load_run, read_metrics
 
-__all__ = ["METRIC_COLUMNS", "RESUMABLE", "Run", "RunDir", "TrainConfig", "TrainingDiverged",
-           "default_threads", "evaluate", "load_run", "read_metrics", "train"]
+__all__ = ["METRIC_COLUMNS", "RESUMABLE", "FitResult", "Run", "RunDir", "TrainConfig",
+           "TrainingDiverged", "default_threads", "evaluate", "fit", "load_run",
+           "read_metrics", "run_record", "train"]

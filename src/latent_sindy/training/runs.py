@@ -21,7 +21,7 @@ Files are written atomically (temporary file + rename); ``.pt`` files are read w
 when read, and records of format version 1 are migrated on read.
 
     run = RunDir("runs/sindy2")
-    model, normalizer, config, env = run.load()
+    model, normalizer, config, description, world_record = run.load()
 """
 
 from __future__ import annotations
@@ -43,9 +43,10 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
-from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, ModelConfig
+from latent_sindy.models.latent_model import LatentModel, ModelConfig
+from latent_sindy.plugins import get_world
 from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
-from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.training.metrics import METRIC_COLUMNS
 
 __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
            "read_metrics"]
@@ -53,15 +54,6 @@ __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir"
 RUN_FORMAT = "latent-sindy-run"
 RUN_FORMAT_VERSION = 2
 #: Columns of metrics.csv (empty cells: no validation split / not a SINDy model).
-METRIC_COLUMNS = (
-    "epoch",
-    *(f"train/{t}" for t in LOSS_TERMS),
-    *(f"val/{t}" for t in LOSS_TERMS),
-    "sindy/active",
-    "sindy/sparsity",
-    "sindy/pruned",
-    "time_s",
-)
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image", "pose"]
@@ -78,12 +70,30 @@ DERIVED: tuple[tuple[str, str, Any], ...] = (
 
 
 class Run(NamedTuple):
-    """What :meth:`RunDir.load` rebuilds from a run folder."""
+    """What :meth:`RunDir.load` rebuilds from a run folder: the model, its normaliser, its
+    training settings, and what it knows of its data (``description``: frame shape, pixel
+    type, action box and names, state names and periods, dt, world; ``world_record``: the
+    world's own record, read by that world's plug-in)."""
 
     model: LatentModel
     normalizer: Normalizer
     config: TrainConfig
-    env_config: PushEnvConfig
+    description: dict[str, Any]
+    world_record: dict[str, Any]
+
+    @property
+    def world(self) -> str | None:
+        return self.description.get("world")
+
+    @property
+    def world_config(self) -> Any:
+        """The settings of the world the model's data came from (its plug-in reads them)."""
+        if self.world is None:
+            raise UserError("this run was trained on data of no world: it has no world "
+                            "settings (plan with the estimator's planner instead)")
+        return get_world(self.world).config_from_record(self.world_record, "the run's record")
+
+    env_config = world_config
 
 
 class RunDir:
@@ -245,7 +255,7 @@ class RunDir:
             config = self.train_config(record)
             model_cfg = from_json(ModelConfig, record["model"], f"{where}: model")
             norm = Normalizer.from_dict(record["normalizer"])
-            env_config = PushEnvConfig.from_record(record["env"], f"{where}: env")
+            description, world_record = _description(record, where)
         except (KeyError, TypeError, ValueError) as e:
             raise UserError(f"{where} is damaged ({type(e).__name__}: {e}); retrain the "
                             "run") from e
@@ -253,13 +263,15 @@ class RunDir:
             raise UserError(f"{where}: the model's image shape or action size is missing; "
                             "retrain the run")
         enc = model_cfg.encoder
-        seen = (getattr(enc, "channels", env_config.channels),
-                getattr(enc, "image_size", env_config.image_size), model_cfg.action_dim)
-        world = (env_config.channels, env_config.image_size, env_config.action_dim)
-        if seen != world:
-            raise UserError(f"{where}: the model takes {seen[0]}x{seen[1]}x{seen[1]} images and "
-                            f"{seen[2]} actions but its environment gives {world[0]}x{world[1]}x"
-                            f"{world[1]} and {world[2]}: the file was edited; retrain the run")
+        c, h, w = description["frame_shape"]
+        size = getattr(enc, "image_size", h)
+        seen = (getattr(enc, "channels", c), *(size if isinstance(size, list | tuple)
+                                               else (size, size)), model_cfg.action_dim)
+        given = (c, h, w, len(description["action_low"]))
+        if tuple(seen) != given:
+            raise UserError(f"{where}: the model takes {seen[0]}x{seen[1]}x{seen[2]} images "
+                            f"and {seen[3]} actions but its data gave {given[0]}x{given[1]}x"
+                            f"{given[2]} and {given[3]}: the file was edited; retrain the run")
         name = self.CHECKPOINT if checkpoint else self.MODEL
         if not (self.path / name).is_file():
             hint = ("" if checkpoint or not self.interrupted else
@@ -273,7 +285,7 @@ class RunDir:
         except (KeyError, RuntimeError) as e:
             raise UserError(f"{self.path / name} does not match the model of {where} "
                             f"({type(e).__name__}); retrain the run") from e
-        return Run(model.eval(), norm, config, env_config)
+        return Run(model.eval(), norm, config, description, world_record)
 
     def differences(self, record: Mapping[str, Any], ignore: frozenset[str] = RESUMABLE
                     ) -> list[str]:
@@ -325,6 +337,24 @@ def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- migration
+def _description(record: Mapping[str, Any], where: Path) -> tuple[dict, dict]:
+    """The data description and world record of a run; runs recorded before data were
+    generic (an "env" record: the pushing world's) get theirs from that world."""
+    if "description" in record:
+        world = record.get("world") or {}
+        return dict(record["description"]), dict(world.get("record") or {})
+    world_record = {"env_config": record["env"]}
+    env = get_world("push").config_from_record(world_record, str(where))
+    description = {"frame_shape": [env.channels, env.image_size, env.image_size],
+                   "pixel_dtype": "uint8", "action_low": list(env.action_low),
+                   "action_high": list(env.action_high),
+                   "action_names": list(env.action_names), "state_names": ["x", "y", "θ"],
+                   "state_periods": [None, None, env.angle_period], "dt": None,
+                   "world": "push"}
+    return description, world_record
+
+
+
 _AUTOENCODER_V1 = ("channels", "image_size", "latent_dim", "conv_channels", "encoder_hidden",
                    "decoder", "decoder_hidden", "decoder_channels")
 

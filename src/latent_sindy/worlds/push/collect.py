@@ -29,10 +29,11 @@ import tyro
 
 from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
-from latent_sindy.data.store import SPLITS, Trajectories, read_trajectories, write_trajectories
+from latent_sindy.data import SPLITS, read_sequences, write_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Executor
 from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.data import push_data
 
 MAX_ATTEMPTS = 50
 
@@ -123,7 +124,7 @@ def _worker_run(job: tuple[int, CollectionPlan]) -> tuple[int, dict]:
 
 
 def collect_shard(plan: CollectionPlan, indices: tuple[int, ...]) -> list[tuple[int, dict]]:
-    """Trajectories ``indices`` of ``plan`` in one environment: one job of an executor."""
+    """SequenceData ``indices`` of ``plan`` in one environment: one job of an executor."""
     from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     env = PandaPushEnv(plan.env)
@@ -196,7 +197,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
         raise UserError(f"--workers {workers}: use 1 or more worker processes")
     if out.exists():
         try:
-            existing = read_trajectories(out)
+            existing = read_sequences(out)
         except UserError as e:
             raise UserError(f"--out {out} exists and is not a usable trajectory file ({e}); "
                             "delete it or choose another --out") from e
@@ -222,7 +223,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
         done[i] = item
 
     order = range(plan.trajectories)
-    data = Trajectories(
+    data = push_data(
         images=np.stack([done[i]["images"] for i in order]),
         actions=np.stack([done[i]["actions"] for i in order]),
         poses=np.stack([done[i]["poses"] for i in order]),
@@ -233,7 +234,7 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
                     "attempts": [int(done[i]["attempts"]) for i in order]},
         source=str(out),
     )
-    write_trajectories(out, data)
+    write_sequences(out, data)
     shutil.rmtree(partial, ignore_errors=True)
     return out
 

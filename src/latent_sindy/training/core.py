@@ -1,0 +1,326 @@
+"""The training core: one gradient loop over a latent model, its pruning and model selection.
+
+:func:`fit` is the loop, readable on one screen: every epoch one shuffled pass of AdamW over
+the training sequences, every ``threshold_every`` epochs the SINDy coefficients with
+|Ψ| < ``threshold`` pruned for good (the optimiser's moments of pruned entries cleared), the
+validation loss every ``eval_every`` epochs, and the weights of the best validated epoch since
+the last pruning that removed a term kept (:class:`BestValidation`). It works in memory; the
+run folder (checkpoints, resume, metrics file, progress) wraps it through ``on_epoch``
+(:mod:`latent_sindy.training.loop`), and the estimator (:class:`latent_sindy.LatentSINDy`)
+calls it directly.
+
+    result = fit(model, opt, gen, (x, u, None), (xv, uv, None), settings)
+    model.load_state_dict(result.state)
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights
+from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.metrics import METRIC_COLUMNS
+
+__all__ = ["BestValidation", "FitResult", "Gradients", "TrainingDiverged", "evaluate", "fit",
+           "keep_freed_memory", "prune", "to_cpu"]
+
+#: (x, u, s): sequences (N, T+1, ...) or windows (W, H+1, ...), their actions (N, T, nu),
+#: and their true state features (privileged data of a pose head) or None.
+Sequences = tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]
+
+
+class TrainingDiverged(UserError):
+    """A loss term or a parameter became NaN or infinite (``epoch``, ``what``)."""
+
+    def __init__(self, epoch: int, what: str, message: str | None = None) -> None:
+        super().__init__(message or f"training diverged at epoch {epoch}: {what} is not "
+                         "finite; lower the learning rate and start over")
+        self.epoch, self.what = epoch, what
+
+
+def is_sparse(dynamics: Any) -> bool:
+    """Whether the dynamics have prunable coefficients (SINDy)."""
+    return bool(getattr(dynamics, "sparse", hasattr(dynamics, "threshold")))
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit` returns: the per-epoch metrics rows, the kept weights and why."""
+
+    metrics: list[dict[str, Any]]
+    state: dict[str, torch.Tensor]
+    kept: dict[str, Any]
+    best: BestValidation = field(repr=False)
+
+
+def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
+        train: Sequences, val: Sequences | None, cfg: TrainConfig, *, per_batch: int,
+        parts: int = 1, done: int = 0, metrics: list[dict[str, Any]] | None = None,
+        best: BestValidation | None = None,
+        on_epoch: Callable[[int, dict[str, Any]], None] | None = None) -> FitResult:
+    """Train ``model`` from epoch ``done`` + 1 to ``cfg.epochs`` (``metrics`` and ``best``:
+    a resumed run's); ``per_batch`` sequences per mini-batch, gradients split over ``parts``
+    threads; ``on_epoch(epoch, row)`` after every epoch (checkpoints, progress), once the row
+    is appended to ``metrics`` (the list given is extended in place)."""
+    metrics = [] if metrics is None else metrics
+    best = best or BestValidation()
+    x, u, s = train
+    sparse = is_sparse(model.dynamics)
+    pruning = sparse and cfg.threshold_every > 0
+    grads = Gradients(model, parts)
+    model.train()
+    try:
+        for epoch in range(done + 1, cfg.epochs + 1):
+            t0 = time.perf_counter()
+            row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
+            row["epoch"] = epoch
+            terms = train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch, s)
+            row.update({f"train/{k}": v for k, v in terms.items()})
+            if pruning and epoch % cfg.threshold_every == 0:
+                row["sindy/pruned"] = prune(model, opt, cfg.threshold)
+                if row["sindy/pruned"]:
+                    best.mask_changed(epoch)
+            if val is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
+                val_terms = evaluate(model, val[0], val[1], cfg.loss, cfg.batch_size, val[2])
+                if not math.isfinite(val_terms["total"]):
+                    raise TrainingDiverged(epoch, "the validation loss")
+                row.update({f"val/{k}": v for k, v in val_terms.items()})
+                # A pose head's reading is what its model plans on: it counts in the choice.
+                best.offer(epoch, val_terms["objective"]
+                           + cfg.loss.lambda_pose * val_terms.get("pose", 0.0), model)
+            if sparse:
+                row["sindy/active"] = model.dynamics.n_active()
+                row["sindy/sparsity"] = model.dynamics.sparsity()
+            row["time_s"] = time.perf_counter() - t0
+            metrics.append(row)
+            if on_epoch is not None:
+                on_epoch(epoch, row)
+    finally:
+        grads.close()
+    kept = kept_weights(cfg, best, metrics)
+    state = best.state if kept["selection"] == "best validation" else model.state_dict()
+    return FitResult(metrics, state, kept, best)
+
+
+@torch.inference_mode()
+def evaluate(
+    model: LatentModel,
+    x: torch.Tensor,
+    u: torch.Tensor,
+    weights: LossWeights | None = None,
+    batch_size: int = 500,
+    poses: torch.Tensor | None = None,
+) -> dict[str, float]:
+    """Mean loss terms over windows x (W, H+1, C, S, S), u (W, H, nu), in batches (on the
+    device of the model and the windows); ``poses`` (W, H+1, 4) for a pose head's term."""
+    was_training = model.training
+    model.eval()
+    sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
+    for b in range(0, len(x), batch_size):
+        s = None if poses is None else poses[b : b + batch_size]
+        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights, s)
+        values = torch.stack([terms[k] for k in LOSS_TERMS]).double().cpu()
+        sums += values * len(x[b : b + batch_size])
+    model.train(was_training)
+    return dict(zip(LOSS_TERMS, (sums / max(len(x), 1)).tolist(), strict=True))
+
+
+class Gradients:
+    """Loss terms and gradients of one mini-batch, on one thread or split across several.
+
+    With ``parts`` > 1 the batch is cut into that many slices whose losses and gradients
+    that many threads compute at once, each with one torch thread (torch's own threads are
+    set to 1 until :meth:`close`), and the gradients are added in slice order; the loss terms
+    are means, so each slice counts by its share of the sequences. Deterministic: every
+    slice runs single-threaded and the sums have a fixed order. With ``parts`` = 1 it is one
+    ``loss(...).backward()``.
+    """
+
+    def __init__(self, model: LatentModel, parts: int) -> None:
+        self.model, self.parts = model, parts
+        self.params = [p for p in model.parameters() if p.requires_grad]
+        self._pool: ThreadPoolExecutor | None = None
+        self._threads = torch.get_num_threads()
+        if parts > 1:
+            self._pool = ThreadPoolExecutor(parts, thread_name_prefix="latent-sindy-grad")
+            torch.set_num_threads(1)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+            torch.set_num_threads(self._threads)
+
+    def __call__(self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights,
+                 poses: torch.Tensor | None, window: int) -> dict[str, torch.Tensor]:
+        """Set every parameter's ``.grad`` to d total / d parameter on sequences x, u;
+        returns the loss terms (detached)."""
+        if self._pool is None or len(x) < 2:
+            terms = self.model.loss(x, u, weights, poses, window=window)
+            for p in self.params:
+                p.grad = None
+            terms["total"].backward()
+            return {k: v.detach() for k, v in terms.items()}
+        bounds = torch.linspace(0, len(x), min(self.parts, len(x)) + 1).round().long().tolist()
+
+        def part(a: int, b: int) -> tuple[dict[str, torch.Tensor], tuple]:
+            share = (b - a) / len(x)
+            terms = self.model.loss(x[a:b], u[a:b], weights,
+                                    None if poses is None else poses[a:b], window=window)
+            g = torch.autograd.grad(terms["total"] * share, self.params, allow_unused=True)
+            return {k: v.detach() * share for k, v in terms.items()}, g
+
+        results = list(self._pool.map(part, bounds[:-1], bounds[1:]))
+        terms = {k: functools.reduce(torch.add, [r[0][k] for r in results])
+                 for k in results[0][0]}
+        for i, p in enumerate(self.params):
+            gs = [r[1][i] for r in results if r[1][i] is not None]
+            p.grad = None if not gs else functools.reduce(torch.add, gs)
+        return terms
+
+
+def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
+                u: torch.Tensor, cfg: TrainConfig, per_batch: int, gen: torch.Generator,
+                epoch: int, poses: torch.Tensor | None = None) -> dict[str, float]:
+    """One shuffled pass over sequences x (N, T+1, ...), u (N, T, nu) (windows or whole
+    trajectories), ``per_batch`` of them per batch; mean loss terms per sequence (as seen
+    before each batch's update). ``poses`` (N, T+1, ns): the sequences' true state features,
+    for a pose head."""
+    # The generator lives on the CPU: the same mini-batches on every device.
+    order = torch.randperm(len(x), generator=gen).to(x.device)
+    sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
+    for b in range(0, len(x), per_batch):
+        idx = order[b : b + per_batch]
+        terms = grads(x[idx], u[idx], cfg.loss, None if poses is None else poses[idx],
+                      cfg.window)
+        values = torch.stack([terms[k] for k in LOSS_TERMS])  # (7,)
+        if not torch.isfinite(values).all():
+            bad = next(k for k in ("recon", "pred_x", "pred_z", "l1", "pose", "total")
+                       if not torch.isfinite(terms[k]))
+            raise TrainingDiverged(epoch, f"loss term {bad} ({float(terms[bad])})")
+        opt.step()
+        sums += values.double().cpu() * len(idx)
+    for name, p in grads.model.named_parameters():
+        if not torch.isfinite(p).all():
+            raise TrainingDiverged(epoch, f"parameter {name}")
+    return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
+
+
+@torch.no_grad()
+def prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float) -> int:
+    """Threshold SINDy coefficients; clear AdamW's moments of pruned entries so Ψ stays 0."""
+    dyn = model.dynamics
+    pruned = dyn.threshold(tau)
+    state = opt.state.get(dyn.psi, {})
+    for key in ("exp_avg", "exp_avg_sq"):
+        if key in state:
+            state[key].masked_fill_(~dyn.mask, 0.0)
+    return pruned
+
+
+class BestValidation:
+    """The weights of the validated epoch with the lowest validation objective among the
+    candidates: the epochs since the last SINDy pruning step that removed a term (pruning
+    that removes nothing leaves the mask as it was), so the kept model's mask is the final
+    one. Linear and MLP models never prune: every validated epoch is a candidate.
+
+    The weights are a copy of the state dict (on the model's device), taken when a new best
+    is seen; :meth:`to_checkpoint` / :meth:`from_checkpoint` carry it through a resume.
+    """
+
+    def __init__(self) -> None:
+        self.epoch: int | None = None
+        self.objective = math.inf
+        self.state: dict[str, torch.Tensor] | None = None
+        self.since = 1  # the first candidate epoch (after the last mask change)
+
+    def mask_changed(self, epoch: int) -> None:
+        """A pruning at ``epoch`` removed terms: earlier epochs have another mask."""
+        self.epoch, self.objective, self.state, self.since = None, math.inf, None, epoch
+
+    def offer(self, epoch: int, objective: float, model: torch.nn.Module) -> bool:
+        """Keep ``model``'s weights if ``objective`` is the lowest so far (ties: the earlier)."""
+        if objective >= self.objective:
+            return False
+        self.epoch, self.objective = epoch, objective
+        self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        return True
+
+    def to_checkpoint(self) -> dict[str, Any]:
+        return {"epoch": self.epoch, "objective": self.objective, "since": self.since,
+                "model": None if self.state is None else to_cpu(self.state)}
+
+    @classmethod
+    def from_checkpoint(cls, saved: dict[str, Any] | None, device: torch.device,
+                        resumed_at: int) -> BestValidation:
+        """Rebuilt from :meth:`to_checkpoint`; ``saved`` None (a checkpoint written before
+        selection existed): candidates start after ``resumed_at``."""
+        best = cls()
+        if saved is None:
+            best.since = resumed_at + 1
+            return best
+        best.epoch, best.objective, best.since = saved["epoch"], saved["objective"], saved["since"]
+        if saved["model"] is not None:
+            best.state = {k: v.to(device) for k, v in saved["model"].items()}
+        return best
+
+
+_MEMORY_KEPT = False
+
+
+def keep_freed_memory() -> None:
+    """Let glibc's malloc keep freed blocks of up to 32 MiB for reuse (process-wide, once).
+
+    By default it returns the ~80 MB of activations a step frees to the OS and page-faults
+    them back in at the next step: 40-57 k faults and 80-120 ms of kernel time per epoch at
+    the paper's sizes; keeping them made epochs 1.39x faster (BENCHMARKS.md). Allocation never
+    changes the arithmetic (torch aligns every buffer to 64 bytes either way; checked bit for
+    bit at 1 and 2 threads). A no-op where libc is not glibc.
+    """
+    global _MEMORY_KEPT
+    if _MEMORY_KEPT:
+        return
+    _MEMORY_KEPT = True
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return
+    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
+    mallopt(m_mmap_threshold, 32 * 2**20)  # glibc's largest: the activations fit below it
+    mallopt(m_trim_threshold, 2**30)
+
+
+def to_cpu(obj: Any) -> Any:
+    """A state dict (nested dicts and lists of tensors) with every tensor on the CPU, so that
+    run files load anywhere."""
+    if isinstance(obj, torch.Tensor):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return type(obj)(to_cpu(v) for v in obj)
+    return obj
+
+
+def kept_weights(cfg: TrainConfig, best: BestValidation, metrics: list[dict[str, Any]]
+          ) -> dict[str, Any]:
+    """Which epoch's weights the run saves as its model, for config.json's "kept"."""
+    last = metrics[-1] if metrics else {}
+    if cfg.keep_best and best.state is not None:
+        return {"epoch": best.epoch, "selection": "best validation",
+                "val_objective": best.objective, "candidates_from": best.since}
+    return {"epoch": cfg.epochs, "selection": "last epoch",
+            "val_objective": last.get("val/objective"), "candidates_from": None}
+
+

@@ -1,0 +1,93 @@
+"""The tensors a fit trains on, cut from the data as the settings ask, and the model's start:
+its data statistics and, for SINDy on fixed latents, the sparse-regression coefficients.
+
+    tensors = training_tensors(model, data, normalizer, cfg, torch.device("cpu"))
+    fit(model, opt, gen, tensors.train, tensors.val, cfg, per_batch=tensors.per_batch)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import Normalizer, WindowDataset
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LatentModel
+from latent_sindy.sindy import STLSQ
+from latent_sindy.training.config import TrainConfig, resolve_batching
+from latent_sindy.training.core import Sequences, is_sparse
+
+__all__ = ["TrainingTensors", "regression_init", "training_tensors"]
+
+
+@dataclass
+class TrainingTensors:
+    """What :func:`~latent_sindy.training.core.fit` trains and validates on."""
+
+    train: Sequences
+    val: Sequences | None
+    per_batch: int
+
+
+def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
+    """Whether SINDy's coefficients start at the sparse-regression fit (``sindy_init``);
+    UserError where a setting would be ignored."""
+    sindy = is_sparse(model.dynamics)
+    if cfg.sindy_init == "regression" and not sindy:
+        raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
+                        f"dynamics are {model.dynamics.kind}: drop --sindy-init")
+    fixed = model.config.encoder.fixed_encoder  # its latents are data
+    if cfg.sindy_init == "regression" and not fixed:
+        raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
+                        "this model's encoder learns: use --sindy-init random or auto, or "
+                        "the state or moments encoder")
+    regression = sindy and cfg.sindy_init != "random" and fixed
+    if cfg.sindy_init_threshold > 0 and not regression:
+        raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
+                        "model that starts from regression (a state or moments encoder, "
+                        "--sindy-init auto or regression): drop it")
+    return regression
+
+
+@torch.no_grad()
+def fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
+                 device: torch.device, threshold: float) -> None:
+    """Sparse regression (STLSQ at ``threshold``) of every encoded training transition
+    (x (N, T+1, ..), u (N, T, nu)) on the SINDy library: the coefficients and the mask
+    training starts from."""
+    z = model.encode(x.to(device).flatten(0, 1)).reshape(*x.shape[:2], -1)
+    nz, nu = z.shape[-1], u.shape[-1]
+    model.dynamics.fit_state_data(z[:, :-1].reshape(-1, nz), u.to(device).reshape(-1, nu),
+                                  z[:, 1:].reshape(-1, nz), optimizer=STLSQ(threshold=threshold))
+
+
+def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
+                     cfg: TrainConfig, device: torch.device, fresh: bool = True,
+                     regression: bool = False) -> TrainingTensors:
+    """The training and validation tensors of ``data`` on ``device``; for a ``fresh`` model
+    (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
+    kind = model.config.encoder.kind
+    train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
+    by_trajectory = resolve_batching(cfg) == "trajectories"
+    if by_trajectory:  # (N, T+1, ..), (N, T, nu)
+        x, u = train_windows.trajectories()
+        per_batch = max(1, cfg.batch_size // (data.steps - cfg.window + 1))
+    else:  # (W, H+1, ..), (W, H, nu)
+        x, u = train_windows.tensors()
+        per_batch = cfg.batch_size
+    x, u = x.to(device), u.to(device)
+    val = data.split("val")
+    val_windows = WindowDataset(val, cfg.window, norm, kind) if val.n else None
+    xv, uv = ((t.to(device) for t in val_windows.tensors()) if val_windows else (None, None))
+    s = sv = None  # the true state features of x and xv: a pose head's privileged data
+    if model.pose_head is not None:
+        s = (train_windows.poses if by_trajectory else train_windows.pose_tensors()).to(device)
+        sv = val_windows.pose_tensors().to(device) if val_windows else None
+    if fresh:  # a resumed model has its statistics in its state
+        model.fit_statistics(train_windows.images.to(device),
+                             train_windows.poses if model.pose_head is not None else None)
+        if regression:
+            fit_dynamics(model, *train_windows.trajectories(), device, cfg.sindy_init_threshold)
+    return TrainingTensors((x, u, s), None if xv is None else (xv, uv, sv), per_batch)

@@ -1,0 +1,76 @@
+"""What a run folder's config.json records: the settings, the model resolved against the data,
+the normaliser, the data's identity and description, and the world it came from.
+
+    record = run_record(TrainConfig(data=Path("data/push.h5")), read_sequences("data/push.h5"))
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from latent_sindy.configs import to_json
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import OBSERVATIONS
+from latent_sindy.models.latent_model import ModelConfig
+from latent_sindy.plugins import get_world
+from latent_sindy.training.config import TrainConfig, resolve_batching
+
+__all__ = ["RUN_FORMAT", "RUN_FORMAT_VERSION", "data_identity", "resolve_model", "run_record"]
+
+RUN_FORMAT = "latent-sindy-run"
+RUN_FORMAT_VERSION = 2
+
+
+def data_identity(data: SequenceData, path: Path | None) -> dict[str, Any]:
+    """Which data a run was trained on (compared when it is resumed or reused)."""
+    return {
+        "path": None if path is None else str(path.resolve()),
+        "fingerprint": data.fingerprint(),
+        "seed": data.seed,
+        "trajectories": data.n,
+        "steps": data.steps,
+        "splits": data.split_counts(),
+    }
+
+
+def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
+    """``model`` with its shapes taken from ``data`` and the settings the data's world derives
+    (its ``prepare_model``); UserError where they contradict the data."""
+    c, h, w = data.frame_shape
+    cfg = model.resolve(c, h if h == w else (h, w), data.nu, source=where)
+    world = get_world(data.world) if data.world is not None else None
+    prepare = getattr(world, "prepare_model", None)
+    if prepare is not None:
+        return prepare(cfg, data, where)
+    return cfg
+
+
+def run_record(cfg: TrainConfig, data: SequenceData, path: Path | None = None
+               ) -> dict[str, Any]:
+    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values).
+
+    Resolves the model's shapes from the data; raises UserError where they contradict it.
+    """
+    from latent_sindy import __version__
+
+    path = cfg.data if path is None else path
+    model_cfg = resolve_model(cfg.model, data, str(path))
+    record = {
+        "format": RUN_FORMAT,
+        "format_version": RUN_FORMAT_VERSION,
+        "package_version": __version__,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "train": to_json(cfg),
+        "batching": resolve_batching(cfg),  # what train.batching ("auto") batched
+        "model": to_json(model_cfg),
+        "normalizer": OBSERVATIONS[model_cfg.encoder.kind].normalizer(data).to_dict(),
+        "data": data_identity(data, path),
+        "description": data.describe(),  # what the model needs to know of its data
+        # the world the images came from, its own record (for control)
+        "world": {"name": data.world,
+                  "record": {k: v for k, v in data.record.items() if k != "collection"}},
+    }
+    return json.loads(json.dumps(record))  # as config.json will hold it

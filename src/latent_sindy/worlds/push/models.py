@@ -1,0 +1,66 @@
+"""What the pushing world derives for a model trained on its data: the frame library's
+orientation sense and offset on the moments latent (its camera's), and the checks that a
+library or encoder fits the block's visible symmetry and the world's push style."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import ModelConfig
+from latent_sindy.worlds.push.camera import moment_frame
+from latent_sindy.worlds.push.data import push_config
+
+__all__ = ["prepare_model"]
+
+
+def _check_symmetry(name: str, value: float, data: SequenceData, where: str) -> None:
+    """UserError unless ``value`` is the data's visible symmetry, 2π / its angle period."""
+    period = push_config(data, where).angle_period
+    f = 2 * math.pi / period
+    if abs(value - f) > 1e-9:
+        raise UserError(f"{name} {value:g} does not match {where}: its block looks alike every "
+                        f"{math.degrees(period):g}°, so use {name} {f:g}")
+
+
+def _resolve_frame(model_cfg: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
+    """A SINDy config with the frame library's orientation sense and offset stated: for the
+    frame library on the moments latent the data's camera's (a value given must match), else
+    1 and 0 where unset (world angles; the other libraries do not read them)."""
+    dyn = model_cfg.dynamics
+    moments = getattr(model_cfg.encoder, "encoder", None) == "moments"
+    if dyn.library == "frame" and moments:
+        sense, offset = moment_frame(push_config(data, where))
+        off = dyn.frame_offset is not None and abs(
+            math.remainder(dyn.frame_offset - offset, 2 * math.pi)) > 1e-4
+        if dyn.frame_sense not in (None, sense) or off:
+            raise UserError(f"--library frame on the moments latent of {where}: its camera "
+                            f"shows the world's angles with sense {sense} and offset "
+                            f"{offset:.6f}: leave --frame-sense and --frame-offset out to "
+                            f"use them, or give --frame-sense {sense} --frame-offset "
+                            f"{offset:.6f}")
+    else:
+        sense = 1 if dyn.frame_sense is None else dyn.frame_sense
+        offset = 0.0 if dyn.frame_offset is None else dyn.frame_offset
+    return dataclasses.replace(model_cfg, dynamics=dataclasses.replace(
+        dyn, frame_sense=sense, frame_offset=offset))
+
+
+def prepare_model(model_cfg: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
+    """``model_cfg`` (its shapes resolved) checked against the pushing data ``data`` and with
+    the settings this world derives stated."""
+    if getattr(model_cfg.encoder, "encoder", None) == "moments":
+        _check_symmetry("--moment-order", model_cfg.encoder.moment_order, data, where)
+    library = getattr(model_cfg.dynamics, "library", None)
+    if library in ("face", "frame"):
+        _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data, where)
+    if library is not None:
+        model_cfg = _resolve_frame(model_cfg, data, where)
+    push = push_config(data, where).push
+    if library in ("face", "frame") and push != "symmetric":
+        raise UserError(f"--library {library} writes pushes given as world directions, but "
+                        f"{where} was collected with push style '{push}' "
+                        "(the angle relative to the block): use --library push")
+    return model_cfg
