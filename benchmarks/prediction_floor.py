@@ -44,7 +44,8 @@ from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.models import SindyConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
-from latent_sindy.sindy import STLSQ, face_variables
+from latent_sindy.sindy import STLSQ
+from latent_sindy.worlds.push.library import face_variables
 
 HORIZONS = (1, 2, 5, 10)
 

@@ -1,10 +1,16 @@
 """The SINDy candidate libraries: pysindy's terms and names (polynomial, generalized and
-tensored libraries), specs and presets, subset evaluation, gradients."""
+tensored libraries), specs and presets (a world's found by name), derived variables, subset
+evaluation, gradients."""
 
 from __future__ import annotations
 
+import functools
 import json
 import math
+import subprocess
+import sys
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 import pysindy as ps
@@ -13,24 +19,29 @@ import torch
 
 from latent_sindy.errors import UserError
 from latent_sindy.sindy import (
-    LIBRARY_PRESETS,
     CandidateLibrary,
     Constant,
     Cosine,
-    FaceFrame,
+    DerivedVariables,
     Identity,
+    LibrarySpec,
     Polynomial,
     Product,
     SindyLibrary,
     Sine,
     Sum,
+    library_preset,
+    poly_library,
+    preset_names,
+    register_derived,
+    spec_from_dict,
+)
+from latent_sindy.worlds.push.library import (
+    FaceFrame,
     face_library,
     face_variables,
     frame_library,
-    library_preset,
-    poly_library,
     push_library,
-    spec_from_dict,
 )
 
 ORDERS = [1, 2, 3, 4]
@@ -292,7 +303,7 @@ def test_push_preset_adds_the_push_geometry() -> None:
     torch.testing.assert_close(
         theta[:, lib.names.index("u2 cos(u1)")], u[:, 2] * torch.cos(u[:, 1])
     )
-    assert set(LIBRARY_PRESETS) >= {"poly", "push"}
+    assert set(preset_names()) >= {"poly", "push", "face", "frame"}
     assert library_preset("poly", order=3) == poly_library(3)
 
 
@@ -498,3 +509,116 @@ def test_face_variables_need_a_face_frame_and_one_definition() -> None:
         FaceFrame(Identity("a"), sense=2)
     with pytest.raises(UserError, match="n_state"):  # the orientation beyond the state
         SindyLibrary(FaceFrame(Identity("a"), orientation=("z4", "z5")), 4, 3)
+
+
+# ---------------------------------------------------------------- worlds' presets and nodes
+
+
+@pytest.mark.parametrize("load", [
+    "library_preset('frame')",
+    "spec_from_dict(json.loads(json.dumps(FRAME)))",
+])
+def test_a_world_library_loads_by_name_without_importing_the_world(load: str) -> None:
+    # A run folder or a command line names the world's preset or stores its node's dict; the
+    # core finds the world through its plug-in entry point.
+    code = (
+        "import json, sys\n"
+        "from latent_sindy.sindy import SindyLibrary, library_preset, spec_from_dict\n"
+        "assert not [m for m in sys.modules if m.startswith('latent_sindy.worlds')]\n"
+        f"FRAME = {frame_library().to_dict()!r}\n"
+        f"spec = {load}\n"
+        "assert type(spec).__module__ == 'latent_sindy.worlds.push.library', type(spec)\n"
+        "assert 'u2 cos(n)' in SindyLibrary(spec, 4, 3).names\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_an_unknown_preset_lists_the_worlds_presets() -> None:
+    with pytest.raises(UserError, match=r"unknown: use one of poly.*frame"):
+        library_preset("fourier")
+    with pytest.raises(UserError, match="rho"):  # the registered derived variables
+        Sine("zz")
+
+
+@dataclass(frozen=True)
+class _Hypot(DerivedVariables):
+    """A toy derived variable for the generic mechanism: rho = scale · |(x, y)|."""
+
+    kind: ClassVar[str] = "test_hypot"
+    names: ClassVar[tuple[str, ...]] = ("rho",)
+    body: LibrarySpec
+    of: tuple[str, str] = ("z0", "u1")
+    scale: float = 1.0
+    numba: bool = True
+
+    def inputs(self) -> tuple[str, ...]:
+        return self.of
+
+    def evaluate(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor]:
+        return (self.scale * torch.sqrt(x * x + y * y),)
+
+    def numba_parameters(self) -> tuple[float, ...]:
+        return (self.scale,)
+
+    def numba_function(self, dtype: str) -> Any:
+        return _hypot_cfunc(dtype) if self.numba else None
+
+
+register_derived(_Hypot)
+
+
+@functools.cache
+def _hypot_cfunc(dtype: str) -> Any:
+    import numba
+
+    from latent_sindy.control._sindy_kernel import CFUNC_FLAGS, derived_signature
+
+    def hypot(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
+        f = numba.carray(feat, (rows, block))
+        x, y = numba.carray(inputs, (n_inputs,))[0], numba.carray(inputs, (n_inputs,))[1]
+        scale = numba.carray(params, (n_params,))[0]
+        for k in range(n):
+            f[first, k] = scale * np.sqrt(f[x, k] * f[x, k] + f[y, k] * f[y, k])
+
+    return numba.cfunc(derived_signature(dtype), **{**CFUNC_FLAGS, "cache": False})(hypot)
+
+
+def test_a_derived_variable_is_named_evaluated_and_serialised() -> None:
+    spec = _Hypot(Identity("rho") * Polynomial("z1", 1) + Sine("rho", frequency=2), scale=0.5)
+    lib = SindyLibrary(spec, 2, 2)
+    assert lib.names == ["rho", "z1 rho", "sin(2 rho)"]
+    z, u = _inputs()[0][:, :2], _inputs()[1]
+    rho = 0.5 * torch.sqrt(z[:, 0] ** 2 + u[:, 1] ** 2)
+    want = torch.stack([rho, z[:, 1] * rho, torch.sin(2 * rho)], -1)
+    torch.testing.assert_close(lib(z, u), want, rtol=0, atol=0)
+    assert spec_from_dict(json.loads(json.dumps(spec.to_dict()))) == spec
+    with pytest.raises(UserError, match=r"wrap the library in _Hypot"):
+        SindyLibrary(Identity("rho"), 2, 2)
+    with pytest.raises(UserError, match="names 2 variables"):
+        SindyLibrary(_Hypot(Identity("rho"), of=("z", "u1")), 2, 2)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("numba_function", [True, False])
+def test_the_control_kernel_computes_derived_variables_as_the_library(dtype,
+                                                                      numba_function) -> None:
+    # The fused CPU step calls the node's numba function for its derived variables (also as
+    # arguments of trig terms); a node without one is stepped in torch.
+    from latent_sindy.control.sindy_step import SparseSindyStep
+    from latent_sindy.models import SindyDynamics
+
+    spec = _Hypot(Polynomial("z,u", 2) + Identity("rho") * Polynomial("z", 1)
+                  + Identity("u0") * Cosine("rho"), of=("z1", "u1"), scale=0.7,
+                  numba=numba_function)
+    model = SindyDynamics(3, 2, library_spec=spec, seed=1, init_scale=0.05).to(dtype)
+    model.threshold(0.02)
+    step = SparseSindyStep(model)
+    assert step._torch_only is not numba_function
+    assert {"rho", "z2 rho", "u0 cos(rho)"} <= set(step._sparse.names)
+    gen = torch.Generator().manual_seed(2)
+    z0 = torch.randn(600, 3, generator=gen, dtype=dtype)
+    actions = torch.randn(600, 5, 2, generator=gen, dtype=dtype)
+    with torch.no_grad():
+        want = model.rollout(z0, actions)
+    tol = 1e-4 if dtype == torch.float32 else 1e-9
+    torch.testing.assert_close(step.rollout(z0, actions), want, rtol=tol, atol=tol)

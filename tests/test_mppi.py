@@ -568,7 +568,7 @@ def test_sparse_sindy_step_computes_the_face_variables_as_the_model(dtype, sense
     # The frame library's face variables (a, n) come from atan2 of the orientation features
     # and a wrap, inside the kernel; also as arguments of cos(n), sin(n), over a rollout with
     # the unit-circle projection.
-    from latent_sindy.sindy import frame_library
+    from latent_sindy.worlds.push.library import frame_library
 
     model = SindyDynamics(4, 3, library_spec=frame_library(sense=sense, angle_offset=0.7),
                           seed=2, init_scale=0.05, circle=(2, 3)).to(dtype)
@@ -588,7 +588,7 @@ def test_sparse_sindy_step_computes_the_face_variables_as_the_model(dtype, sense
 def test_sparse_sindy_step_turns_the_pair_as_the_model(dtype) -> None:
     # A turning model: z2's update is the angle by which (z2, z3) turns; the kernel turns and
     # projects the pair as the model does, over a rollout.
-    from latent_sindy.sindy import frame_library
+    from latent_sindy.worlds.push.library import frame_library
 
     model = SindyDynamics(4, 3, library_spec=frame_library(), seed=3, init_scale=0.2,
                           circle=(2, 3), turn=True).to(dtype)

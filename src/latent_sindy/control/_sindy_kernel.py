@@ -5,13 +5,56 @@ Every loop over samples is innermost and contiguous, so LLVM vectorises it. Of t
 flags only ``contract`` (fused multiply-add) is on: NaN and inf must propagate, since MPPI
 discards diverging samples by them. Division follows numpy's error model (IEEE results, no
 ZeroDivisionError check), which lets the projection's divisions vectorise.
+
+A library's derived variables (:class:`latent_sindy.sindy.grammar.DerivedVariables`) come from
+a numba ``cfunc`` their node supplies, of signature :func:`derived_signature`, which the
+kernel calls once per block and step: a first-class function argument, so the kernel stays
+generic and numba's disk cache keeps it (a jitted function as argument would make numba
+compile the kernel again in every process).
 """
 
 import numba
 import numpy as np
+from numba import types
 
 _jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False,
                   error_model="numpy")
+
+#: Compiler flags for a derived-variable cfunc, those of the kernel.
+CFUNC_FLAGS = {"fastmath": {"contract"}, "nogil": True, "cache": True, "error_model": "numpy"}
+
+
+def derived_signature(dtype: str) -> types.FunctionType:
+    """The signature of a derived-variable cfunc for the kernel in ``dtype`` ("float32" or
+    "float64")::
+
+        derive(feat, rows, block, n, inputs, n_inputs, params, n_params, first) -> None
+
+    ``feat`` points to the (rows, block) C-contiguous feature scratch of the running block (its
+    first n columns are the samples; rows 0 .. nz + nu - 1 hold [z, u]); ``inputs`` to the
+    n_inputs indices into [z, u] of the variables the node reads (its ``inputs()``), ``params``
+    to its ``numba_parameters()`` in ``dtype``. It writes the derived variables into rows
+    first, first + 1, .. (first = nz + nu), columns 0 .. n - 1. In a cfunc,
+    ``numba.carray(feat, (rows, block))`` makes the arrays.
+    """
+    dt = getattr(types, dtype)
+    return types.void(types.CPointer(dt), types.int64, types.int64, types.int64,
+                      types.CPointer(types.int64), types.int64, types.CPointer(dt), types.int64,
+                      types.int64)
+
+
+@numba.cfunc(derived_signature("float32"), **CFUNC_FLAGS)
+def _no_derived_float32(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
+    """The kernel's derive argument for a library without derived variables (never called)."""
+
+
+@numba.cfunc(derived_signature("float64"), **CFUNC_FLAGS)
+def _no_derived_float64(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
+    """The kernel's derive argument for a library without derived variables (never called)."""
+
+
+#: A derive argument per dtype for libraries without derived variables.
+NO_DERIVED = {"float32": _no_derived_float32, "float64": _no_derived_float64}
 
 
 @numba.njit(fastmath={"contract"}, inline="always", cache=True)
@@ -31,21 +74,20 @@ def _sin(x):
 
 @_jit
 def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, terms, degree,
-                         start, ptr, rows, coefs, ca, cb, tiny, turn, face_idx, face_par, feat,
-                         prods):
+                         start, ptr, rows, coefs, ca, cb, tiny, turn, derive, derive_inputs,
+                         derive_params, n_derived, feat, prods):
     """out[t] (nz, K) = z_{t+1} for t < H, z_{t+1} = z_t + bias + Σ_j coefs[j] θ_term(j),
     then for ca >= 0 the pair (z_ca, z_cb) divided by sqrt(z_ca² + z_cb² + tiny) (onto the unit
     circle, before the next step reads it; ca = cb = -1: no projection). With ``turn`` the
     pair is first the step's start pair turned by ω = out_ca - z_ca: (z_ca + i z_cb) e^{iω}.
 
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
-    repeats one start state); out (H, nz, K). Feature rows are [z, u, (a, n), trig]. For
-    face_idx[0] >= 0 rows nz + nu and nz + nu + 1 are the face variables of
-    ``latent_sindy.sindy.library.FaceFrame``: with ψ = feat[face_idx[0]], (c, s) the rows
-    face_idx[1:] and (f, sense, offset) = face_par, a = wrap_2π(f ψ - sense atan2(s, c) -
-    offset) / f and n = ψ - a. The next trig row i is sin(trig_scale[i] feat[trig_var[i]] +
-    trig_shift[i]), of a state (trig_var < nz), an action or a face variable, and a cosine
-    for shift π/2. terms (S, order): feature
+    repeats one start state); out (H, nz, K). Feature rows are [z, u, derived, trig]: for
+    n_derived > 0 rows nz + nu .. nz + nu + n_derived - 1 are the library's derived variables,
+    which ``derive`` (a cfunc of :func:`derived_signature`) writes from the rows
+    ``derive_inputs`` with ``derive_params``. The next trig row i is
+    sin(trig_scale[i] feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz), an
+    action or a derived variable, and a cosine for shift π/2. terms (S, order): feature
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
     the first product level to recompute (lower levels are shared with term s-1); the nonzero
     coefficients of term s are coefs[ptr[s]:ptr[s+1]], for outputs rows[ptr[s]:ptr[s+1]].
@@ -56,9 +98,8 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
     nz, K = z0t.shape
     H, nu = ut.shape[0], ut.shape[1]
     block = feat.shape[1]
-    face = face_idx[0] >= 0
-    base = nz + nu + 2 if face else nz + nu
-    two_pi = 2.0 * np.pi
+    rows_f = feat.shape[0]
+    base = nz + nu + n_derived
     for k0 in range(0, K, block):
         n = min(block, K - k0)
         for i in range(nz):
@@ -78,18 +119,10 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
                 f = feat[nz + i, :n]
                 for k in range(n):
                     f[k] = src[k]
-            if face:
-                psi = feat[face_idx[0], :n]
-                fc = feat[face_idx[1], :n]
-                fs = feat[face_idx[2], :n]
-                fa = feat[nz + nu, :n]
-                fn = feat[nz + nu + 1, :n]
-                freq, sense, offset = face_par[0], face_par[1], face_par[2]
-                for k in range(n):
-                    x = freq * psi[k] - (sense * np.arctan2(fs[k], fc[k]) + offset) + np.pi
-                    a = (x - two_pi * np.floor(x / two_pi) - np.pi) / freq
-                    fa[k] = a
-                    fn[k] = psi[k] - a
+            if n_derived:
+                derive(feat.ctypes, rows_f, block, n, derive_inputs.ctypes,
+                       derive_inputs.shape[0], derive_params.ctypes, derive_params.shape[0],
+                       nz + nu)
             for i in range(trig_var.shape[0]):
                 src = feat[trig_var[i], :n]
                 f = feat[base + i, :n]

@@ -9,10 +9,11 @@ cache-sized blocks of samples, for one step or a whole horizon:
 
     out_i = z_i + b_i + Σ_{(s, i, c) ∈ nnz(C_S)} c · θ_s,   θ_s = Π_k F[term_s[k]]
 
-with F = [z, u, (a, n), trig] for the block ((a, n) the face variables of a library in a
-``FaceFrame``; only the sines and cosines some term uses, of states, actions or face
-variables, from the kernel's own vectorisable sine; a cosine is a sine shifted by π/2) and
-b the constant term's coefficients. A model with a ``circle`` (a, b) (a pose latent's angle
+with F = [z, u, derived, trig] for the block (the derived variables of a library with a
+``DerivedVariables`` node, from the numba function the node supplies; only the sines and
+cosines some term uses, of states, actions or derived variables, from the kernel's own
+vectorisable sine; a cosine is a sine shifted by π/2) and b the constant term's
+coefficients. A model with a ``circle`` (a, b) (a pose latent's angle
 features) then has (out_a, out_b) divided by their norm, in the same pass, before the next
 step reads them: the projection of ``LatentDynamics.step`` (for a model with ``turn``,
 after turning (z_a, z_b) by the angle out_a - z_a). Terms are sorted
@@ -23,8 +24,8 @@ permuted one. Results equal the model's own step to float rounding (checked on a
 when the step is built; tested for orders 1-4, libraries with trig of states and of actions,
 and pose latents with and without the circle).
 
-On devices other than the CPU the model's sparse torch step (projection included) runs
-instead.
+On devices other than the CPU, and for derived variables whose node supplies no numba
+function, the model's sparse torch step (projection included) runs instead.
 
     >>> step = SparseSindyStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
     >>> z_next = step(z, u)  # z (K, nz), u (K, nu) -> (K, nz)
@@ -60,6 +61,14 @@ def _kernel() -> Callable[..., None]:
     return sindy_rollout_kernel
 
 
+@functools.cache
+def _no_derived() -> dict[str, object]:
+    """The kernel's derive argument per dtype for a library without derived variables."""
+    from latent_sindy.control._sindy_kernel import NO_DERIVED
+
+    return NO_DERIVED
+
+
 class SparseSindyStep:
     """Frozen, fused evaluation of ``z + Θ_S(z, u) C_S`` over the active terms S.
 
@@ -83,8 +92,8 @@ class SparseSindyStep:
         self.circle = sparse.circle
         self._circle = (-1, -1) if sparse.circle is None else sparse.circle  # the kernel's ca, cb
         self._turn = bool(sparse.turn)
-        # The library's feature layout: [z, u, (a, n), 1, trig...], trig column k being
-        # library.trig[k] = (index into [z, u, (a, n)], "sin" | "cos", frequency).
+        # The library's feature layout: [z, u, derived, 1, trig...], trig column k being
+        # library.trig[k] = (index into [z, u, derived], "sin" | "cos", frequency).
         library = sparse.library
         one = library.constant_column
         table = library.table.cpu()  # (|S|, width)
@@ -121,10 +130,16 @@ class SparseSindyStep:
         self._order = width
         # Kernel arguments: integer tables as they are, floats kept in float64 and cast per dtype.
         self._trig_var = trig_var
-        face = library.face
-        self._face_idx = np.array(face[:3] if face is not None else (-1, -1, -1), dtype=np.int64)
-        self._face_par = np.array(face[3:] if face is not None else (1.0, 1.0, 0.0),
-                                  dtype=np.float64)
+        # Derived variables: the node's cfunc per dtype, what it reads and its parameters.
+        derived = library.derived
+        self._node = node = derived.node if derived is not None else None
+        self._n_derived = len(node.names) if node is not None else 0
+        self._derive_inputs = np.array(derived.inputs if derived is not None else (),
+                                       dtype=np.int64)
+        self._derive_params = np.array(node.numba_parameters() if node is not None else (),
+                                       dtype=np.float64)
+        self._torch_only = node is not None and any(
+            node.numba_function(d) is None for d in ("float32", "float64"))
         self._tables = (
             np.array([p + (0,) * (width - len(p)) for p in terms],
                      dtype=np.int64).reshape(-1, width),
@@ -140,20 +155,25 @@ class SparseSindyStep:
         args = self._args.get(dtype)
         if args is None:
             np_dtype = torch.empty(0, dtype=dtype).numpy().dtype
-            trig_scale, trig_shift, bias, coefs, face_par = (
-                a.astype(np_dtype) for a in (*self._floats64, self._face_par))
+            trig_scale, trig_shift, bias, coefs, derive_params = (
+                a.astype(np_dtype) for a in (*self._floats64, self._derive_params))
             terms, degree, start, ptr, rows = self._tables
             tiny = np_dtype.type(torch.finfo(dtype).tiny)  # as project_circle adds
             args = self._args[dtype] = (
                 self._trig_var, trig_scale, trig_shift, bias, terms, degree, start, ptr, rows,
-                coefs, *self._circle, tiny, self._turn, self._face_idx, face_par,
+                coefs, *self._circle, tiny, self._turn, self._derive(np_dtype.name),
+                self._derive_inputs, derive_params, self._n_derived,
                 np.empty((self._n_features, BLOCK), np_dtype),
                 np.empty((self._order, BLOCK), np_dtype))
         return args
 
+    def _derive(self, dtype: str) -> object:
+        """The kernel's derive argument in ``dtype``: the node's cfunc, or a no-op."""
+        return _no_derived()[dtype] if self._node is None else self._node.numba_function(dtype)
+
     def __call__(self, z: Tensor, u: Tensor) -> Tensor:
         """One step: z (K, nz), u (K, nu) -> (K, nz) (a transposed view)."""
-        if not z.is_cpu or z.dtype not in _FLOATS:
+        if not z.is_cpu or z.dtype not in _FLOATS or self._torch_only:
             return self._sparse.step(z, u)
         return self._run(z.T, u.T.unsqueeze(0))[0].T
 
@@ -162,7 +182,7 @@ class SparseSindyStep:
     def rollout(self, z0: Tensor, actions: Tensor) -> Tensor:
         """Open-loop prediction like :meth:`LatentDynamics.rollout`, in one kernel call:
         z0 (K, nz), actions (K, H, nu) -> (K, H+1, nz) with z0 at index 0 (a permuted view)."""
-        if not z0.is_cpu or z0.dtype not in _FLOATS:
+        if not z0.is_cpu or z0.dtype not in _FLOATS or self._torch_only:
             return self._sparse.rollout(z0, actions)
         K, H = actions.shape[:2]
         if actions.shape[2] != self.nu or z0.shape != (K, self.nz):
@@ -188,6 +208,8 @@ class SparseSindyStep:
     def _check(self) -> None:
         """Compare with the model's own step (its circle's projection included) on a probe
         batch: guards the feature layout and the kernel's projection."""
+        if self._torch_only:  # no kernel: the step is the model's
+            return
         gen = torch.Generator().manual_seed(0)
         z = torch.randn(7, self.nz, generator=gen) * 0.5
         u = torch.randn(7, self.nu, generator=gen) * 0.5
@@ -199,6 +221,6 @@ class SparseSindyStep:
             raise RuntimeError(
                 "SparseSindyStep disagrees with SparseSindyDynamics.step (max difference "
                 f"{float((want - got).abs().max()):.3g}): the library's feature layout "
-                "[z, u, (a, n), 1, trig...] or the step's circle projection has changed; update "
+                "[z, u, derived, 1, trig...] or the step's circle projection has changed; update "
                 "latent_sindy/control/sindy_step.py"
             )

@@ -1,9 +1,12 @@
 """Sparse identification of nonlinear dynamics (SINDy) parts: libraries, sparse regression, fits.
 
-``latent_sindy.sindy.library`` holds the composable, differentiable libraries Θ(z, u) and
-their serialisable specs; ``latent_sindy.sindy.optimizers`` the sparsifier (:class:`STLSQ`);
-``latent_sindy.sindy.fit`` the fits to state transitions. The package works on libraries and
-arrays only: it does not import :mod:`latent_sindy.models` (which builds on it).
+``latent_sindy.sindy.grammar`` holds the serialisable library specs (and the registry of the
+derived-variable nodes worlds add), ``latent_sindy.sindy.terms`` the compiler from a spec to
+terms and names, ``latent_sindy.sindy.torch_library`` the differentiable libraries Θ(z, u),
+``latent_sindy.sindy.presets`` the library presets by name; ``latent_sindy.sindy.optimizers``
+the sparsifier (:class:`STLSQ`); ``latent_sindy.sindy.fit`` the fit to state transitions. The
+package works on libraries and arrays only: it imports neither :mod:`latent_sindy.models`
+(which builds on it) nor any world (worlds register their presets and nodes here).
 
     >>> from latent_sindy.sindy import CandidateLibrary, Identity, Polynomial, Sine, SindyLibrary
     >>> CandidateLibrary(n_state=16, n_control=3, order=2).n_terms
@@ -12,31 +15,35 @@ arrays only: it does not import :mod:`latent_sindy.models` (which builds on it).
     227
 """
 
-from latent_sindy.sindy.fit import FitResult, fit_gradient, fit_state_data
-from latent_sindy.sindy.library import (
-    LIBRARY_PRESETS,
-    VALID_ORDERS,
-    CandidateLibrary,
+from latent_sindy.sindy.fit import fit_state_data
+from latent_sindy.sindy.grammar import (
     Constant,
     Cosine,
-    FaceFrame,
+    DerivedVariables,
     Identity,
     LibrarySpec,
-    LibrarySubset,
     Polynomial,
     Product,
-    SindyLibrary,
     Sine,
     Sum,
-    face_library,
-    face_variables,
-    frame_library,
-    library_preset,
-    poly_library,
-    push_library,
+    register_derived,
     spec_from_dict,
 )
 from latent_sindy.sindy.optimizers import STLSQ
+from latent_sindy.sindy.presets import (
+    LIBRARY_PRESETS,
+    has_preset,
+    library_preset,
+    poly_library,
+    preset_names,
+    register_preset,
+)
+from latent_sindy.sindy.torch_library import (
+    VALID_ORDERS,
+    CandidateLibrary,
+    LibrarySubset,
+    SindyLibrary,
+)
 
 __all__ = [
     "LIBRARY_PRESETS",
@@ -45,8 +52,7 @@ __all__ = [
     "CandidateLibrary",
     "Constant",
     "Cosine",
-    "FaceFrame",
-    "FitResult",
+    "DerivedVariables",
     "Identity",
     "LibrarySpec",
     "LibrarySubset",
@@ -55,13 +61,12 @@ __all__ = [
     "SindyLibrary",
     "Sine",
     "Sum",
-    "face_library",
-    "face_variables",
-    "fit_gradient",
     "fit_state_data",
-    "frame_library",
+    "has_preset",
     "library_preset",
     "poly_library",
-    "push_library",
+    "preset_names",
+    "register_derived",
+    "register_preset",
     "spec_from_dict",
 ]

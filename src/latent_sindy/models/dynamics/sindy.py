@@ -32,19 +32,19 @@ from latent_sindy.models.dynamics.base import (
     check_init_scale,
     format_equations,
 )
-from latent_sindy.sindy import fit as sindy_fit
-from latent_sindy.sindy.library import (
+from latent_sindy.sindy import (
     VALID_ORDERS,
     CandidateLibrary,
     LibrarySpec,
     LibrarySubset,
     SindyLibrary,
     Sine,
-    face_library,
-    frame_library,
-    push_library,
+    has_preset,
+    library_preset,
+    preset_names,
     spec_from_dict,
 )
+from latent_sindy.sindy import fit as sindy_fit
 from latent_sindy.sindy.optimizers import STLSQ
 
 __all__ = ["SindyConfig", "SindyDynamics", "SparseSindyDynamics"]
@@ -64,7 +64,7 @@ class SindyDynamics(SparseDynamics):
         init_scale: standard deviation of the normal initialisation of Ψ.
         seed: seed for that initialisation; None draws from the global torch generator.
         library_spec: any library instead of the classic one: a
-            :data:`~latent_sindy.sindy.library.LibrarySpec` or its ``to_dict()`` form (e.g.
+            :class:`~latent_sindy.sindy.LibrarySpec` or its ``to_dict()`` form (e.g.
             ``push_library(order=2, angle=1, length=2)``); then leave ``order``,
             ``include_sine`` and ``include_cosine`` at their defaults.
         circle, turn: see :class:`LatentDynamics` (with ``turn``, z_b's column has no
@@ -335,8 +335,8 @@ class SindyConfig:
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
-        if self.library not in ("poly", "push", "face", "frame"):
-            raise UserError(f"--library {self.library!r}: use poly, push, face or frame")
+        if not has_preset(self.library):
+            raise UserError(f"--library {self.library!r}: use one of {', '.join(preset_names())}")
         if self.library != "poly" and self.include_cosine:
             raise UserError("--include-cosine is for the poly library only")
         if self.library in ("face", "frame") and self.order != 1:
@@ -373,18 +373,19 @@ class SindyConfig:
                             f"as the first four latent coordinates, got a latent of size {nz}: "
                             "use the state or moments encoder or --pose-head coordinates")
         if self.library == "frame":
-            spec = frame_library(self.order, frequency=self.angle_frequency,
-                                 degree=self.frame_degree,
-                                 sense=1 if self.frame_sense is None else self.frame_sense,
-                                 angle_offset=self.frame_offset or 0.0)
+            spec = library_preset("frame", order=self.order, frequency=self.angle_frequency,
+                                  degree=self.frame_degree,
+                                  sense=1 if self.frame_sense is None else self.frame_sense,
+                                  angle_offset=self.frame_offset or 0.0)
             if self.include_sine:
                 spec = spec + Sine("z")
         elif self.library == "face":
-            spec = face_library(self.order, frequency=self.angle_frequency)
+            spec = library_preset("face", order=self.order, frequency=self.angle_frequency)
             if self.include_sine:
                 spec = spec + Sine("z")
         elif self.library == "push":
-            spec = push_library(self.order, angle=1, length=2, include_sine=self.include_sine)
+            spec = library_preset("push", order=self.order, angle=1, length=2,
+                                  include_sine=self.include_sine)
         else:
             return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
                                  include_cosine=self.include_cosine, init_scale=self.init_scale,

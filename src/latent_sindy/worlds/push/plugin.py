@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from latent_sindy.worlds.push import data as _data
+from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the presets)
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
 
