@@ -34,7 +34,7 @@ def tiny(kind: str, **kw) -> LatentModel:
         kw.pop("init_scale", None)
     dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw
     cfg = ModelConfig(
-        encoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
+        observation=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
                                       encoder_hidden=16, decoder_hidden=(32,)),
         dynamics=DYNAMICS_KINDS[kind](**dyn),
         action_dim=3,
@@ -60,7 +60,7 @@ def test_autoencoder_shapes(channels: int, size: int) -> None:
 
 @pytest.mark.parametrize(("channels", "size"), [(1, 32), (3, 32), (1, 64), (1, 20)])
 def test_conv_decoder_shapes_and_batching(channels: int, size: int) -> None:
-    cfg = AutoencoderConfig(channels=channels, image_size=size, decoder="conv")
+    cfg = AutoencoderConfig(channels=channels, image_size=size, decoder_kind="conv")
     ae = Autoencoder(cfg)
     z = torch.randn(2, 3, 16)
     x = ae.decode(z)
@@ -74,17 +74,17 @@ def test_conv_decoder_shapes_and_batching(channels: int, size: int) -> None:
 
 def test_conv_decoder_rejects_sizes_it_cannot_draw() -> None:
     with pytest.raises(UserError, match="divisible by 4"):
-        AutoencoderConfig(image_size=30, decoder="conv")
+        AutoencoderConfig(image_size=30, decoder_kind="conv")
     with pytest.raises(UserError, match="unknown"):
-        AutoencoderConfig(decoder="deconv")
+        AutoencoderConfig(decoder_kind="deconv")
     with pytest.raises(UserError, match="divisible by 4"):
-        ModelConfig(encoder=AutoencoderConfig(decoder="conv")).resolve(1, 30, 3)
+        ModelConfig(observation=AutoencoderConfig(decoder_kind="conv")).resolve(1, 30, 3)
 
 
 @pytest.mark.parametrize(("channels", "size"), [(1, 32), (3, 32), (1, 20)])
 def test_keypoints_encoder_shapes_and_range(channels: int, size: int) -> None:
     cfg = AutoencoderConfig(channels=channels, image_size=size, latent_dim=6,
-                            encoder="keypoints", keypoint_channels=4)
+                            encoder_kind="keypoints", keypoint_channels=4)
     ae = Autoencoder(cfg)
     x = 5 * torch.randn(2, 3, channels, size, size)
     z = ae.encode(x)
@@ -97,7 +97,7 @@ def test_keypoints_are_where_their_feature_maps_peak() -> None:
     """A map peaked at (row 5, col 12) of 17 puts its keypoint at x = 0.5, y = -0.375; the
     keypoint moves with the peak (x with the column, y with the row)."""
     ae = Autoencoder(AutoencoderConfig(channels=1, image_size=17, latent_dim=4,
-                                       encoder="keypoints"))
+                                       encoder_kind="keypoints"))
     enc = ae.encoder
     enc.net = torch.nn.Identity()  # the image itself is the feature map of keypoint 1 ...
     enc.log_temperature.data.fill_(-3.0)  # ... sharpened by a low temperature
@@ -110,14 +110,14 @@ def test_keypoints_are_where_their_feature_maps_peak() -> None:
 
 def test_keypoints_encoder_needs_an_even_latent() -> None:
     with pytest.raises(UserError, match="even latent_dim"):
-        AutoencoderConfig(latent_dim=5, encoder="keypoints")
+        AutoencoderConfig(latent_dim=5, encoder_kind="keypoints")
     with pytest.raises(UserError, match="unknown"):
-        AutoencoderConfig(encoder="vit")
+        AutoencoderConfig(encoder_kind="vit")
 
 
 def test_course_encoder_sizes() -> None:
     cfg = AutoencoderConfig(channels=1, image_size=32)
-    assert cfg.conv_size() == 5  # 32 -> 28 -> 14 -> 10 -> 5: 4 maps x 5 x 5 = 100 features
+    assert cfg.conv_shape() == (5, 5)  # 32 -> 28 -> 14 -> 10 -> 5: 4 maps x 5 x 5 = 100
     fc = Autoencoder(cfg).encoder.net[7]
     assert (fc.in_features, fc.out_features) == (100, 100)
     with pytest.raises(UserError, match="too small"):
@@ -266,7 +266,7 @@ def test_trajectory_loss_pose_term_counts_frames_once_and_windows_alike() -> Non
     """A pose head's term: its encoded-frame part is the per-frame mean, its prediction part
     that of the windows."""
     torch.manual_seed(0)
-    cfg = ModelConfig(encoder=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
+    cfg = ModelConfig(observation=AutoencoderConfig(latent_dim=4, channels=1, image_size=32,
                                                 encoder_hidden=16, decoder_hidden=(32,)),
                       dynamics=SindyConfig(init_scale=0.1), action_dim=3, pose_head="linear")
     model = LatentModel(cfg)
@@ -300,16 +300,16 @@ def test_loss_rejects_bad_shapes() -> None:
 
 
 def test_model_config_round_trip_and_resolve() -> None:
-    cfg = ModelConfig(encoder=AutoencoderConfig(decoder_hidden=(64, 32)),
+    cfg = ModelConfig(observation=AutoencoderConfig(decoder_hidden=(64, 32)),
                       dynamics=MlpConfig(layers=3))
     back = from_json(ModelConfig, json.loads(json.dumps(to_json(cfg))), "model")
     assert back == cfg and isinstance(back.dynamics, MlpConfig)
     resolved = cfg.resolve(3, 32, 3)
-    assert (resolved.encoder.channels, resolved.encoder.image_size) == (3, 32)
-    assert cfg.encoder.channels is None and resolved.action_dim == 3
+    assert (resolved.observation.channels, resolved.observation.image_size) == (3, 32)
+    assert cfg.observation.channels is None and resolved.action_dim == 3
     assert dataclasses.replace(resolved) == resolved.resolve(3, 32, 3)
     with pytest.raises(UserError, match=r"channels is 1 but data\.h5 has channels 3"):
-        ModelConfig(encoder=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
+        ModelConfig(observation=AutoencoderConfig(channels=1)).resolve(3, 32, 3, "data.h5")
     with pytest.raises(UserError, match=r"--action-dim 5 but data\.h5 has actions of size 3"):
         ModelConfig(action_dim=5).resolve(1, 32, 3, "data.h5")
     with pytest.raises(ValueError, match="resolve"):
@@ -342,7 +342,8 @@ def test_conv_decoder_last_layer_is_a_transposed_convolution(channels: int) -> N
     """The last layer computes what nn.ConvTranspose2d computes, values and gradients, with
     its parameters: for one channel on the CPU's native forward and oneDNN's backward."""
     torch.manual_seed(0)
-    dec = Autoencoder(AutoencoderConfig(channels=channels, image_size=32, decoder="conv")).decoder
+    cfg = AutoencoderConfig(channels=channels, image_size=32, decoder_kind="conv")
+    dec = Autoencoder(cfg).decoder
     layer = dec.conv[2]
     plain = torch.nn.ConvTranspose2d(16, channels, 4, stride=2, padding=1)
     plain.load_state_dict(layer.state_dict())

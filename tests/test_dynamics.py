@@ -27,7 +27,8 @@ from latent_sindy.models import (
     make_dynamics,
 )
 from latent_sindy.models.dynamics import project_circle
-from latent_sindy.sindy import Polynomial, Sine, push_library
+from latent_sindy.sindy import Polynomial, Sine
+from latent_sindy.worlds.push.library import push_library
 
 NZ, NU = 4, 2
 
@@ -460,17 +461,17 @@ def test_a_bad_circle_is_one_line(circle) -> None:
 
 FACE = SindyConfig(order=1, library="face", include_sine=False, init_scale=0.05)
 POSE_MODELS = {  # name: (config, whether its latent is a pose)
-    "state face": (ModelConfig(dynamics=FACE, encoder=StateConfig()), True),
-    "state mlp": (ModelConfig(dynamics=MlpConfig(hidden=16), encoder=StateConfig()), True),
-    "moments": (ModelConfig(dynamics=FACE, encoder=AutoencoderConfig(
-        encoder="moments", latent_dim=4)), True),
+    "state face": (ModelConfig(dynamics=FACE, observation=StateConfig()), True),
+    "state mlp": (ModelConfig(dynamics=MlpConfig(hidden=16), observation=StateConfig()), True),
+    "moments": (ModelConfig(dynamics=FACE, observation=AutoencoderConfig(
+        encoder_kind="moments", latent_dim=4)), True),
     "coordinates": (ModelConfig(dynamics=LinearConfig(init_scale=0.05), pose_head="coordinates",
-                                encoder=AutoencoderConfig(latent_dim=6)), True),
+                                observation=AutoencoderConfig(latent_dim=6)), True),
     "linear head": (ModelConfig(dynamics=SindyConfig(order=1, init_scale=0.05),
-                                pose_head="linear", encoder=AutoencoderConfig(latent_dim=6)),
+                                pose_head="linear", observation=AutoencoderConfig(latent_dim=6)),
                     False),
     "conv": (ModelConfig(dynamics=SindyConfig(order=1, init_scale=0.05),
-                         encoder=AutoencoderConfig(latent_dim=6)), False),
+                         observation=AutoencoderConfig(latent_dim=6)), False),
 }
 
 
@@ -484,7 +485,7 @@ def test_a_pose_latent_model_rolls_out_on_the_circle(name: str) -> None:
     model = LatentModel(cfg.resolve(1, 32, 3))
     assert cfg.pose_latent is pose
     assert model.dynamics.circle == ((2, 3) if pose else None)
-    nz = cfg.encoder.latent_dim
+    nz = cfg.observation.latent_dim
     gen = torch.Generator().manual_seed(1)
     z0 = torch.randn(16, nz, generator=gen)
     u = torch.rand(16, 50, 3, generator=gen) * 2 - 1

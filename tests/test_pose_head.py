@@ -56,7 +56,7 @@ def rendered(tmp_path_factory) -> Path:
 
 
 def config(data: Path, out: Path, head: str, lambda_pose: float, **kw) -> TrainConfig:
-    model = ModelConfig(encoder=AutoencoderConfig(decoder="conv"),
+    model = ModelConfig(observation=AutoencoderConfig(decoder_kind="conv"),
                         dynamics=SindyConfig(order=1), pose_head=head)
     kw = {"epochs": 3, "batch_size": 16, "threshold_every": 0, **kw}
     return TrainConfig(data=data, out=out, model=model,
@@ -122,7 +122,7 @@ def test_the_pose_cost_of_a_coordinates_head_weighs_the_first_four_coordinates()
     """Q-weighted squared error of z_0..3 against the encoded goal's, in the pose's own units
     (the head's standardisation plays no part); the other latent coordinates cost nothing."""
     torch.manual_seed(0)
-    cfg = ModelConfig(encoder=AutoencoderConfig(latent_dim=7),
+    cfg = ModelConfig(observation=AutoencoderConfig(latent_dim=7),
                       pose_head="coordinates").resolve(1, 32, 3)
     model = LatentModel(cfg)
     model.pose_head.fit_statistics(torch.randn(50, 4) * 3 + 1)  # not the identity
@@ -220,9 +220,9 @@ def test_the_study_row_plans_on_its_pose_cost() -> None:
 @pytest.mark.parametrize(("build", "message"), [
     (lambda: LossWeights(lambda_pose=-1.0), "--lambda-pose -1.0: use a finite number >= 0"),
     (lambda: TrainConfig(loss=LossWeights(lambda_pose=1.0)), "add --pose-head"),
-    (lambda: ModelConfig(encoder=StateConfig(), pose_head="linear"), "drop --pose-head"),
+    (lambda: ModelConfig(observation=StateConfig(), pose_head="linear"), "drop --pose-head"),
     (lambda: ModelConfig(pose_head="coordinates",
-                         encoder=AutoencoderConfig(latent_dim=3)), "--latent-dim 4 or more"),
+                         observation=AutoencoderConfig(latent_dim=3)), "--latent-dim 4 or more"),
     (lambda: ModelConfig(pose_head="yes"), "--pose-head 'yes': use none, linear"),
     (lambda: ModelConfig(dynamics=SindyConfig(order=1, library="face")),
      "use it with the state encoder, the moments encoder"),
@@ -245,7 +245,7 @@ def test_pose_space_without_a_head_is_one_line() -> None:
 def test_a_coordinates_head_reads_the_first_four_latent_coordinates() -> None:
     """No parameters: the pose is the latent's first four coordinates, the loss compares
     them in standardised units, and the head's statistics are the only state."""
-    cfg = ModelConfig(encoder=AutoencoderConfig(decoder="conv", latent_dim=4),
+    cfg = ModelConfig(observation=AutoencoderConfig(decoder_kind="conv", latent_dim=4),
                       dynamics=SindyConfig(order=1, library="face", include_sine=False),
                       pose_head="coordinates").resolve(1, 32, 3)
     model = LatentModel(cfg)

@@ -24,8 +24,8 @@ PIXEL = 2 / (SIDE - 1)  # one pixel in image coordinates
 
 
 def sprite(order: int = 4, supersample: int = 2, size: int = 11):
-    cfg = AutoencoderConfig(channels=1, image_size=SIDE, latent_dim=4, encoder="moments",
-                            decoder="sprite", moment_order=order, sprite_size=size,
+    cfg = AutoencoderConfig(channels=1, image_size=SIDE, latent_dim=4, encoder_kind="moments",
+                            decoder_kind="sprite", moment_order=order, sprite_size=size,
                             sprite_supersample=supersample)
     return cfg.build()
 
@@ -124,16 +124,16 @@ def test_the_template_learns_a_drawn_block() -> None:
 def test_the_sprite_decoder_needs_the_moments_encoder_and_an_odd_patch() -> None:
     for encoder in ("conv", "keypoints"):
         with pytest.raises(UserError, match=r"sprite decoder.*--encoder moments"):
-            AutoencoderConfig(encoder=encoder, latent_dim=4, decoder="sprite")
+            AutoencoderConfig(encoder_kind=encoder, latent_dim=4, decoder_kind="sprite")
     for size in (0, 10, 33):
         with pytest.raises(UserError, match="sprite_size"):
-            AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite",
+            AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite",
                               image_size=SIDE, sprite_size=size)
     with pytest.raises(UserError, match="sprite_supersample"):
-        AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite",
+        AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite",
                           sprite_supersample=0)
     with pytest.raises(UserError, match="unknown"):
-        AutoencoderConfig(decoder="sprites")
+        AutoencoderConfig(decoder_kind="sprites")
 
 
 def test_training_with_decoder_sprite_keeps_the_background_and_the_template(
@@ -167,7 +167,7 @@ def test_training_with_decoder_sprite_keeps_the_background_and_the_template(
 def test_sprite_side_follows_the_image_side_unless_given():
     """A resolved config states the template's side: 11 at 32 pixels, 23 at 64, or the one
     given; the decoder's template has it."""
-    base = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite")
+    base = AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite")
     assert base.resolve(1, 32).sprite_size == 11
     assert base.resolve(1, 64).sprite_size == 23
     assert base.resolve(1, 16).sprite_size == 5

@@ -77,7 +77,7 @@ def test_a_state_model_trains_on_poses_and_pushes(data: Path, tmp_path: Path, ki
     assert all(r["train/recon"] == 0 for r in rows)  # the state is observed exactly
     assert rows[-1]["train/pred_z"] < rows[0]["train/pred_z"]
     run = RunDir(out).load()
-    assert run.model.config.encoder.latent_dim == 4 and run.normalizer.std == 1.0
+    assert run.model.config.observation.latent_dim == 4 and run.normalizer.std == 1.0
     assert main(["control", str(out), "--task", "random", "--max-steps", "2", "--samples", "16",
                  "--horizon", "2", "--gif-episodes", "0", "--no-progress"]) == 0
     assert (out / "control-random-latent" / "results.json").exists()

@@ -73,6 +73,10 @@ def _dataclass(cls: type, data: Any, where: str) -> Any:
     hints = typing.get_type_hints(cls, include_extras=True)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     data = dict(data)
+    # settings renamed since the record was written: old key -> new (models/renamed.py)
+    for old, new in getattr(cls, "renamed_settings", {}).items():
+        if old in data and new not in data:
+            data[new] = data.pop(old)
     kind = data.pop("kind", None)
     own_kind = getattr(cls, "kind", None)
     if kind is not None and kind != own_kind:

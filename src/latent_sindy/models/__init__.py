@@ -1,5 +1,12 @@
 """Learned models: latent dynamics (SINDy, linear, MLP) behind one ``step``/``rollout`` interface,
-the image autoencoder, and the latent model joining them with the training loss.
+the image autoencoder (any image shape), and the latent model joining them with the training
+loss. Nothing here knows a world: what a latent coordinate means comes from the config.
+
+    dynamics/     one file per kind with its config (base: the interface, SparseDynamics)
+    encoders.py   conv, keypoints, moments          decoders.py   fc, conv, sprite
+    autoencoder.py  AutoencoderConfig + Autoencoder  state.py      the true state as latent
+    pose_head.py  a readout of the pose features     latent_model.py  ModelConfig, the loss
+    costs.py      weights of a quadratic latent cost renamed.py    old setting names
 
 >>> from latent_sindy.models import LinearConfig
 >>> LinearConfig().build(nz=16, nu=3).step(torch.zeros(8, 16), torch.zeros(8, 3)).shape
@@ -7,6 +14,7 @@ torch.Size([8, 16])
 """
 
 from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
+from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import (
     DYNAMICS_CONFIGS,
     DYNAMICS_KINDS,
@@ -25,10 +33,12 @@ from latent_sindy.models.dynamics import (
 from latent_sindy.models.latent_model import (
     ENCODER_CONFIGS,
     LOSS_TERMS,
+    OBSERVATION_CONFIGS,
     EncoderConfig,
     LatentModel,
     LossWeights,
     ModelConfig,
+    ObservationConfig,
 )
 from latent_sindy.models.state import StateConfig
 
@@ -37,6 +47,7 @@ __all__ = [
     "DYNAMICS_KINDS",
     "ENCODER_CONFIGS",
     "LOSS_TERMS",
+    "OBSERVATION_CONFIGS",
     "Autoencoder",
     "AutoencoderConfig",
     "DynamicsConfig",
@@ -49,10 +60,12 @@ __all__ = [
     "MlpConfig",
     "MlpDynamics",
     "ModelConfig",
+    "ObservationConfig",
     "SindyConfig",
     "SindyDynamics",
     "SparseDynamics",
     "SparseSindyDynamics",
     "StateConfig",
+    "cost_weights",
     "make_dynamics",
 ]

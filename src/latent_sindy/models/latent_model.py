@@ -1,6 +1,6 @@
 """The latent model: an observation encoder + one latent dynamics model, and its loss.
 
-``LatentModel`` joins an encoder of :data:`ENCODER_CONFIGS` (the image
+``LatentModel`` joins an observation of :data:`OBSERVATION_CONFIGS` (the image
 :class:`~latent_sindy.models.autoencoder.Autoencoder`, or the identity codec of the true
 state, :mod:`latent_sindy.models.state`) and any latent
 dynamics model of :data:`~latent_sindy.models.dynamics.DYNAMICS_CONFIGS` (SINDy, linear,
@@ -13,8 +13,8 @@ Its :meth:`LatentModel.loss` is the paper's loss (eq. 1–4, docs/design.md) on 
 of windows x_0..x_H, u_0..u_{H-1}, every term a mean squared error per element of normalised
 pixels (or latent coordinates), so values do not depend on the image size, batch or horizon:
 
-    recon  = mean_{b,t=0..H} ‖x_t − dec(enc(x_t))‖² / (C·S·S)
-    pred_x = mean_{b,t=1..H} ‖x_t − dec(ẑ_t)‖² / (C·S·S)      ẑ rolled out from ẑ_0 = enc(x_0)
+    recon  = mean_{b,t=0..H} ‖x_t − dec(enc(x_t))‖² / (C·h·w)
+    pred_x = mean_{b,t=1..H} ‖x_t − dec(ẑ_t)‖² / (C·h·w)      ẑ rolled out from ẑ_0 = enc(x_0)
     pred_z = mean_{b,t=1..H} ‖enc(x_t) − ẑ_t‖² / nz
     l1     = ‖M ⊙ Ψ‖₁ (SINDy; 0 for the other models)
     pose   = mean_{b,t=0..H} ‖P(enc(x_t)) − s̃_t‖² / 4 + mean_{b,t=1..H} ‖P(ẑ_t) − s̃_t‖² / 4
@@ -23,7 +23,7 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
                                                 across models)
     total  = objective + λ3 l1 + λ4 pose   (what training minimises; with a foreground
-                                  weight, recon and pred_x in it weight the block's pixels more;
+                                  weight, recon and pred_x in it weight the object's pixels more;
                                   the pose term only with λ4 > 0)
 
 Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
@@ -32,7 +32,7 @@ pushes in them while encoding and reconstructing each frame once (the trainer's
 and recon (and the pose term on encoded frames) weighs every frame once instead of once per
 window that holds it.
 
-Dimensions: B batch, H horizon, C channels, S image side, nz latent size, nu action size.
+Dimensions: B batch, H horizon, C channels, h × w image, nz latent size, nu action size.
 
     >>> cfg = ModelConfig(dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
     >>> terms = LatentModel(cfg).loss(torch.zeros(8, 2, 1, 32, 32), torch.zeros(8, 1, 3))
@@ -53,7 +53,7 @@ import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
-from latent_sindy.models.autoencoder import AutoencoderConfig
+from latent_sindy.models.autoencoder import AutoencoderConfig, ImageSize
 from latent_sindy.models.dynamics import (
     DynamicsConfig,
     LatentDynamics,
@@ -61,22 +61,26 @@ from latent_sindy.models.dynamics import (
     SparseDynamics,
 )
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
+from latent_sindy.models.renamed import renamed
 from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
 
-__all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "EncoderConfig", "LatentModel", "LossWeights",
-           "ModelConfig"]
+__all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "OBSERVATION_CONFIGS", "EncoderConfig",
+           "LatentModel", "LossWeights", "ModelConfig", "ObservationConfig"]
 
-#: The registry of observation encoders: images (the autoencoder) or the true state.
-ENCODER_CONFIGS: tuple[type, ...] = (AutoencoderConfig, StateConfig)
+#: The registry of observations: images (the autoencoder) or the true state.
+OBSERVATION_CONFIGS: tuple[type, ...] = (AutoencoderConfig, StateConfig)
 #: A tagged union of them; on the command line a subcommand after the dynamics' one
 #: (``latent-sindy train sindy state``); images are the default.
-EncoderConfig = Union[tuple(  # noqa: UP007  (built from the registry at import time)
-    Annotated[c, tyro.conf.subcommand(c.kind)] for c in ENCODER_CONFIGS)]
+ObservationConfig = Union[tuple(  # noqa: UP007  (built from the registry at import time)
+    Annotated[c, tyro.conf.subcommand(c.kind)] for c in OBSERVATION_CONFIGS)]
+#: Their former names.
+ENCODER_CONFIGS, EncoderConfig = OBSERVATION_CONFIGS, ObservationConfig
 
 #: The names of the loss terms :meth:`LatentModel.loss` returns, in report order.
 LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "pose", "objective")
 
 
+@renamed(encoder="observation")
 @dataclass(frozen=True)
 class ModelConfig:
     """Everything that defines a latent model's architecture; it rebuilds the model alone.
@@ -87,18 +91,18 @@ class ModelConfig:
 
     dynamics: DynamicsConfig = field(default_factory=SindyConfig)
     """Latent dynamics: a subcommand on the command line (sindy, linear, mlp)."""
-    encoder: EncoderConfig = field(default_factory=AutoencoderConfig)
-    """What the model sees: "image" (the autoencoder; the latent size included) or "state"
-    (the block's true pose: a reference model)."""
+    observation: ObservationConfig = field(default_factory=AutoencoderConfig)
+    """What the model sees, and how it encodes it: "image" (the autoencoder; the latent size
+    included) or "state" (the true pose: a reference model)."""
     action_dim: int | None = None
     """Action size nu; None: from the data file."""
     pose_head: Literal["none", "linear", "coordinates"] = "none"
-    """Image models: a readout of the block's pose features from the latent, trained with the
-    simulator's poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space
-    pose): "linear" (learned), or "coordinates" (the first four latent coordinates are the
-    pose features, x, y, cos fθ, sin fθ, f the block's symmetry, so a face library can write
-    the dynamics on them).
-    Control reads the goal's pose from the goal image, never the simulator."""
+    """Image models: a readout of the pose features from the latent, trained with the data's
+    true poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space pose):
+    "linear" (learned), or "coordinates" (the first four latent coordinates are the pose
+    features, x, y, cos fθ, sin fθ, f the object's symmetry, so a face library can write the
+    dynamics on them). Control reads the goal's pose from the goal image, never the
+    simulator."""
     turn: bool = False
     """A pose latent's orientation features (z2, z3) are turned, after every step, by the
     angle ω that the dynamics give as z2's update (z2 + i z3 times e^(iω); z3's own update is
@@ -111,9 +115,9 @@ class ModelConfig:
         if self.pose_head not in ("none", *POSE_HEADS):
             raise UserError(f"--pose-head {self.pose_head!r}: use none, "
                             + ", ".join(POSE_HEADS))
-        if self.has_pose_head and self.encoder.kind != "image":
-            raise UserError(f"--pose-head is for image models: a {self.encoder.kind} model's "
-                            "latent is the pose already; drop --pose-head")
+        if self.has_pose_head and self.observation.kind != "image":
+            raise UserError(f"--pose-head is for image models: a {self.observation.kind} "
+                            "model's latent is the pose already; drop --pose-head")
         library = getattr(self.dynamics, "library", None)
         if library in ("face", "frame") and not self.pose_latent:
             raise UserError(f"--library {library} writes the dynamics on the pose features "
@@ -123,10 +127,10 @@ class ModelConfig:
         if self.turn and not self.pose_latent:
             raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
                             "it with the state or moments encoder or --pose-head coordinates")
-        if self.pose_head == "coordinates" and self.encoder.latent_dim < 4:
+        if self.pose_head == "coordinates" and self.observation.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "
-                            f"{self.encoder.latent_dim}")
+                            f"{self.observation.latent_dim}")
 
     @property
     def has_pose_head(self) -> bool:
@@ -137,25 +141,28 @@ class ModelConfig:
         """Whether the first four latent coordinates are the pose features (x, y, cos fθ,
         sin fθ): the state and moments encoders, or a coordinates pose head. The dynamics then
         keep (z2, z3) on the unit circle."""
-        return self.encoder.pose_latent or self.pose_head == "coordinates"
+        return self.observation.pose_latent or self.pose_head == "coordinates"
 
     @property
     def resolved(self) -> bool:
-        return self.encoder.resolved and self.action_dim is not None
+        return self.observation.resolved and self.action_dim is not None
 
     @property
-    def kind(self) -> str:
+    def dynamics_kind(self) -> str:
         """The dynamics kind ("sindy", "linear", "mlp")."""
         return self.dynamics.kind
 
-    def resolve(self, channels: int, image_size: int, action_dim: int,
+    kind = dynamics_kind  # its former name
+
+    def resolve(self, channels: int, image_size: ImageSize, action_dim: int,
                 source: str = "the data") -> ModelConfig:
-        """This config with the data's shapes filled in; UserError if it contradicts them."""
+        """This config with the data's shapes filled in (``image_size``: the side S of square
+        images, or (H, W)); UserError if it contradicts them."""
         if self.action_dim is not None and self.action_dim != action_dim:
             raise UserError(f"--action-dim {self.action_dim} but {source} has actions of "
                             f"size {action_dim}: leave it unset to use the data's")
         return dataclasses.replace(
-            self, encoder=self.encoder.resolve(channels, image_size, source),
+            self, observation=self.observation.resolve(channels, image_size, source),
             action_dim=action_dim)
 
 
@@ -177,9 +184,9 @@ class LossWeights:
     """λ4: weight of the pose head's error on the true poses (models with --pose-head; a
     privileged signal used in training only). 0: the head is not trained."""
     foreground_weight: float = 0.0
-    """Image models: extra weight of the block's pixels in the trained image terms (recon,
-    pred_x): a pixel of the true image further than 1 (one training pixel std) from its
-    image's median counts 1 + this. The reported terms and objective stay unweighted."""
+    """Image models: extra weight of the moving object's pixels in the trained image terms
+    (recon, pred_x): a pixel of the true image further than 1 (one training pixel std) from
+    its image's median counts 1 + this. The reported terms and objective stay unweighted."""
 
     def __post_init__(self) -> None:
         for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "lambda_pose",
@@ -193,8 +200,8 @@ _DEFAULT_WEIGHTS = LossWeights()
 
 
 def _foreground(x: torch.Tensor) -> torch.Tensor:
-    """1 where a normalised image (..., C, S, S) differs from its median by more than 1 (one
-    training pixel std: the block against the table), else 0."""
+    """1 where a normalised image (..., C, h, w) differs from its median by more than 1 (one
+    training pixel std: the object against the background), else 0."""
     flat = x.flatten(-3)
     median = flat.median(dim=-1, keepdim=True).values
     return ((flat - median).abs() > 1).to(x.dtype).view_as(x)
@@ -214,33 +221,31 @@ class LatentModel(nn.Module):
         if not config.resolved:
             raise ValueError("ModelConfig needs the data's shapes: call resolve() first")
         self.config = config
-        self.autoencoder = config.encoder.build()
+        self.autoencoder = config.observation.build()
         self.dynamics: LatentDynamics = config.dynamics.build(
-            config.encoder.latent_dim, config.action_dim,
+            config.observation.latent_dim, config.action_dim,
             circle=ANGLE_FEATURES if config.pose_latent else None, turn=config.turn)
         # Built last, so that the autoencoder and the dynamics draw the same initial weights
         # with or without it.
         self.pose_head: PoseHead | None = (
-            POSE_HEADS[config.pose_head](config.encoder.latent_dim)
+            POSE_HEADS[config.pose_head](config.observation.latent_dim)
             if config.has_pose_head else None)
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor, poses: torch.Tensor | None) -> None:
         """Set what the model takes from the training split rather than learns: the moments
-        encoder's background from the normalised frames (..., C, S, S) (other encoders take
+        encoder's background from the normalised frames (..., C, h, w) (other encoders take
         none) and a pose head's standardisation from the pose features (..., 4)."""
-        fit = getattr(self.autoencoder, "fit_statistics", None)
-        if fit is not None:
-            fit(frames.reshape(-1, *frames.shape[-3:]))
+        self.autoencoder.fit_statistics(frames.reshape(-1, *frames.shape[-3:]))
         if self.pose_head is not None and poses is not None:
             self.pose_head.fit_statistics(poses)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
-        """x (..., C, S, S) normalised images -> z (..., nz)."""
+        """x (..., C, h, w) normalised images -> z (..., nz)."""
         return self.autoencoder.encode(x)
 
     def decode(self, z: torch.Tensor) -> torch.Tensor:
-        """z (..., nz) -> x̂ (..., C, S, S) normalised images."""
+        """z (..., nz) -> x̂ (..., C, h, w) normalised images."""
         return self.autoencoder.decode(z)
 
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
@@ -252,7 +257,7 @@ class LatentModel(nn.Module):
         return self.dynamics.rollout(z0, u)
 
     def predict(self, x0: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Predicted images: x0 (B, C, S, S), u (B, H, nu) -> x̂ (B, H+1, C, S, S)."""
+        """Predicted images: x0 (B, C, h, w), u (B, H, nu) -> x̂ (B, H+1, C, h, w)."""
         return self.decode(self.rollout_latent(self.encode(x0), u))
 
     def l1_penalty(self) -> torch.Tensor:
@@ -265,7 +270,7 @@ class LatentModel(nn.Module):
         self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
         poses: torch.Tensor | None = None, window: int | None = None,
     ) -> dict[str, torch.Tensor]:
-        """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, S, S), u (B, T, nu).
+        """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, h, w), u (B, T, nu).
 
         ``window`` H (1..T; None: T) cuts a window of H pushes at every start t = 0..T-H of
         each sequence: the frames are encoded and reconstructed once each, ẑ is rolled out H
@@ -294,7 +299,7 @@ class LatentModel(nn.Module):
                                     u_win.reshape(b * starts, h, -1))[:, 1:]  # (B W, H, nz)
         z_hat = z_hat.reshape(b, starts * h, -1)  # (B, W H, nz)
         # One decoder pass for the reconstructions and the predictions.
-        x_dec = self.decode(torch.cat([z, z_hat], dim=1))  # (B, T+1 + W H, C, S, S)
+        x_dec = self.decode(torch.cat([z, z_hat], dim=1))  # (B, T+1 + W H, C, h, w)
 
         def targets(v: torch.Tensor) -> torch.Tensor:
             """v (B, T+1, ...) -> v_{s+1..s+H} of every window s, (B, W H, ...)."""
@@ -310,8 +315,8 @@ class LatentModel(nn.Module):
         pose = self._pose_error(z, z_hat, poses, targets)
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         trained = objective
-        if weights.foreground_weight and self.config.encoder.kind == "image":
-            w = 1 + weights.foreground_weight * _foreground(x)  # (B, T+1, C, S, S)
+        if weights.foreground_weight and self.config.observation.kind == "image":
+            w = 1 + weights.foreground_weight * _foreground(x)  # (B, T+1, C, h, w)
             trained = ((w * err_recon).mean() + weights.lambda_pred_x * (targets(w) * err_pred)
                        .mean() + weights.lambda_pred_z * pred_z)
         total = trained + weights.lambda_l1 * l1

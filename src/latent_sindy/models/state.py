@@ -1,12 +1,12 @@
-"""The state-space "encoder": the block's true pose instead of an image, for reference models.
+"""The state-space "encoder": a true pose instead of an image, for reference models.
 
-A state-space model sees the pose (x, y, θ) encoded so that poses the camera cannot tell apart
-are equal: s = (x, y, cos(2πθ/P), sin(2πθ/P)), P the block's visible rotational symmetry
-(:attr:`~latent_sindy.worlds.push.config.PushEnvConfig.angle_period`). The encoding is done by the
-data pipeline (:mod:`latent_sindy.data.windows`); here encoder and decoder are the identity,
-so the same latent model, loss (its reconstruction term is then 0) and trainer fit the
-dynamics directly on states. These models are the upper bound the image models are measured
-against; they never see an image.
+A state-space model sees the pose (x, y, θ) of the one moving object, encoded so that poses
+the camera cannot tell apart are equal: s = (x, y, cos(2πθ/P), sin(2πθ/P)), P the object's
+visible rotational symmetry (the world's). The encoding is done by the data pipeline
+(:mod:`latent_sindy.data.windows`); here encoder and decoder are the identity, so the same
+latent model, loss (its reconstruction term is then 0) and trainer fit the dynamics directly
+on states. These models are the upper bound the image models are measured against; they
+never see an image.
 
     latent-sindy train sindy --order 1 --library push --lambda-l1 1e-4 state --out runs/s
     latent-sindy train mlp --harmonics 4 state --out runs/m
@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.costs import cost_weights
 
 __all__ = ["ANGLE_FEATURES", "STATE_DIM", "StateCodec", "StateConfig", "pose_cost_weights"]
 
@@ -34,7 +35,9 @@ ANGLE_FEATURES = (2, 3)
 
 @dataclass(frozen=True)
 class StateConfig:
-    """The true pose as the latent state (a reference model; no image is used)."""
+    """The true pose as the latent state (a reference model; no image is used).
+
+    Its two scales are those of MPPI's cost on the pose (:func:`pose_cost_weights`)."""
 
     kind: ClassVar[str] = "state"
     position_scale: float = 0.02
@@ -44,7 +47,7 @@ class StateConfig:
     becomes a random walk (the state MLP then met the strict criterion in 15 % of 20 random
     tasks, and in 85 % with this scale)."""
     angle_scale_deg: float = 10.0
-    """Orientation error (degrees, modulo the block's symmetry) that costs 1 (the strict
+    """Orientation error (degrees, modulo the object's symmetry) that costs 1 (the strict
     criterion's 10°)."""
 
     def __post_init__(self) -> None:
@@ -71,7 +74,8 @@ class StateConfig:
         """The encoder learns nothing: the latents are the data's poses."""
         return True
 
-    def resolve(self, channels: int, image_size: int, source: str = "the data") -> StateConfig:
+    def resolve(self, channels: int, image_size: int | tuple[int, int],
+                source: str = "the data") -> StateConfig:
         return self  # the pose does not depend on the images
 
     def build(self) -> StateCodec:
@@ -91,18 +95,20 @@ class StateCodec(nn.Module):
     def decode(self, z: torch.Tensor) -> torch.Tensor:
         return z
 
-    def cost_weights(self, angle_period: float) -> torch.Tensor:
+    def fit_statistics(self, frames: torch.Tensor) -> None:
+        """Nothing to take from the training data."""
+
+    def cost_weights(self, period: float) -> torch.Tensor:
         """Q of MPPI's cost: :func:`pose_cost_weights` on this config's scales."""
-        return pose_cost_weights(angle_period, self.config)
+        return pose_cost_weights(period, self.config)
 
 
-def pose_cost_weights(angle_period: float, scales: StateConfig | None = None) -> torch.Tensor:
-    """The diagonal Q (4,) of a quadratic cost on pose features s: an error of
-    ``position_scale`` in x or y, or of ``angle_scale_deg`` in orientation, costs 1 (the
-    angle features of an error e are 2 - 2 cos(2π e / P) apart, squared). ``scales`` None:
-    the defaults of :class:`StateConfig` (the strict criterion's 2 cm and 10°)."""
+def pose_cost_weights(period: float, scales: StateConfig | None = None) -> torch.Tensor:
+    """The diagonal Q (4,) of a quadratic cost on pose features s (period P of the angle's
+    features): an error of ``position_scale`` in x or y, or of ``angle_scale_deg`` in
+    orientation, costs 1 (:func:`~latent_sindy.models.costs.cost_weights`). ``scales`` None:
+    the defaults of :class:`StateConfig` (2 cm and 10°)."""
     scales = scales or StateConfig()
-    p = 1.0 / scales.position_scale**2
-    e = math.radians(scales.angle_scale_deg) * 2 * math.pi / angle_period
-    a = 1.0 / (2.0 - 2.0 * math.cos(min(e, math.pi)))
-    return torch.tensor([p, p, a, a])
+    return cost_weights(STATE_DIM, positions=(0, 1), position_scale=scales.position_scale,
+                        circle=ANGLE_FEATURES, period=period,
+                        angle_scale=math.radians(scales.angle_scale_deg))

@@ -1,0 +1,170 @@
+"""Image encoders: normalised images x (B, C, H, W) -> latents z (B, nz).
+
+Three kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
+
+* ``"conv"`` (:class:`Encoder`, the course's): two stages of 5×5 convolution + ReLU + 2×2
+  max-pool, a fully connected layer and a linear map to the latent size;
+* ``"keypoints"`` (:class:`KeypointEncoder`): a spatial softmax, whose latent is the image
+  positions of learned feature maps;
+* ``"moments"`` (:class:`MomentEncoder`): nothing learned, the image moments of what differs
+  from the background: the position and orientation of the one object that moves.
+
+Every kind takes any image shape (C, H, W). Image coordinates, where a latent is a position,
+run from -1 to 1 across the image (x to the right, y down; pixel centres); the moments'
+are isotropic (see :func:`image_coordinates`).
+
+    >>> enc = Encoder(AutoencoderConfig(channels=3, image_size=(20, 28), latent_dim=8))
+    >>> enc(torch.zeros(5, 3, 20, 28)).shape
+    torch.Size([5, 8])
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from torch import nn
+
+if TYPE_CHECKING:
+    from latent_sindy.models.autoencoder import AutoencoderConfig
+
+__all__ = ["KERNEL", "Encoder", "KeypointEncoder", "MomentEncoder", "image_coordinates",
+           "median_background"]
+
+#: The side of every learned encoder's convolution kernels.
+KERNEL = 5
+
+
+class Encoder(nn.Module):
+    """The conv encoder: x (B, C, H, W) normalised images -> z (B, nz)."""
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        c1, c2 = cfg.conv_channels
+        h, w = cfg.conv_shape()
+        # Max-pooling before the ReLU (they commute: max(relu(a)) = relu(max(a))) applies
+        # the ReLU to a quarter of the values; the layers' indices, hence the state dict's
+        # keys, are those of the course's conv, ReLU, pool order.
+        self.net = nn.Sequential(
+            nn.Conv2d(cfg.channels, c1, KERNEL),
+            nn.MaxPool2d(2),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c1, c2, KERNEL),
+            nn.MaxPool2d(2),
+            nn.ReLU(inplace=True),
+            nn.Flatten(),
+            nn.Linear(c2 * h * w, cfg.encoder_hidden),
+            nn.ReLU(),
+            nn.Linear(cfg.encoder_hidden, cfg.latent_dim),
+        )
+        # Channels-last conv weights (and input) take oneDNN's NHWC path on CPU: about 2.5x
+        # faster convolution backward for these few-channel convs (benchmarks/train.py).
+        self.to(memory_format=torch.channels_last)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x.contiguous(memory_format=torch.channels_last))
+
+
+class KeypointEncoder(nn.Module):
+    """x (B, C, H, W) -> z (B, nz): nz / 2 keypoints (x_1, y_1, x_2, y_2, ...) in [-1, 1].
+
+    Three 5×5 convolutions at full resolution give one feature map per keypoint; a softmax
+    over each map's pixels (with a learned temperature) weights the pixel coordinates (x from
+    -1 to 1 across the width, y across the height), whose expectation is the keypoint (the
+    spatial autoencoder of Finn et al., 2016). An object that moves moves its keypoints with
+    it, by construction rather than learnt.
+    """
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        c, k = cfg.keypoint_channels, cfg.latent_dim // 2
+        pad = KERNEL // 2
+        self.net = nn.Sequential(
+            nn.Conv2d(cfg.channels, c, KERNEL, padding=pad), nn.ReLU(),
+            nn.Conv2d(c, c, KERNEL, padding=pad), nn.ReLU(),
+            nn.Conv2d(c, k, KERNEL, padding=pad))
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+        rows, cols = torch.meshgrid(torch.linspace(-1.0, 1.0, cfg.height),
+                                    torch.linspace(-1.0, 1.0, cfg.width), indexing="ij")
+        self.register_buffer("grid", torch.stack([cols.flatten(), rows.flatten()], -1),
+                             persistent=False)  # (H·W, 2): x right, y down
+        self.net.to(memory_format=torch.channels_last)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        f = self.net(x.contiguous(memory_format=torch.channels_last))  # (B, K, H, W)
+        p = torch.softmax(f.flatten(2) / self.log_temperature.exp(), dim=-1)  # (B, K, H·W)
+        return (p @ self.grid).flatten(1)  # (B, K, 2) -> (B, 2K)
+
+
+def image_coordinates(height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Isotropic image coordinates of the pixel centres: x (W,) and y (H,), centred, one pixel
+    2 / (L - 1) wide, L = max(H, W): the longer side runs from -1 to 1 (both, when square)."""
+    side = max(height, width)
+    xs = torch.linspace(-1.0, 1.0, width) * ((width - 1) / (side - 1) if side > 1 else 1.0)
+    ys = torch.linspace(-1.0, 1.0, height) * ((height - 1) / (side - 1) if side > 1 else 1.0)
+    return xs, ys
+
+
+def median_background(frames: torch.Tensor, shape: torch.Size) -> torch.Tensor:
+    """The per-pixel median (C, H, W) of normalised images (..., C, H, W): the background,
+    for an object that covers any one pixel in few of them."""
+    return frames.reshape(-1, *shape).median(0).values
+
+
+class MomentEncoder(nn.Module):
+    """x (B, C, H, W) -> z (B, 4) = (x, y, cos nφ, sin nφ): the pose of the one object that
+    differs from the background, in image coordinates.
+
+    Nothing is learned. The background is the per-pixel median of the training images
+    (:meth:`fit_statistics`; the object covers any one pixel in few of them), and a pixel's
+    weight w is its absolute difference from it, summed over channels. Then
+
+    * (x, y) is the centroid of w, in the isotropic coordinates of
+      :func:`image_coordinates` (x to the right, y down);
+    * nφ is the argument of the n-th angular moment Σ w' (r_x + i r_y)ⁿ about the centroid,
+      so (cos nφ, sin nφ) is the orientation modulo the object's symmetry 2π / n. For n >= 2,
+      w' = w; for n = 1 the moment of w about its own centroid is 0 by construction, so
+      w' is the squared difference, where a part marked in another colour shows.
+
+    An image equal to the background reads the image centre and the angle features (0, 0).
+    (On the pushing world's images a linear map of (x, y) reads the block's position to
+    0.54 cm and nφ its orientation to 4.0°, mean errors; RESULTS.md.)
+    """
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        self.order = cfg.moment_order
+        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
+        xs, ys = image_coordinates(cfg.height, cfg.width)
+        self.register_buffer("xs", xs, persistent=False)
+        self.register_buffer("ys", ys, persistent=False)
+
+    @property
+    def pixel(self) -> float:
+        """One pixel's width in the latent's position units."""
+        return float(self.xs[1] - self.xs[0])
+
+    @torch.no_grad()
+    def fit_statistics(self, frames: torch.Tensor) -> None:
+        """Set the background from normalised training images (N, C, H, W)."""
+        self.background.copy_(median_background(frames, self.background.shape))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        d = x - self.background  # (B, C, H, W)
+        w = d.abs().sum(1)  # (B, H, W)
+        tiny = torch.finfo(x.dtype).tiny
+        mass = w.sum((1, 2)).clamp_min(tiny)  # (B,)
+        xs, ys = self.xs, self.ys
+        cx = (w.sum(1) * xs).sum(1) / mass  # columns: x
+        cy = (w.sum(2) * ys).sum(1) / mass  # rows: y
+        rx = xs[None, None, :] - cx[:, None, None]  # (B, 1, W)
+        ry = ys[None, :, None] - cy[:, None, None]  # (B, H, 1)
+        re, im = rx.expand_as(w), ry.expand_as(w)
+        pr, pi = re, im  # (rx + i ry)^n by repeated products
+        for _ in range(self.order - 1):
+            pr, pi = pr * re - pi * im, pr * im + pi * re
+        wm = w if self.order > 1 else d.square().sum(1)
+        mr, mi = (wm * pr).sum((1, 2)), (wm * pi).sum((1, 2))
+        size = (wm * (re.square() + im.square()).pow(self.order / 2)).sum((1, 2))
+        norm = torch.sqrt(mr.square() + mi.square() + (1e-6 * size).square() + tiny)
+        return torch.stack([cx, cy, mr / norm, mi / norm], -1)
