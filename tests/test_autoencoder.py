@@ -387,3 +387,121 @@ def test_encoder_pools_before_its_relus_with_the_course_layout() -> None:
         assert torch.equal(a, b)
     assert {k.rsplit(".", 1)[0] for k in enc.state_dict()} == {"net.0", "net.3", "net.7",
                                                                "net.9"}
+
+
+# ----------------------------------------------------------------------------- any image shape
+SHAPE = (3, 20, 28)  # (C, H, W): neither square nor a multiple of 8
+
+
+@pytest.mark.parametrize(("encoder", "decoder", "nz"),
+                         [("conv", "fc", 6), ("conv", "conv", 6), ("keypoints", "conv", 6),
+                          ("moments", "conv", 4), ("moments", "sprite", 4)])
+def test_every_kind_takes_a_non_square_image(encoder: str, decoder: str, nz: int) -> None:
+    cfg = AutoencoderConfig(latent_dim=nz, encoder_kind=encoder, decoder_kind=decoder,
+                            keypoint_channels=4).resolve(SHAPE[0], SHAPE[1:])
+    assert cfg.image_size == (20, 28) and cfg.image_shape == SHAPE
+    ae = Autoencoder(cfg)
+    x = torch.randn(2, 3, *SHAPE)
+    ae.fit_statistics(x.flatten(0, 1))
+    z = ae.encode(x)
+    assert z.shape == (2, 3, nz) and torch.isfinite(z).all()
+    assert ae.decode(z).shape == x.shape
+
+
+def test_a_conv_autoencoder_on_rgb_20x28_images_learns() -> None:
+    """Shapes round-trip and a few Adam steps lower the reconstruction loss."""
+    torch.manual_seed(0)
+    ae = Autoencoder(AutoencoderConfig(channels=3, image_size=(20, 28), latent_dim=8,
+                                       decoder_kind="conv"))
+    conv = ae.encoder.net[7]
+    assert conv.in_features == 4 * 2 * 4  # 20 -> 16 -> 8 -> 4 -> 2, 28 -> 24 -> 12 -> 8 -> 4
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(16, 1, 1, 1, generator=g) * torch.randn(1, *SHAPE, generator=g)
+    assert ae(x).shape == (16, *SHAPE)
+    opt = torch.optim.Adam(ae.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(30):
+        opt.zero_grad()
+        loss = (ae(x) - x).square().mean()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.7 * losses[0], losses
+
+
+def test_a_latent_model_on_non_square_images_takes_the_data_shape() -> None:
+    cfg = ModelConfig(observation=AutoencoderConfig(latent_dim=4, encoder_hidden=16,
+                                                    decoder_hidden=(32,)),
+                      dynamics=SindyConfig(order=1)).resolve(3, (20, 28), 2)
+    x, u = torch.randn(4, 3, *SHAPE), torch.rand(4, 2, 2)
+    terms = LatentModel(cfg).loss(x, u)
+    assert all(torch.isfinite(v) for v in terms.values())
+
+
+def test_non_square_images_a_kind_cannot_take_are_one_clear_error() -> None:
+    with pytest.raises(UserError, match=r"conv decoder needs image sides divisible by 4 "
+                                         r"\(got 20x30\)"):
+        AutoencoderConfig(decoder_kind="conv").resolve(3, (20, 30))
+    with pytest.raises(UserError, match=r"image size 12x40 is too small"):
+        AutoencoderConfig(image_size=(12, 40))
+    with pytest.raises(UserError, match=r"sprite_size 21.*shorter side"):
+        AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite",
+                          sprite_size=21, image_size=(20, 28))
+    with pytest.raises(UserError, match=r"image_size is 32 but d\.h5 has image_size 20x28"):
+        AutoencoderConfig(image_size=32).resolve(3, (20, 28), "d.h5")
+    ae = Autoencoder(AutoencoderConfig(channels=3, image_size=32))
+    with pytest.raises(UserError, match=r"images of shape \(C, H, W\) = \(3, 32, 32\), got "
+                                         r"\(3, 20, 28\)"):
+        ae.encode(torch.zeros(2, *SHAPE))
+
+
+def test_image_sizes_serialize_as_before_for_squares_and_as_pairs_otherwise() -> None:
+    square = AutoencoderConfig(image_size=(32, 32))
+    assert square == AutoencoderConfig(image_size=32) and to_json(square)["image_size"] == 32
+    wide = AutoencoderConfig(channels=3, image_size=(20, 28))
+    record = json.loads(json.dumps(to_json(wide)))
+    assert record["image_size"] == [20, 28]
+    assert from_json(AutoencoderConfig, record, "model") == wide
+    assert (wide.height, wide.width) == (20, 28)
+
+
+def test_keypoints_run_across_each_side_of_a_non_square_image() -> None:
+    enc = Autoencoder(AutoencoderConfig(channels=1, image_size=(17, 25), latent_dim=2,
+                                        encoder_kind="keypoints")).encoder
+    enc.net = torch.nn.Identity()
+    enc.log_temperature.data.fill_(-3.0)
+    x = torch.zeros(1, 1, 17, 25)
+    x[0, 0, 4, 18] = 1.0  # row 4 of 17, column 18 of 25
+    torch.testing.assert_close(enc(x)[0], torch.tensor([0.5, -0.5]), atol=1e-3, rtol=0)
+
+
+# ----------------------------------------------------------------------------- renamed settings
+def test_settings_written_under_their_old_names_still_load() -> None:
+    """Run folders written before the renames (ModelConfig.encoder, AutoencoderConfig.encoder /
+    .decoder) load as the same config; the old keywords and attributes still work; records
+    are written with the new names."""
+    new = ModelConfig(observation=AutoencoderConfig(encoder_kind="moments", latent_dim=4,
+                                                    decoder_kind="sprite"),
+                      dynamics=SindyConfig(order=1, library="face"))
+    record = json.loads(json.dumps(to_json(new)))
+    assert "observation" in record and "encoder" not in record
+    assert record["observation"]["encoder_kind"] == "moments"
+    old = json.loads(json.dumps(record))
+    old["encoder"] = old.pop("observation")
+    auto = old["encoder"]
+    auto["encoder"], auto["decoder"] = auto.pop("encoder_kind"), auto.pop("decoder_kind")
+    assert from_json(ModelConfig, old, "model") == new
+    # both names in one record: the old one is an unknown setting, not silently dropped
+    with pytest.raises(UserError, match=r"unknown settings \['encoder'\]"):
+        from_json(AutoencoderConfig, {**record["observation"], "encoder": "conv"}, "model")
+    # keywords, dataclasses.replace and attributes under the old names
+    legacy = ModelConfig(encoder=AutoencoderConfig(encoder="moments", latent_dim=4,
+                                                   decoder="sprite"),
+                         dynamics=SindyConfig(order=1, library="face"))
+    assert legacy == new
+    assert new.encoder is new.observation and new.observation.encoder == "moments"
+    assert new.observation.decoder == "sprite" and new.kind == new.dynamics_kind == "sindy"
+    conv = dataclasses.replace(new.observation, encoder="conv", decoder="conv", latent_dim=6)
+    assert (conv.encoder_kind, conv.decoder_kind) == ("conv", "conv")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        new.observation.encoder_kind = "conv"  # type: ignore[misc]

@@ -23,6 +23,7 @@ from latent_sindy.models import (
     ModelConfig,
     SindyConfig,
     SindyDynamics,
+    SparseDynamics,
     StateConfig,
     make_dynamics,
 )
@@ -508,3 +509,19 @@ def test_a_pose_latent_model_rolls_out_on_the_circle(name: str) -> None:
         with torch.no_grad():
             assert float(model.loss(x, u[:, :5])["pred_z"]) == pytest.approx(0.0, abs=1e-12)
             torch.testing.assert_close(model.predict(x[:, 0], u[:, :5]), x, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("case", MODEL_CASES)
+def test_sparse_dynamics_is_the_one_answer_to_whether_a_model_is_sparse(case: str) -> None:
+    """Trainable SINDy models are SparseDynamics, whose counts follow from the mask; the
+    others (the frozen compiled step included: nothing left to prune) are not."""
+    model = _build(case)
+    sparse = isinstance(model, SparseDynamics)
+    assert sparse == (isinstance(model, SindyDynamics))
+    if not sparse:
+        return
+    pruned = model.threshold(0.03)
+    assert model.n_active() == int(model.mask.sum()) == model.n_candidates() - pruned
+    assert model.sparsity() == pytest.approx(pruned / model.n_candidates())
+    torch.testing.assert_close(model.l1_penalty(), model.coefficients().abs().sum())
+    assert torch.equal(model.active_terms(), model.mask.any(1).nonzero().flatten())

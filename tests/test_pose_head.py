@@ -21,6 +21,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import latent_probe
 from latent_sindy.experiments.study import SCALES, model_specs
 from latent_sindy.models.autoencoder import AutoencoderConfig
+from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import SindyConfig
 from latent_sindy.models.latent_model import LatentModel, LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig, pose_cost_weights
@@ -269,3 +270,22 @@ def test_a_coordinates_head_reads_the_first_four_latent_coordinates() -> None:
     want = (((zx - poses) / std).square().mean()
             + ((zhat - poses[:, 1:]) / std).square().mean())
     torch.testing.assert_close(got, want)
+
+
+def test_cost_weights_come_from_what_the_coordinates_are() -> None:
+    """An error of the position scale, or of the angle scale (modulo the period), costs 1;
+    other coordinates weigh 1. The pose's and the moments latent's weights are instances."""
+    q = cost_weights(6, positions=(0, 1), position_scale=0.02, circle=(2, 3), period=PERIOD,
+                     angle_scale=math.radians(10))
+    assert torch.equal(q[:4], pose_cost_weights(PERIOD)) and torch.equal(q[4:], torch.ones(2))
+    assert float(q[0]) * 0.02**2 == pytest.approx(1.0)
+    f = 2 * math.pi / PERIOD  # the features are (cos fθ, sin fθ)
+    e = torch.tensor([math.cos(f * math.radians(10)) - 1, math.sin(f * math.radians(10))])
+    assert float((q[2:4] * e.square()).sum()) == pytest.approx(1.0, rel=1e-6)
+    moments = AutoencoderConfig(latent_dim=4, encoder_kind="moments").resolve(1, 32).build()
+    want = cost_weights(4, positions=(0, 1), position_scale=2 / 31, circle=(2, 3),
+                        period=PERIOD, angle_scale=math.radians(10))
+    torch.testing.assert_close(moments.cost_weights(PERIOD), want)
+    assert torch.equal(StateConfig().build().cost_weights(PERIOD), pose_cost_weights(PERIOD))
+    with pytest.raises(ValueError, match="cost scales must be > 0"):
+        cost_weights(4, positions=(0,), position_scale=0.0)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from latent_sindy.cli import main
-from latent_sindy.data.store import write_trajectories
+from latent_sindy.data import write_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.models import AutoencoderConfig
@@ -143,7 +143,7 @@ def test_training_with_decoder_sprite_keeps_the_background_and_the_template(
     round trip restores both."""
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"
-    write_trajectories(data, d)
+    write_sequences(data, d)
     out = tmp_path / "run"
     assert main(["train", "sindy", "--order", "1", "--library", "face", "--no-include-sine",
                  "--data", str(data), "--epochs", "2", "--batch-size", "4", "--no-progress",
@@ -174,3 +174,29 @@ def test_sprite_side_follows_the_image_side_unless_given():
     given = dataclasses.replace(base, sprite_size=7).resolve(1, 64)
     assert given.sprite_size == 7
     assert SpriteDecoder(base.resolve(1, 64)).template.shape == (1, 23, 23)
+
+
+def test_on_a_non_square_image_moments_and_sprite_share_isotropic_coordinates() -> None:
+    """On 24 x 40 images a pixel is 2 / 39 wide in x and in y (the longer side runs from -1
+    to 1), so a pixel's moments read its place, and encode(decode(z)) is z as on squares."""
+    cfg = AutoencoderConfig(channels=1, image_size=(24, 40), latent_dim=4,
+                            encoder_kind="moments", decoder_kind="sprite", sprite_size=11)
+    ae = cfg.build()
+    x = torch.zeros(1, 1, 24, 40)
+    x[0, 0, 3, 30] = 1.0
+    with torch.no_grad():
+        z = ae.encode(x)[0]
+    torch.testing.assert_close(z[:2], torch.tensor([10.5 * 2 / 39, -8.5 * 2 / 39]))
+    ae.decoder.set_template(square())
+    g = torch.Generator().manual_seed(0)
+    xy = (torch.rand(30, 2, generator=g) * 2 - 1) * torch.tensor([0.6, 0.3])
+    phi = (torch.rand(30, generator=g) * 2 - 1) * math.pi
+    z = torch.stack([xy[:, 0], xy[:, 1], torch.cos(4 * phi), torch.sin(4 * phi)], -1)
+    with torch.no_grad():
+        back = ae.encode(ae.decode(z))
+    err_px = (back[:, :2] - z[:, :2]).norm(dim=-1) / (2 / 39)
+    assert err_px.max() < 0.02, err_px
+    turn = torch.polar(torch.ones(30), torch.atan2(back[:, 3], back[:, 2])
+                       - torch.atan2(z[:, 3], z[:, 2]))
+    residual = torch.angle(turn * turn.mean().conj()).abs() / 4  # minus the mean phase
+    assert math.degrees(float(residual.max())) < 2.5
