@@ -120,8 +120,9 @@ class SpriteDecoder(nn.Module):
 
     The parameter ``weight`` is T / :attr:`GAIN` (zero at first): an object that adds about
     −7 standard deviations to the normalised background would take Adam's steps of about the
-    learning rate thousands of steps to reach in T's own units (on the pushing demo, 60
-    epochs at lr 1e-3 left the reconstruction MSE at 0.79 against the conv decoder's 0.21).
+    learning rate thousands of steps to reach in T's own units (for example, on the pushing
+    demo 60 epochs at lr 1e-3 left the reconstruction MSE at 0.79 against the conv decoder's
+    0.21).
 
     Drawn by ``affine_grid`` + ``grid_sample`` (bilinear, zeros outside the template), at
     ``sprite_supersample`` times the image's resolution and average-pooled: differentiable in

@@ -127,8 +127,8 @@ class MomentEncoder(nn.Module):
       w' is the squared difference, where a part marked in another colour shows.
 
     An image equal to the background reads the image centre and the angle features (0, 0).
-    (On the pushing world's images a linear map of (x, y) reads the block's position to
-    0.54 cm and nφ its orientation to 4.0°, mean errors; RESULTS.md.)
+    (For example, on the pushing world's images a linear map of (x, y) reads the block's
+    position to 0.54 cm and nφ its orientation to 4.0°, mean errors; RESULTS.md.)
     """
 
     def __init__(self, cfg: AutoencoderConfig) -> None:

@@ -27,7 +27,7 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
                                   the pose term only with λ4 > 0)
 
 Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
-pushes in them while encoding and reconstructing each frame once (the trainer's
+actions in them while encoding and reconstructing each frame once (the trainer's
 ``--batching trajectories``): pred_x and pred_z are then the means over the same windows,
 and recon (and the pose term on encoded frames) weighs every frame once instead of once per
 window that holds it.
@@ -102,7 +102,7 @@ class ModelConfig:
     "linear" (learned), or "coordinates" (the first four latent coordinates are the pose
     features, x, y, cos fθ, sin fθ, f the object's symmetry, so a face library can write the
     dynamics on them). Control reads the goal's pose from the goal image, never the
-    simulator."""
+    true state."""
     turn: bool = False
     """A pose latent's orientation features (z2, z3) are turned, after every step, by the
     angle ω that the dynamics give as z2's update (z2 + i z3 times e^(iω); z3's own update is
@@ -118,12 +118,12 @@ class ModelConfig:
         if self.has_pose_head and self.observation.kind != "image":
             raise UserError(f"--pose-head is for image models: a {self.observation.kind} "
                             "model's latent is the pose already; drop --pose-head")
-        library = getattr(self.dynamics, "library", None)
-        if library in ("face", "frame") and not self.pose_latent:
-            raise UserError(f"--library {library} writes the dynamics on the pose features "
-                            "(z2, z3 = cos, sin of the angle): use it with the state encoder, the "
-                            "moments encoder (--encoder moments --latent-dim 4) or --pose-head "
-                            "coordinates, or use --library push")
+        if isinstance(self.dynamics, SindyConfig) and self.dynamics.pose_library and (
+                not self.pose_latent):
+            raise UserError(f"--library {self.dynamics.library} writes the dynamics on the pose "
+                            "features (z2, z3 = cos, sin of the angle): use it with the state "
+                            "encoder, the moments encoder (--encoder moments --latent-dim 4) or "
+                            "--pose-head coordinates, or use --library push")
         if self.turn and not self.pose_latent:
             raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
                             "it with the state or moments encoder or --pose-head coordinates")
@@ -272,7 +272,7 @@ class LatentModel(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, h, w), u (B, T, nu).
 
-        ``window`` H (1..T; None: T) cuts a window of H pushes at every start t = 0..T-H of
+        ``window`` H (1..T; None: T) cuts a window of H actions at every start t = 0..T-H of
         each sequence: the frames are encoded and reconstructed once each, ẑ is rolled out H
         steps from every encoded frame z_t, and every prediction is decoded in the same
         decoder pass. recon (and the pose head's term on encoded frames) is the mean over the
@@ -291,7 +291,7 @@ class LatentModel(nn.Module):
         b, t = u.shape[:2]
         h = t if window is None else window
         if not 1 <= h <= t:
-            raise ValueError(f"loss: window {h} does not fit sequences of {t} pushes")
+            raise ValueError(f"loss: window {h} does not fit sequences of {t} actions")
         starts = t - h + 1  # windows per sequence: W
         z = self.encode(x)  # (B, T+1, nz)
         u_win = u.unfold(1, h, 1).movedim(-1, 2)  # (B, W, H, nu): u_win[:, s, k] = u[:, s + k]

@@ -1,22 +1,22 @@
-"""A privileged pose head: a linear readout of the block's pose features from the latent.
+"""A privileged pose head: a linear readout of the pose features from the latent.
 
-The image autoencoders keep the block's position in their latent but drop its orientation
-(a linear probe reads cos 4θ, sin 4θ with R² ≈ 0; issue 11). A pose head is an auxiliary
-linear map P: z (nz) -> s (4), s = (x, y, cos(2πθ/P), sin(2πθ/P)) the encoding of
-:func:`~latent_sindy.data.windows.pose_features`, trained with the simulator's pose during
-training only (the loss term ``pose`` of :class:`~latent_sindy.models.latent_model.LatentModel`,
-weighted by ``--lambda-pose``). It pulls the orientation into the latent (which the
-dynamics then carry) and gives MPPI a cost in pose units (``--space pose``): the goal's pose
-is read from the goal image through the encoder and the head, so control needs nothing
-privileged.
+Image autoencoders can keep an object's position in their latent but drop its orientation
+(on the pushing world a linear probe read cos 4θ, sin 4θ with R² ≈ 0; issue 11). A pose head
+is an auxiliary linear map P: z (nz) -> s (4), s = (x, y, cos(2πθ/P), sin(2πθ/P)) the
+encoding of :func:`~latent_sindy.data.windows.pose_features`, trained with the data's true
+poses during training only (the loss term ``pose`` of
+:class:`~latent_sindy.models.latent_model.LatentModel`, weighted by ``--lambda-pose``). It
+pulls the orientation into the latent (which the dynamics then carry) and gives MPPI a cost in
+pose units (``--space pose``): the goal's pose is read from the goal image through the encoder
+and the head, so control needs nothing privileged.
 
 Two kinds (:data:`POSE_HEADS`, ``--pose-head linear|coordinates``):
 
 * ``linear``: a learned linear map P: z -> s, beside whatever else the latent holds;
 * ``coordinates``: the first four latent coordinates *are* the pose features, in their own
   units (P = [I 0], nothing learned). With ``--latent-dim 4`` the latent is the pose read from
-  the image, so the dynamics can be written on it as on the true state (the face library:
-  ``--library face``), and the decoder renders the block from it.
+  the image, so the dynamics can be written on it as on the true state (e.g. the face
+  library, ``--library face``), and the decoder renders the object from it.
 
 The head works on standardised features: its linear layer predicts (s - mean) / std with the
 training split's statistics, held as buffers (saved with the model), so positions (spread

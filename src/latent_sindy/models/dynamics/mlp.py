@@ -26,7 +26,7 @@ class MlpDynamics(LatentDynamics):
     of PyTorch's default scale so the untrained model is close to the identity. With
     ``harmonics`` = n > 0 the action ``u[angle]`` (an angle) also enters as cos(k u), sin(k u)
     for k = 1..n: a network of this size learns functions of an angle that turn n times per
-    revolution (the pose features of a block with n-fold symmetry) only from such features.
+    revolution (the pose features of an object with n-fold symmetry) only from such features.
     ``circle``: see :class:`LatentDynamics`.
     """
 
@@ -90,9 +90,9 @@ class MlpConfig:
     layers: int = 2
     """Number of hidden layers."""
     harmonics: int = 0
-    """Also feed the push angle u1 as cos(k u1), sin(k u1), k = 1..harmonics (0: u as it is).
-    The state reference rows use 4: a square block's pose features turn 4 times per
-    revolution."""
+    """Also feed the action u1, an angle, as cos(k u1), sin(k u1), k = 1..harmonics (0: u as
+    it is): the number of times per revolution what the angle acts on looks alike (4 for a
+    square object, as the pushing world's state reference rows use)."""
 
     def __post_init__(self) -> None:
         if self.hidden < 1 or self.layers < 1:
@@ -103,8 +103,8 @@ class MlpConfig:
     def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
               turn: bool = False) -> MlpDynamics:
         if self.harmonics and nu < 2:
-            raise UserError(f"--harmonics needs a push angle u1, but actions have {nu} "
-                            "components")
+            raise UserError(f"--harmonics needs an angle as the action u1, but actions have "
+                            f"{nu} components")
         return MlpDynamics(nz, nu, hidden=self.hidden, layers=self.layers,
                            harmonics=self.harmonics, angle=1, circle=circle, turn=turn)
 

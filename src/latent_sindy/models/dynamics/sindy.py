@@ -302,32 +302,29 @@ class SindyConfig:
     include_cosine: bool = False
     """Add cos(z_i) candidates ("poly" library only)."""
     library: Literal["poly", "push", "face", "frame"] = "poly"
-    """"poly": monomials of [z, u] up to the order (+ sin z); "push": that plus the push
-    length times the sine and cosine of the push angle, alone and times each state (what a
-    push does: Δx ≈ ℓ cos ψ), for actions u = [p, angle, length]; "face" (order 1, on the
-    pose: state models or --pose-head coordinates; pushes given as world directions, the
-    symmetric world): the push length times the push direction or the orientation features
-    (z2, z3), times powers of the contact offset and the push angle relative to the pushed
-    face (the library's face_library); "frame" (order 1, on the pose, world-direction
-    pushes): the push in the pushed face's frame, the push length times the face normal's
-    direction (cos n, sin n) or the orientation features, times the monomials of the contact
-    offset and of the push's angle a from the face normal (the library's frame_library)."""
+    """"poly": monomials of [z, u] up to the order (+ sin z); any other name is a library
+    preset a world registers (:mod:`latent_sindy.sindy.presets`). The pushing world's, for
+    example (docs/world.md), for actions u = [p, angle, length]: "push", poly plus the push
+    length times the sine and cosine of the push angle, alone and times each state; "face"
+    (order 1, on a pose latent, world-direction pushes): the push length times the push
+    direction or the orientation features (z2, z3), times powers of the contact offset and
+    the relative push angle; "frame" (likewise): the push in the pushed face's frame."""
     angle_frequency: float = 4.0
-    """"face" library: f of the orientation features (cos fθ, sin fθ), the block's visible
-    symmetry: 4 for a square block (2π over the visible period). The relative push angle
-    enters as sin(f u1), cos(f u1) times those features."""
+    """"face" and "frame" presets: f of the orientation features (cos fθ, sin fθ), the
+    object's visible symmetry (2π over the visible period; 4 for a square). The relative
+    action angle enters as sin(f u1), cos(f u1) times those features."""
     frame_degree: int = 3
-    """"frame" library: highest degree of the monomials of the contact offset and the angle
-    from the face normal."""
+    """"frame" preset: highest degree of its monomials (of the contact offset and the angle
+    from the face normal)."""
     frame_sense: int | None = None
-    """"frame" library: the orientation features' sense against the world's, fθ =
+    """"frame" preset: the orientation features' sense against the world's, fθ =
     sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image). None: the
     latent's own, which training states in the run's record: on the moments latent the
-    data's camera's (envs.camera.moment_frame; a value given must match it), on a pose
-    latent in world angles (the state, a coordinates pose head) 1. A model built from an
-    unresolved config reads None as 1 and its offset as 0."""
+    data's camera's (a value given must match it), on a pose latent in world angles (the
+    state, a coordinates pose head) 1. A model built from an unresolved config reads None
+    as 1 and its offset as 0."""
     frame_offset: float | None = None
-    """"frame" library: that offset (radians); None: the latent's own, as ``frame_sense``
+    """"frame" preset: that offset (radians); None: the latent's own, as ``frame_sense``
     (the moments latent's camera's, else 0)."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
@@ -360,6 +357,12 @@ class SindyConfig:
                             "> 0 (4 for a square block)")
         check_init_scale("SINDy", self.init_scale)
 
+    @property
+    def pose_library(self) -> bool:
+        """Whether the library writes the dynamics on a pose latent (x, y, cos fθ, sin fθ,
+        ...): the face and frame presets."""
+        return self.library in ("face", "frame")
+
     def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
               turn: bool = False) -> SindyDynamics:
         """The model for latent size nz and action size nu; ``circle``: the latent
@@ -368,7 +371,7 @@ class SindyConfig:
         if self.library in ("push", "face", "frame") and nu < 3:
             raise UserError(f"the {self.library} library needs actions [p, angle, length], "
                             f"got {nu}")
-        if self.library in ("face", "frame") and nz < 4:
+        if self.pose_library and nz < 4:
             raise UserError(f"the {self.library} library needs the pose (x, y, cos fθ, sin fθ) "
                             f"as the first four latent coordinates, got a latent of size {nz}: "
                             "use the state or moments encoder or --pose-head coordinates")
