@@ -1,8 +1,10 @@
 """latent-sindy: sparse, interpretable latent dynamics (SINDy) learned from images.
 
-The core (``sindy``, ``models``, ``data``, ``training``, ``control``) knows no world; worlds
-(``latent_sindy.worlds``) plug in. Importing the package loads no simulator: the pushing
-world's gymnasium environment ``latent_sindy/PandaPush-v0`` registers when that world is used.
+    from latent_sindy import LatentSINDy, SequenceData
+    model = LatentSINDy(latent_dim=2, order=2).fit(SequenceData(images, actions, ...))
+
+The core (``sindy``, ``models``, ``data``, ``training``, ``control``, ``api``) knows no world;
+worlds (``latent_sindy.worlds``) plug in by name. Importing the package loads no simulator.
 """
 
 from importlib.metadata import PackageNotFoundError, version
@@ -11,3 +13,22 @@ try:
     __version__ = version("latent-sindy")
 except PackageNotFoundError:  # running from a source tree without installation
     __version__ = "0.0.0+unknown"
+
+__all__ = ["LatentSINDy", "SequenceData", "UserError", "__version__"]
+
+
+def __getattr__(name: str):
+    # The estimator pulls in torch and the training stack: loaded when first asked for.
+    if name == "LatentSINDy":
+        from latent_sindy.api import LatentSINDy
+
+        return LatentSINDy
+    if name == "SequenceData":
+        from latent_sindy.data import SequenceData
+
+        return SequenceData
+    if name == "UserError":
+        from latent_sindy.errors import UserError
+
+        return UserError
+    raise AttributeError(f"module 'latent_sindy' has no attribute {name!r}")

@@ -32,12 +32,12 @@ from typing import Annotated
 import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
-from latent_sindy.control.closed_loop import ControlConfig
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.progress import bar
 from latent_sindy.training.config import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan
+from latent_sindy.worlds.push.episodes import ControlConfig
 
 Flat = tyro.conf.OmitArgPrefixes
 
@@ -89,23 +89,34 @@ class Collect:
 
 @dataclass
 class Info:
-    """Validate a trajectory file and print what it holds."""
+    """Validate a data file and print what it holds (any file of the layout in docs/data.md)."""
 
     data: tyro.conf.Positional[Path]
     """Trajectory file (.h5)."""
 
     def run(self) -> None:
+        import numpy as np
+
         from latent_sindy.data import read_sequences
 
         d = read_sequences(self.data)
         mean, std = d.pixel_stats()
-        step = d.poses[:, 1:, :2] - d.poses[:, :-1, :2]
-        print(f"{self.data}: valid latent-sindy trajectory file")
-        print(f"  trajectories {d.n} {d.split_counts()}, {d.steps} pushes each, seed {d.seed}")
-        print(f"  images {d.images.shape} uint8, pixels {d.images.min()}..{d.images.max()}, "
-              f"train mean {mean:.1f} std {std:.1f}")
-        print(f"  block moves {1000 * float(abs(step).sum(-1).mean()):.1f} mm per push on "
-              f"average (L1 of x, y)")
+        print(f"{self.data}: valid latent-sindy data file"
+              + (f" of the {d.world!r} world" if d.world else ""))
+        print(f"  sequences {d.n} {d.split_counts()}, {d.steps} steps each"
+              + ("" if d.seed is None else f", seed {d.seed}")
+              + ("" if d.dt is None else f", dt {d.dt:g}"))
+        print(f"  images {d.images.shape} {d.images.dtype}, pixels {d.images.min()}.."
+              f"{d.images.max()}, train mean {mean:.4g} std {std:.4g}")
+        box = ", ".join(f"{n} [{lo:g}, {hi:g}]" for n, lo, hi in
+                        zip(d.action_names, d.action_low, d.action_high, strict=True))
+        print(f"  actions {d.nu}: {box or 'none (an autonomous system)'}")
+        if d.states is None:
+            print("  states: none")
+        else:
+            moves = np.abs(np.diff(d.states, axis=1)).mean(axis=(0, 1))
+            print("  states " + ", ".join(f"{n} (moves {m:.4g} per step)" for n, m in
+                                          zip(d.state_names, moves, strict=True)))
 
 
 @dataclass
@@ -205,9 +216,9 @@ class Control:
     def run(self) -> None:
         import torch
 
-        from latent_sindy.control.closed_loop import format_summary, run_control
         from latent_sindy.control.mppi import MPPIConfig
         from latent_sindy.training import RunDir
+        from latent_sindy.worlds.push.episodes import format_summary, run_control
         from latent_sindy.worlds.push.planner import world_planner
 
         s = self.settings

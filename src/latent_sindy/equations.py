@@ -19,11 +19,21 @@ import csv
 import io
 import json
 import os
+import re
+from collections.abc import Sequence
 
 from latent_sindy.atomic import write_atomic
 from latent_sindy.training.runs import RunDir
 
-__all__ = ["equations_report"]
+__all__ = ["equations_report", "name_actions"]
+
+
+def name_actions(lines: list[str], names: Sequence[str]) -> list[str]:
+    """Equations with the action variables u0, u1, ... written as ``names``."""
+    if not names:
+        return lines
+    return [re.sub(r"\bu(\d+)\b", lambda m: names[int(m[1])] if int(m[1]) < len(names)
+                   else m[0], line) for line in lines]
 
 
 def _export(run: RunDir, kind: str, rows: list[tuple[str, str, float]], extra: dict) -> None:
@@ -48,13 +58,14 @@ def equations_report(run_dir: str | os.PathLike, export: bool = True, precision:
     ``precision`` is the number of significant digits shown (the files keep full precision).
     """
     run = RunDir(run_dir)
-    dyn = run.load().model.dynamics
+    loaded = run.load()
+    dyn = loaded.model.dynamics
     rows = dyn.coefficient_rows()
     head = dyn.summary()
     lines = [f"{run.path}: {head[0]}", *head[1:]]
     if rows is None:
         return "\n".join([*lines, "nothing exported"])
-    lines += dyn.equations(precision)
+    lines += name_actions(dyn.equations(precision), loaded.description.get("action_names", []))
     if export:
         _export(run, dyn.kind, rows, dyn.export_info())
         lines.append(f"wrote {run / run.COEFFICIENTS_CSV} and {run / run.COEFFICIENTS_JSON}")

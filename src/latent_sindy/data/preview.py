@@ -15,7 +15,8 @@ from latent_sindy.data import SPLITS, SequenceData
 
 
 def save_preview(data: SequenceData, out: str | os.PathLike, rows: int = 6) -> Path:
-    """Save a PNG grid of the first `rows` trajectories (every frame) with the true poses."""
+    """Save a PNG grid of the first `rows` sequences (every frame), labelled with the first
+    two states where the data have states."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -27,20 +28,23 @@ def save_preview(data: SequenceData, out: str | os.PathLike, rows: int = 6) -> P
     for r in range(rows):
         for t in range(cols):
             ax = axes[r, t]
-            img = data.images[r, t]  # (C, S, S)
+            img = data.images[r, t]  # (C, H, W)
+            top = data.pixel_scale()
             if img.shape[0] == 1:
-                ax.imshow(img[0], cmap="gray", vmin=0, vmax=255, interpolation="nearest")
+                ax.imshow(img[0], cmap="gray", vmin=0, vmax=top, interpolation="nearest")
             else:
                 ax.imshow(np.moveaxis(img, 0, -1), interpolation="nearest")
             ax.set_xticks([])
             ax.set_yticks([])
-            x, y = data.poses[r, t, :2]
-            ax.set_xlabel(f"{x:.2f},{y:.2f}", fontsize=6, labelpad=1)
+            if data.states is not None:  # the first two states under each frame
+                ax.set_xlabel(",".join(f"{v:.2f}" for v in data.states[r, t, :2]), fontsize=6,
+                              labelpad=1)
             if r == 0:
                 ax.set_title(f"t={t}", fontsize=7)
         axes[r, 0].set_ylabel(f"#{r} {SPLITS[data.split_ids[r]]}", fontsize=7)
-    fig.suptitle(f"{Path(data.source).name}: first {rows} of {data.n} trajectories "
-                 "(labels: block x, y in m)", fontsize=8)
+    names = ", ".join(data.state_names[:2])
+    fig.suptitle(f"{Path(data.source).name}: first {rows} of {data.n} sequences"
+                 + (f" (labels: {names})" if names else ""), fontsize=8)
     fig.tight_layout()
     out = Path(out)
     try:

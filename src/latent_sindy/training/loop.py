@@ -38,7 +38,7 @@ from latent_sindy.training.core import (
     keep_freed_memory,
     to_cpu,
 )
-from latent_sindy.training.prepare import regression_init, training_tensors
+from latent_sindy.training.prepare import new_model, regression_init, training_tensors
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 
@@ -139,14 +139,8 @@ def train(cfg: TrainConfig, progress: Progress | None = None,
     norm = Normalizer.from_dict(record["normalizer"])
     model_cfg = from_json(ModelConfig, record["model"], "model")
 
-    with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
-        torch.manual_seed(cfg.seed)
-        model = LatentModel(model_cfg)  # initialised on the CPU: the same weights everywhere
-    model.to(device)
+    model, opt, gen = new_model(model_cfg, cfg, device)
     regression = regression_init(cfg, model)  # (checks the settings before anything is written)
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, betas=cfg.betas,
-                            weight_decay=cfg.weight_decay)
-    gen = torch.Generator().manual_seed(cfg.seed)  # the only randomness after the init
     threads = torch.get_num_threads()
     parallel = resolve_parallel(cfg, device.type, threads)
     metrics: list[dict[str, Any]] = []

@@ -19,7 +19,21 @@ from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, resolve_batching
 from latent_sindy.training.core import Sequences, is_sparse
 
-__all__ = ["TrainingTensors", "regression_init", "training_tensors"]
+__all__ = ["TrainingTensors", "new_model", "regression_init", "training_tensors"]
+
+
+def new_model(model_cfg, cfg: TrainConfig, device: torch.device
+              ) -> tuple[LatentModel, torch.optim.Optimizer, torch.Generator]:
+    """A freshly initialised model (seeded by ``cfg.seed``, on the CPU so that every device
+    starts from the same weights, then moved), its AdamW optimiser and the mini-batch
+    generator (the only randomness after the initialisation)."""
+    with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
+        torch.manual_seed(cfg.seed)
+        model = LatentModel(model_cfg)
+    model.to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, betas=cfg.betas,
+                            weight_decay=cfg.weight_decay)
+    return model, opt, torch.Generator().manual_seed(cfg.seed)
 
 
 @dataclass

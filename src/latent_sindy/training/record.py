@@ -48,16 +48,18 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     return cfg
 
 
-def run_record(cfg: TrainConfig, data: SequenceData, path: Path | None = None
+def run_record(cfg: TrainConfig, data: SequenceData, path: Path | str | None = "data"
                ) -> dict[str, Any]:
-    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values).
+    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values); ``path``:
+    the data's file (by default ``cfg.data``; None for data held in memory).
 
     Resolves the model's shapes from the data; raises UserError where they contradict it.
     """
     from latent_sindy import __version__
 
-    path = cfg.data if path is None else path
-    model_cfg = resolve_model(cfg.model, data, str(path))
+    path = cfg.data if path == "data" else path
+    where = str(path or data.source)
+    model_cfg = resolve_model(cfg.model, data, where)
     record = {
         "format": RUN_FORMAT,
         "format_version": RUN_FORMAT_VERSION,

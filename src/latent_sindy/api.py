@@ -1,0 +1,315 @@
+"""The estimator: a latent SINDy model of your own images and actions, in a few lines.
+
+:class:`LatentSINDy` follows pysindy's conventions: the constructor stores settings, ``fit``
+trains and returns the estimator, learned state ends in ``_``. The linear ("E2C") and MLP
+baselines are the same class with ``dynamics="linear"`` or ``"mlp"``.
+
+    >>> from latent_sindy import LatentSINDy, SequenceData
+    >>> model = LatentSINDy(latent_dim=2, order=2, seed=0).fit(data, epochs=300)
+    >>> model.print()                                  # z0' = ... sparse equations
+    >>> next_images = model.predict(images[:, 0], actions[:, 0])
+    >>> model.save("runs/mine"); model = LatentSINDy.load("runs/mine")
+    >>> u = model.planner().act(image, goal_image)     # (nu,) action toward the goal
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.control.planner import ImagePlanner
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.equations import name_actions
+from latent_sindy.errors import UserError
+from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
+from latent_sindy.progress import Progress, Silent
+from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
+from latent_sindy.training.core import FitResult, fit
+from latent_sindy.training.prepare import new_model, regression_init, training_tensors
+from latent_sindy.training.record import run_record
+from latent_sindy.training.runs import RunDir
+
+__all__ = ["LatentSINDy"]
+
+
+class LatentSINDy:
+    """An autoencoder whose latent state evolves by sparse (SINDy), linear or MLP dynamics.
+
+    Args:
+        latent_dim: size of the latent state z.
+        dynamics: "sindy" (sparse, interpretable), "linear" (z' = A z + B u + c) or "mlp".
+        order: SINDy's polynomial order of the library in (z, u).
+        library: SINDy's library preset ("poly"; worlds register their own).
+        include_sine: SINDy's library also holds sin(z).
+        encoder: "conv" (learned), or a kind a world registers; decoder: "conv" or "fc".
+        loss: weights of the loss terms (reconstruction, prediction, L1 of the coefficients).
+        settings: the training settings (epochs, learning rate, pruning threshold, ...),
+            a :class:`~latent_sindy.training.TrainConfig`; ``seed`` and ``device`` override it.
+        model: a whole :class:`~latent_sindy.models.ModelConfig` instead of the above.
+
+    Attributes after ``fit`` (or ``load``): ``model_`` (the torch module), ``normalizer_``,
+    ``description_`` (what the model knows of its data: frame shape, action box and names),
+    ``metrics_`` (one row per epoch), ``kept_`` (which epoch's weights were kept).
+    """
+
+    def __init__(self, latent_dim: int = 4, *, dynamics: Literal["sindy", "linear", "mlp"]
+                 = "sindy", order: int = 2, library: str = "poly", include_sine: bool = True,
+                 encoder: str = "conv", decoder: str = "conv",
+                 loss: LossWeights | None = None, settings: TrainConfig | None = None,
+                 model: ModelConfig | None = None, seed: int = 0,
+                 device: Literal["cpu", "cuda", "auto"] = "cpu") -> None:
+        self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
+        self.library, self.include_sine = library, include_sine
+        self.encoder, self.decoder, self.seed, self.device = encoder, decoder, seed, device
+        self.loss = loss or LossWeights()
+        self.settings = settings or TrainConfig(lr=1e-3)
+        self.model = model
+        self.model_config  # noqa: B018  (validates the settings now)
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def model_config(self) -> ModelConfig:
+        """The model these settings describe (its shapes not yet taken from data)."""
+        if self.model is not None:
+            return self.model
+        if self.dynamics not in DYNAMICS_KINDS:
+            raise UserError(f"dynamics {self.dynamics!r} is unknown: use one of "
+                            f"{', '.join(DYNAMICS_KINDS)}")
+        extra: dict[str, Any] = {}
+        if self.dynamics == "sindy":
+            extra = {"order": self.order, "library": self.library,
+                     "include_sine": self.include_sine}
+        return ModelConfig(dynamics=DYNAMICS_KINDS[self.dynamics](**extra),
+                           encoder=AutoencoderConfig(latent_dim=self.latent_dim,
+                                                     encoder=self.encoder,
+                                                     decoder=self.decoder))
+
+    def train_config(self, **overrides: Any) -> TrainConfig:
+        """The training settings of a fit (``overrides``: any TrainConfig field)."""
+        return dataclasses.replace(self.settings, model=self.model_config, loss=self.loss,
+                                   seed=self.seed, device=self.device, **overrides)
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, data: SequenceData, epochs: int | None = None, *,
+            out: str | os.PathLike | None = None, progress: Progress | None = None,
+            **settings: Any) -> LatentSINDy:
+        """Train on ``data`` (its training split; its validation split selects the kept
+        weights). In memory, or into the run folder ``out`` (with checkpoints; resumable).
+        ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...)."""
+        if not isinstance(data, SequenceData):
+            raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
+        if epochs is not None:
+            settings["epochs"] = epochs
+        if out is not None:
+            from latent_sindy.training.loop import train
+
+            cfg = self.train_config(out=Path(out), data=Path(data.source), **settings)
+            train(cfg, progress, data=data)
+            return self._adopt(RunDir(out).load())
+        cfg = self.train_config(**settings)
+        if cfg.window > data.steps:
+            raise UserError(f"window {cfg.window} is longer than the sequences of "
+                            f"{data.source} ({data.steps} steps): use 1..{data.steps}")
+        record = run_record(cfg, data, None if data.source.startswith("<") else
+                            Path(data.source))
+        device = torch.device(resolve_device(cfg.device))
+        model_cfg = _model_of(record)
+        model, opt, gen = new_model(model_cfg, cfg, device)
+        regression = regression_init(cfg, model)
+        norm = Normalizer.from_dict(record["normalizer"])
+        tensors = training_tensors(model, data, norm, cfg, device, regression=regression)
+        threads = torch.get_num_threads()
+        parallel = resolve_parallel(cfg, device.type, threads)
+        progress = progress or Silent()
+        progress.start(cfg.epochs, 0)
+        try:
+            result: FitResult = fit(model, opt, gen, tensors.train, tensors.val, cfg,
+                                    per_batch=tensors.per_batch,
+                                    parts=threads if parallel == "batch" else 1,
+                                    on_epoch=lambda e, row: progress.update(e, row))
+        finally:
+            progress.close()
+        model.load_state_dict(result.state)
+        self.model_, self.normalizer_ = model.cpu().eval(), norm
+        self.description_ = record["description"]
+        self.world_record_ = record["world"]["record"]
+        self.record_ = {**record, "kept": result.kept}
+        self.metrics_, self.kept_ = result.metrics, result.kept
+        return self
+
+    def _adopt(self, run: Any) -> LatentSINDy:
+        self.model_, self.normalizer_ = run.model, run.normalizer
+        self.description_, self.world_record_ = run.description, run.world_record
+        self.record_ = None
+        self.metrics_, self.kept_ = None, None
+        return self
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "model_"):
+            raise UserError("this LatentSINDy is not fitted yet: call fit(data) or "
+                            "LatentSINDy.load(run_folder) first")
+
+    # ------------------------------------------------------------------ using the model
+    def _observe(self, images: np.ndarray) -> torch.Tensor:
+        x = np.asarray(images)
+        shape = tuple(self.description_["frame_shape"])
+        if x.shape[-3:] != shape:
+            raise UserError(f"images of shape {x.shape} do not fit this model, which takes "
+                            f"frames {shape} (C, H, W)")
+        kind = self.model_.config.encoder.kind
+        if kind != "image":
+            raise UserError(f"this model observes {kind}s, not images")
+        return self.normalizer_.normalize(x)
+
+    def _pixels(self, x: torch.Tensor) -> np.ndarray:
+        top = 255.0 if self.description_.get("pixel_dtype", "uint8") == "uint8" else 1.0
+        return self.normalizer_.denormalize(x).clamp(0, top).numpy().astype(np.float32)
+
+    def _actions(self, actions: np.ndarray) -> torch.Tensor:
+        u = torch.as_tensor(np.asarray(actions, dtype=np.float32))
+        nu = len(self.description_["action_low"])
+        if u.shape[-1:] != (nu,) and not (nu == 0 and u.numel() == 0):
+            raise UserError(f"actions of shape {tuple(u.shape)} do not fit this model, which "
+                            f"takes {nu} per step")
+        return u
+
+    @torch.no_grad()
+    def encode(self, images: np.ndarray) -> np.ndarray:
+        """Images (..., C, H, W) in the data's pixel scale -> latents (..., nz)."""
+        self._check_fitted()
+        x = self._observe(images)
+        lead = x.shape[:-3]
+        return self.model_.encode(x.reshape(-1, *x.shape[-3:])).reshape(*lead, -1).numpy()
+
+    @torch.no_grad()
+    def predict(self, images: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The next images (N, C, H, W) after ``actions`` (N, nu) from ``images`` (N, C, H, W),
+        in the data's pixel scale (a single image and action work too)."""
+        self._check_fitted()
+        single = np.ndim(images) == 3
+        x = self._observe(images[None] if single else images)
+        u = self._actions(actions).reshape(len(x), -1)
+        z_next = self.model_.step(self.model_.encode(x), u)
+        out = self._pixels(self.model_.decode(z_next))
+        return out[0] if single else out
+
+    @torch.no_grad()
+    def simulate(self, image: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Roll the model out from ``image`` (C, H, W) under ``actions`` (T, nu): the latents
+        (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale."""
+        self._check_fitted()
+        x = self._observe(np.asarray(image)[None])
+        u = self._actions(actions).reshape(1, -1, len(self.description_["action_low"]))
+        z = self.model_.rollout_latent(self.model_.encode(x), u)[0]  # (T+1, nz)
+        return z.numpy(), self._pixels(self.model_.decode(z))
+
+    def score(self, data: SequenceData, split: str = "test") -> float:
+        """R² of the one-step image prediction on ``data``'s ``split`` (1: perfect; 0: no
+        better than the mean next image)."""
+        part = data.split(split) if split else data
+        if part.n == 0:
+            raise UserError(f"{data.source} has no {split} sequences to score on")
+        x = part.images[:, :-1].reshape(-1, *part.frame_shape)
+        u = part.actions.reshape(len(x), -1)
+        truth = part.images[:, 1:].reshape(-1, *part.frame_shape).astype(np.float64)
+        pred = self.predict(x, u).astype(np.float64)
+        sst = float(((truth - truth.mean(0)) ** 2).sum())
+        return 1.0 - float(((truth - pred) ** 2).sum()) / max(sst, 1e-12)
+
+    # ------------------------------------------------------------------ the equations
+    def equations(self, precision: int = 3, action_names: list[str] | None = None
+                  ) -> list[str]:
+        """The latent update rules as text, one per latent state (SINDy: active terms only)."""
+        self._check_fitted()
+        lines = self.model_.dynamics.equations(precision)
+        return name_actions(lines, list(action_names or self.description_.get("action_names")
+                                        or []))
+
+    def print(self, action_names: list[str] | None = None, precision: int = 3) -> None:
+        """Print :meth:`equations` (with the data's action names unless others are given)."""
+        print("\n".join(self.equations(precision, action_names)))
+
+    def coefficients(self) -> np.ndarray:
+        """The coefficient matrix (candidate terms × latent states) with pruned entries 0
+        (SINDy); the stacked [A | B | c]ᵀ for the linear model; UserError for an MLP."""
+        self._check_fitted()
+        dyn = self.model_.dynamics
+        rows = dyn.coefficient_rows()
+        if rows is None:
+            raise UserError(f"{dyn.kind} dynamics have no coefficients to show")
+        if hasattr(dyn, "coefficients"):
+            return dyn.coefficients().detach().numpy().copy()
+        states = sorted({s for s, _, _ in rows}, key=_natural)
+        terms = list(dict.fromkeys(t for _, t, _ in rows))
+        out = np.zeros((len(terms), len(states)))
+        for s, t, v in rows:
+            out[terms.index(t), states.index(s)] = v
+        return out
+
+    # ------------------------------------------------------------------ files and control
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the fitted model as a run folder (config.json, model.pt) that every command
+        (``equations``, ``control`` where its world allows) and :meth:`load` read."""
+        self._check_fitted()
+        if self.record_ is None:
+            raise UserError("this model was loaded from a run folder: it is saved there")
+        from latent_sindy import __version__
+        from latent_sindy.training.core import to_cpu
+
+        run = RunDir(path)
+        if run.path.exists() and not run.path.is_dir():
+            raise UserError(f"{run.path} is a file: save to a folder")
+        if run.finished:
+            raise UserError(f"{run.path} already holds a trained model: choose another folder")
+        run.path.mkdir(parents=True, exist_ok=True)
+        run.write_record(self.record_)
+        run.write_metrics(self.metrics_ or [])
+        run.save_torch(run.MODEL, {"epoch": self.kept_["epoch"],
+                                   "epochs": self.record_["train"]["epochs"],
+                                   "selection": self.kept_["selection"],
+                                   "model": to_cpu(self.model_.state_dict()),
+                                   "model_config": self.record_["model"],
+                                   "normalizer": self.record_["normalizer"],
+                                   "package_version": __version__})
+        return run.path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> LatentSINDy:
+        """The model of a run folder (``save``'s, ``latent-sindy train``'s or the study's);
+        weights are read with ``torch.load(weights_only=True)``."""
+        run = RunDir(path).load()
+        cfg = run.config
+        est = cls(run.model.config.encoder.latent_dim, model=run.model.config,
+                  settings=cfg, loss=cfg.loss, seed=cfg.seed, device="cpu")
+        return est._adopt(run)
+
+    def planner(self, mppi: MPPIConfig | None = None, space: Literal["latent", "image"]
+                = "latent", seed: int = 0) -> ImagePlanner:
+        """MPPI in this model's latent space: ``planner.act(image, goal_image)`` -> (nu,)."""
+        self._check_fitted()
+        d = self.description_
+        return ImagePlanner(self.model_, self.normalizer_, mppi or MPPIConfig(),
+                            d["action_low"], d["action_high"], space=space, seed=seed)
+
+    def __repr__(self) -> str:
+        state = "fitted" if hasattr(self, "model_") else "not fitted"
+        return (f"LatentSINDy(latent_dim={self.latent_dim}, dynamics={self.dynamics!r}, "
+                f"order={self.order}, library={self.library!r}; {state})")
+
+
+def _model_of(record: dict[str, Any]) -> ModelConfig:
+    from latent_sindy.configs import from_json
+
+    return from_json(ModelConfig, record["model"], "model")
+
+
+def _natural(name: str) -> tuple:
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))

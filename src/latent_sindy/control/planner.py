@@ -1,0 +1,74 @@
+"""Planning toward a goal image with a trained latent model: encode, run MPPI, act.
+
+:class:`ImagePlanner` joins a latent model, the normaliser of its data and MPPI. ``act(image,
+goal_image)`` encodes both images and returns the first action of the plan that drives the
+latent state toward the goal's (``space="latent"``) or the decoded prediction toward the goal
+image (``space="image"``). It is what :meth:`latent_sindy.LatentSINDy.planner` returns and what
+the generic closed loop (:mod:`latent_sindy.control.episodes`) drives.
+
+    planner = ImagePlanner(model, normalizer, MPPIConfig(), action_low, action_high)
+    u = planner.act(image, goal_image)      # (nu,) numpy
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+import torch
+
+from latent_sindy.control.costs import ImageCost, LatentCost, StateCost
+from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.errors import UserError
+
+__all__ = ["ImagePlanner"]
+
+
+class ImagePlanner:
+    """MPPI in a latent model's space toward a goal image: ``act(image, goal_image)``."""
+
+    def __init__(self, model: torch.nn.Module, normalizer: Normalizer, mppi: MPPIConfig,
+                 action_low: Sequence[float], action_high: Sequence[float],
+                 space: Literal["latent", "image"] = "latent",
+                 Q: float | Sequence[float] | torch.Tensor = 1.0, seed: int = 0) -> None:
+        if space not in ("latent", "image"):
+            raise UserError(f"space {space!r}: plan in 'latent' or 'image' space")
+        if len(action_low) == 0:
+            raise UserError("this model has no actions (an autonomous system): nothing to plan")
+        self.model, self.normalizer, self.settings = model.eval(), normalizer, mppi
+        self.box = (tuple(action_low), tuple(action_high))
+        self.space, self.Q, self.seed = space, Q, seed
+        self.step = latent_step(model.dynamics)  # active SINDy terms only
+        self.mppi: MPPI | None = None
+        self._goal: np.ndarray | None = None
+        self.last: MPPIInfo | None = None
+
+    @torch.no_grad()
+    def encode(self, image: np.ndarray) -> torch.Tensor:
+        """An image (C, H, W) in the data's pixel scale -> latent (nz,)."""
+        return self.model.encode(self.normalizer.normalize(np.asarray(image))[None])[0]
+
+    @torch.no_grad()
+    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
+        """Plan toward ``goal_image`` from now on (a fresh nominal plan)."""
+        goal = self.normalizer.normalize(np.asarray(goal_image))
+        cost: StateCost
+        if self.space == "latent":
+            cost = LatentCost(self.model.encode(goal[None])[0], self.Q)
+        else:
+            cost = ImageCost(self.model.decode, goal)
+        self.mppi = MPPI(self.step, cost, self.settings, *self.box,
+                         seed=self.seed if seed is None else seed)
+        self._goal = np.array(goal_image, copy=True)
+
+    def act(self, image: np.ndarray, goal_image: np.ndarray | None = None) -> np.ndarray:
+        """The action (nu,) to take at ``image``; a new ``goal_image`` resets the plan."""
+        if goal_image is not None and (self._goal is None or self._goal.shape != np.shape(
+                goal_image) or not np.array_equal(self._goal, goal_image)):
+            self.reset(goal_image)
+        if self.mppi is None:
+            raise UserError("give the planner a goal image first: act(image, goal_image)")
+        action, self.last = self.mppi.command(self.encode(image))
+        return action.numpy()
