@@ -7,12 +7,7 @@ The core (``sindy``, ``models``, ``data``, ``training``, ``control``, ``api``) k
 worlds (``latent_sindy.worlds``) plug in by name. Importing the package loads no simulator.
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
-try:
-    __version__ = version("latent-sindy")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0+unknown"
+from latent_sindy.version import __version__
 
 __all__ = ["LatentSINDy", "SequenceData", "UserError", "__version__"]
 

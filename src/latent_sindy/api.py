@@ -261,8 +261,8 @@ class LatentSINDy:
         self._check_fitted()
         if self.record_ is None:
             raise UserError("this model was loaded from a run folder: it is saved there")
-        from latent_sindy import __version__
         from latent_sindy.training.core import to_cpu
+        from latent_sindy.version import __version__
 
         run = RunDir(path)
         if run.path.exists() and not run.path.is_dir():

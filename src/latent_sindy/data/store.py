@@ -50,7 +50,7 @@ LEGACY_FORMAT = "latent-sindy-trajectories"  # the pushing world's files, versio
 
 def write_sequences(path: str | os.PathLike, data: SequenceData) -> None:
     """Write `data` to `path` atomically (temporary file, then rename)."""
-    from latent_sindy import __version__
+    from latent_sindy.version import __version__
 
     mean, std = data.pixel_stats()
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:

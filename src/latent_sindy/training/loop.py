@@ -190,7 +190,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None,
         raise _diverged(cfg, e, last_ckpt) from None
     finally:
         progress.close()
-    from latent_sindy import __version__
+    from latent_sindy.version import __version__
 
     run.write_record({**record, "kept": kept})  # before model.pt, which marks the run finished
     run.save_torch(run.MODEL, {"epoch": kept["epoch"], "epochs": cfg.epochs,

@@ -55,7 +55,7 @@ def run_record(cfg: TrainConfig, data: SequenceData, path: Path | str | None = "
 
     Resolves the model's shapes from the data; raises UserError where they contradict it.
     """
-    from latent_sindy import __version__
+    from latent_sindy.version import __version__
 
     path = cfg.data if path == "data" else path
     where = str(path or data.source)
