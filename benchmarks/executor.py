@@ -26,9 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from latent_sindy.experiments.catalogue import model_specs
+from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, train_job
 from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.study import SCALES, ReproduceConfig, model_specs
+from latent_sindy.experiments.scales import SCALES
 from latent_sindy.training import RunDir, TrainConfig
 
 PROBE_EPOCHS = 2

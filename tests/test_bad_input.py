@@ -23,8 +23,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from latent_sindy.cli import main
+from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.study import ReproduceConfig
 from latent_sindy.training.runs import RunDir
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 

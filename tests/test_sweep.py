@@ -8,19 +8,15 @@ import math
 
 import pytest
 
-from latent_sindy.control.closed_loop import wilson_interval
 from latent_sindy.errors import UserError
+from latent_sindy.experiments.catalogue import model_specs, study_specs
+from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.study import (
-    SCALES,
-    ReproduceConfig,
-    Sweep,
-    model_specs,
-    parse_seeds,
-    study_specs,
-)
+from latent_sindy.experiments.scales import SCALES
+from latent_sindy.experiments.sweeps import Sweep, parse_seeds
 from latent_sindy.experiments.table import sweep_rows
 from latent_sindy.training import RunDir
+from latent_sindy.worlds.push.episodes import wilson_interval
 
 
 @pytest.mark.parametrize(("args", "seeds"), [
@@ -89,8 +85,8 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
 def test_the_threshold_is_a_sindy_setting_the_study_trains_with(tmp_path):
     """--sweep threshold applies to SINDy models only, and the study trains each spec with
     its own threshold where it sets one (the moments row), else the scale's."""
-    from latent_sindy.experiments.reproduce import train_config
-    from latent_sindy.experiments.study import Study
+    from latent_sindy.experiments.config import StudyPlan
+    from latent_sindy.experiments.stages import train_config
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
                           sweep=(Sweep.parse("threshold=0.01,0.1"),))
@@ -99,10 +95,10 @@ def test_the_threshold_is_a_sindy_setting_the_study_trains_with(tmp_path):
     plain = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "sindy_moments"))
     for config in (cfg, plain):
         chosen = study_specs(config)
-        study = Study(config, chosen, {0: {s.name: tmp_path / s.name for s in chosen}})
+        plan = StudyPlan(config, chosen, {0: {s.name: tmp_path / s.name for s in chosen}})
         for spec in chosen:
             want = SCALES["tiny"].threshold if spec.threshold is None else spec.threshold
-            assert train_config(study, spec, 0, tmp_path / "d.h5").threshold == want
+            assert train_config(plan, spec, 0, tmp_path / "d.h5").threshold == want
     moments = next(s for s in study_specs(plain) if s.name == "sindy_moments")
     assert moments.threshold != SCALES["tiny"].threshold
     assert specs["sindy2.threshold=0.1"].threshold == 0.1

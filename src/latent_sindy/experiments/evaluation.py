@@ -14,7 +14,7 @@ Every model, whatever its dynamics, is judged on the same normalised images:
 
     from latent_sindy.experiments.evaluation import horizon_errors, split_losses
     run = load_run("results/runs/seed0/sindy2")
-    losses = split_losses(run.model, read_trajectories("results/data.h5"), run.normalizer)
+    losses = split_losses(run.model, read_sequences("results/data.h5"), run.normalizer)
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from latent_sindy.data.store import SPLITS, Trajectories
+from latent_sindy.data import SPLITS, SequenceData
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.training import evaluate
@@ -38,7 +38,7 @@ __all__ = ["BASELINES", "Stat", "aggregate", "baseline_errors", "horizon_errors"
 BASELINES = {"still": "nothing moves", "mean_image": "mean training image"}
 
 
-def split_losses(model: LatentModel, data: Trajectories, normalizer: Normalizer,
+def split_losses(model: LatentModel, data: SequenceData, normalizer: Normalizer,
                  weights: LossWeights | None = None) -> dict[str, dict[str, float]]:
     """Loss terms (``objective``, ``recon``, ``pred_x``, ``pred_z``) per split, H = 1 windows."""
     out = {}
@@ -70,7 +70,7 @@ def _by_horizon(x: torch.Tensor, predict: Callable[[int], torch.Tensor]) -> list
 
 
 @torch.no_grad()
-def rollouts(model: LatentModel, data: Trajectories, normalizer: Normalizer
+def rollouts(model: LatentModel, data: SequenceData, normalizer: Normalizer
              ) -> list[torch.Tensor]:
     """The model's open-loop predictions from every start t = 0..T-1 with the true actions:
     item t is (N, T-t+1, ...), its first frame dec(enc(x_t)) (what the model observes)."""
@@ -81,7 +81,7 @@ def rollouts(model: LatentModel, data: Trajectories, normalizer: Normalizer
 
 
 @torch.no_grad()
-def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalizer,
+def horizon_errors(model: LatentModel, data: SequenceData, normalizer: Normalizer,
                    predictions: list[torch.Tensor] | None = None) -> list[float]:
     """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
     over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN).
@@ -92,7 +92,7 @@ def horizon_errors(model: LatentModel, data: Trajectories, normalizer: Normalize
 
 
 @torch.no_grad()
-def baseline_errors(train: Trajectories, held_out: Trajectories,
+def baseline_errors(train: SequenceData, held_out: SequenceData,
                     normalizer: Normalizer) -> dict[str, list[float]]:
     """:func:`horizon_errors` of the model-free predictors in :data:`BASELINES` on
     ``held_out``; the mean image is the training split's."""

@@ -24,14 +24,15 @@ import torch
 
 from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
-from latent_sindy.control.closed_loop import ControlConfig, run_control
-from latent_sindy.data.store import Trajectories, read_trajectories
+from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.experiments import evaluation, probe
-from latent_sindy.experiments.study import Condition, RunResult
+from latent_sindy.experiments.results import RunResult
+from latent_sindy.experiments.scales import Condition
 from latent_sindy.progress import Milestones
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
-from latent_sindy.training.loop import run_record
+from latent_sindy.training.record import run_record
+from latent_sindy.worlds.push.episodes import ControlConfig, run_control
 
 __all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "held_out_split",
            "train_job"]
@@ -69,7 +70,7 @@ def ensure_trained(cfg: TrainConfig, progress=None) -> str:
     """
     run = RunDir(cfg.out)
     if run.finished:
-        want = run_record(cfg, read_trajectories(cfg.data))
+        want = run_record(cfg, read_sequences(cfg.data))
         diffs = run.differences(want, ignore=RESUMABLE - {"epochs"})
         if diffs:
             raise UserError(f"{run.path} holds a model trained with other settings or data "
@@ -93,18 +94,18 @@ def train_job(job: TrainJob) -> dict[str, Any]:
     return {"status": status, "error": None, "seconds": time.perf_counter() - t0}
 
 
-def held_out_split(data: Trajectories) -> str:
+def held_out_split(data: SequenceData) -> str:
     """The split predictions are judged on: test, else validation, else training."""
     counts = data.split_counts()
     return next((s for s in ("test", "val") if counts[s]), "train")
 
 
-def held_out(data: Trajectories) -> Trajectories:
+def held_out(data: SequenceData) -> SequenceData:
     """The trajectories of :func:`held_out_split`."""
     return data.split(held_out_split(data))
 
 
-def _what_the_latent_knows(loaded: Any, data: Trajectories,
+def _what_the_latent_knows(loaded: Any, data: SequenceData,
                            predictions: list[torch.Tensor]) -> dict[str, Any]:
     """The latent probe and the block position errors of an image model; a state model's
     latent is the pose (no probe), its position errors are those of its predicted poses.
@@ -156,7 +157,7 @@ def eval_job(job: EvalJob) -> RunResult:
     cache, key = run / run.EVALUATION, _eval_key(run, job.data)
     record = json.loads(cache.read_text()) if cache.exists() else {}
     if record.get("key") != key:
-        data = read_trajectories(job.data)
+        data = read_sequences(job.data)
         # One set of open-loop rollouts for the image MSE and the block position errors.
         rollouts = evaluation.rollouts(loaded.model, held_out(data), loaded.normalizer)
         record = {"key": key,

@@ -15,7 +15,7 @@ the block.
   (the bound an image model's predictions are measured against).
 
     run = load_run("results/runs/seed0/sindy2")
-    data = read_trajectories("results/data.h5")
+    data = read_sequences("results/data.h5")
     latent_probe(run.model, data, run.normalizer)   # {"x": 0.97, "y": 0.98, ...}
     position_errors(run.model, data, run.normalizer)["model"][0]  # cm, 1 push ahead
 """
@@ -27,13 +27,13 @@ import functools
 import numpy as np
 import torch
 
-from latent_sindy.data.store import Trajectories
+from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.worlds.push.camera import Camera
 from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
-from latent_sindy.worlds.push.world import CameraView
+from latent_sindy.worlds.push.scene import CameraView
 
 __all__ = ["FEATURES", "GRAY", "block_levels", "block_position", "latent_probe",
            "position_errors", "state_position_errors"]
@@ -119,12 +119,12 @@ def _cm(xy: np.ndarray, poses: np.ndarray) -> np.ndarray:
 
 
 @torch.no_grad()
-def _latents(model: LatentModel, data: Trajectories, normalizer: Normalizer) -> np.ndarray:
+def _latents(model: LatentModel, data: SequenceData, normalizer: Normalizer) -> np.ndarray:
     x = normalizer.normalize(data.images).flatten(0, 1)  # (N (T+1), C, S, S)
     return model.encode(x).double().numpy()
 
 
-def latent_probe(model: LatentModel, data: Trajectories, normalizer: Normalizer,
+def latent_probe(model: LatentModel, data: SequenceData, normalizer: Normalizer,
                  held_out: str = "test") -> dict[str, float]:
     """R² per pose feature (:data:`FEATURES`) of a ridge regression from the latent, fitted
     on every image of the training split, scored on every image of ``held_out``.
@@ -154,7 +154,7 @@ def latent_probe(model: LatentModel, data: Trajectories, normalizer: Normalizer,
 
 
 @torch.no_grad()
-def position_errors(model: LatentModel | None, data: Trajectories, normalizer: Normalizer,
+def position_errors(model: LatentModel | None, data: SequenceData, normalizer: Normalizer,
                     levels: tuple[float, float] | None = None,
                     predictions: list[torch.Tensor] | None = None
                     ) -> dict[str, list[float] | float]:
@@ -200,7 +200,7 @@ def position_errors(model: LatentModel | None, data: Trajectories, normalizer: N
     return out
 
 
-def state_position_errors(data: Trajectories, predictions: list[torch.Tensor]
+def state_position_errors(data: SequenceData, predictions: list[torch.Tensor]
                           ) -> dict[str, list[float] | float]:
     """Block position error (cm) of a state-space model's open-loop predictions, averaged as
     :func:`position_errors` averages (every start t with t + h <= T), so the two compare.

@@ -16,7 +16,8 @@ from typing import Any
 
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.experiments.report import Report
-from latent_sindy.experiments.study import SCALES, Study
+from latent_sindy.experiments.results import Study
+from latent_sindy.experiments.scales import SCALES
 from latent_sindy.experiments.table import format_stat, table1_rows
 
 __all__ = ["findings", "write_report"]
@@ -113,7 +114,7 @@ def _latent_knows(study: Study) -> str | None:
     parts = [f"{study.labels[m]} " + " / ".join(cm(m, f"pos_err/h{h}") for h in horizons)
              for m in models]
     still = " / ".join(cm(models[0], f"pos_err/still/h{h}") for h in horizons)
-    reader = study.position_baselines.get("reader")
+    reader = study.baselines.position.get("reader")
     floor = (f" Reading the true test images gives {reader:.2f} cm (the measure's own error)."
              if reader is not None else "")
     states = [m for m in study.models if _get(study, m, "probe/x") is None
@@ -211,8 +212,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
             f"than the paper scale's ({SCALES['paper'].random_episodes} random tasks for the "
             "headline rows); the numbers show the pipeline and the trends, not the "
             "paper-scale result. Run --scale paper for that.")
-    if study.failures:
-        r.paragraph("Failed runs (left out of the averages): " + "; ".join(study.failures))
+    if failures := study.evaluations.failures:
+        r.paragraph("Failed runs (left out of the averages): " + "; ".join(failures))
 
     r.heading("Table I: the paper's values beside ours")
     header = ["metric", *(study.labels[m] for m in study.models)]
@@ -249,8 +250,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                 "then the other headline image models")
     r.image(files["horizon"], "Open-loop prediction error against horizon on the test "
             "trajectories (mean ± std over seeds); dashed: predictors that learn nothing")
-    if study.baselines:
-        still, mean = study.baselines["still"], study.baselines["mean_image"]
+    if baselines := study.baselines.pred_err:
+        still, mean = baselines["still"], baselines["mean_image"]
         r.paragraph(
             "For scale, on the same test trajectories: predicting that nothing moves scores "
             f"{still[0]:.4f} one push ahead and {still[-1]:.4f} at the longest horizon; the "

@@ -1,0 +1,149 @@
+"""The study's last stage: figures, equations and tables of a finished :class:`~.results.Study`.
+
+:func:`output_stage` writes them under OUT and returns the files the report shows (the report
+itself, and summary.json: :mod:`latent_sindy.experiments.reproduce`).
+
+    latent-sindy reproduce --scale tiny --out /tmp/tiny   # OUT/figures/, table1.md, equations_*.txt
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from latent_sindy.data import SequenceData
+from latent_sindy.experiments import figures
+from latent_sindy.experiments.evaluation import BASELINES
+from latent_sindy.experiments.jobs import held_out
+from latent_sindy.experiments.results import Study
+from latent_sindy.experiments.table import write_sweep_table, write_table1
+from latent_sindy.training import RunDir, load_run, read_metrics
+
+__all__ = ["output_stage"]
+
+Say = Callable[[str], None]
+
+
+def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
+    """Figures, equations and tables of a finished study; returns what the report shows."""
+    from latent_sindy.equations import equations_report
+
+    out, cfg = study.config.out, study.config
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    first = cfg.seeds[0]
+    ok = [m for m in study.models if m in study.results.get(first, {})]
+    runs = study.runs[first]
+    files: dict[str, Any] = {"coefficients": {}, "gifs": [], "equations": {}}
+
+    histories = {m: read_metrics(runs[m]) for m in ok}
+    loss_labels = {s.name: s.label + ("" if s.window == 1 else f" (its H={s.window} objective)")
+                   for s in study.specs}
+    files["loss"] = figures.loss_histories(histories, loss_labels, fig_dir / "loss_histories.png")
+
+    curves = _curves(study, "pred_err/h")
+    references = {BASELINES[k]: v for k, v in study.baselines.pred_err.items()}
+    files["horizon"] = figures.horizon_plot(curves, study.labels, fig_dir / "prediction_error.png",
+                                            references)
+    position = _curves(study, "pos_err/h")
+    if position and study.baselines.position:
+        files["position"] = figures.horizon_plot(
+            position, study.labels, fig_dir / "position_error.png",
+            {"nothing moves": study.baselines.position["still"],
+             "reading the true image": study.baselines.position["reader"]},
+            ylabel="block position error (cm)", yscale="linear", cap=10.0,
+            title="block position in open-loop predictions (state rows: predicted poses), "
+                  "test trajectories")
+
+    # Fig. 8: the single- and multi-step SINDy-2 (the paper's), then the other headline
+    # image models (what the representation work bought).
+    single, multi = study.single_step, study.multistep
+    strip = [(runs[s.name], f"{kind} {s.label}\n(trained on H={s.window})")
+             for kind, s in (("single-step", single), ("multi-step", multi))
+             if s is not None and s.name in ok]
+    strip += [(runs[s.name], s.label.replace(", ", ",\n", 1) if len(s.label) > 24 else s.label)
+              for s in study.specs if s.headline and s.name in ok and s not in (single, multi)
+              and s.model.encoder.kind == "image"]
+    if strip:
+        files["rollouts"] = _rollout_figure(strip, held_out(data), fig_dir / "rollouts.png")
+    for spec in study.specs:
+        if spec.name in ok:
+            dyn = load_run(runs[spec.name]).model.dynamics
+            if hasattr(dyn, "mask"):  # a sparse model: its coefficient map
+                files["coefficients"][spec.name] = figures.coefficient_map(
+                    dyn, spec.label, fig_dir / f"coefficients_{spec.name}.png")
+
+    conditions = study.scale.all_conditions()
+    bars, plan_ms = {}, {}
+    for cond in conditions:
+        key = f"control/{cond.name}/success_rate"
+        if any(key in study.stats[m] for m in ok):
+            bars[cond.label] = {m: study.stats[m][key].mean for m in ok if key in study.stats[m]}
+    for m in ok:
+        plan_ms[m] = study.stats[m]["control/latent/plan_ms_mean"].mean
+    files["control"] = figures.control_bars(ok, study.labels, bars, plan_ms,
+                                            fig_dir / "control.png")
+
+    gif_dir = fig_dir / "gifs"
+    gif_dir.mkdir(exist_ok=True)
+    for m in ok:
+        run = RunDir(runs[m])
+        for cond in study.scale.conditions(study.spec(m)):
+            src = run.control_dir(cond.task, cond.cost_space) / "episode_000.gif"
+            if src.exists():
+                dst = gif_dir / f"{m}_{cond.task}-{cond.space}.gif"
+                shutil.copyfile(src, dst)
+                files["gifs"].append((m, cond, dst))
+
+    for m in study.models:
+        parts = []
+        for s in cfg.seeds:
+            run = RunDir(study.runs[s][m])
+            if m in study.results.get(s, {}):
+                export = not (run / run.COEFFICIENTS_CSV).exists()
+                parts.append(f"# seed {s}\n{equations_report(run.path, export=export)}")
+        if parts:
+            path = out / f"equations_{m}.txt"
+            path.write_text("\n\n".join(parts) + "\n")
+            files["equations"][m] = path
+
+    files["table_md"], files["table_csv"] = write_table1(
+        out, study.models, study.labels, study.stats, len(cfg.seeds))
+    if cfg.sweep:
+        files["sweep"] = write_sweep_table(out / "sweep.md", study.models, study.labels,
+                                           study.per_seed, cfg.seeds)
+    say(f"[3/4] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
+    return files
+
+
+def _curves(study: Study, prefix: str) -> dict[str, tuple[list[float], list[float]]]:
+    """{model: (means, stds)} of the metrics ``<prefix>1``, ``<prefix>2``, ... over seeds."""
+    curves = {}
+    for m in study.models:
+        hs = [study.per_seed[s][m] for s in study.config.seeds
+              if m in study.per_seed.get(s, {})]
+        keys = sorted((k for k in (hs[0] if hs else {})
+                       if k.startswith(prefix) and k[len(prefix):].isdigit()),
+                      key=lambda k: int(k[len(prefix):]))
+        if keys:
+            st = [study.stats[m][k] for k in keys]
+            curves[m] = ([s.mean for s in st], [s.std for s in st])
+    return curves
+
+
+def _rollout_figure(models: list[tuple[Path, str]], test: SequenceData, path: Path) -> Path:
+    """Fig. 8: a test trajectory, and each (run, label)'s open-loop rollout from its first
+    image."""
+    rows = [("ground truth", test.images[0].astype(float))]
+    for run_dir, label in models:
+        run = load_run(run_dir)
+        x = run.normalizer.normalize(test.images[:1])  # (1, T+1, C, S, S)
+        u = torch.as_tensor(test.actions[:1], dtype=torch.float32)  # (1, T, nu)
+        with torch.no_grad():
+            pred = run.model.predict(x[:, 0], u)[0]  # (T+1, C, S, S)
+        rows.append((label, run.normalizer.denormalize(pred).numpy()))
+    return figures.rollout_strip(rows, path)

@@ -1,0 +1,177 @@
+"""The study's stages before its outputs, each a function of what the earlier ones returned.
+
+* :func:`collect_stage`: the trajectory file (as given, reused, or collected for the scale);
+* :func:`run_stage`: every (seed, model) trained (or reused), then evaluated and controlled,
+  on the study's executor; returns the :class:`~.results.Evaluations`;
+* :func:`baseline_stage`: the predictors that learn nothing; returns the
+  :class:`~.results.Baselines`.
+
+Training and evaluation are one stage because each finished training job queues its
+evaluation at once, so the executor's slots stay busy. :func:`train_config` is how the study
+trains a model.
+
+    latent-sindy reproduce --scale tiny --out /tmp/tiny   # runs these stages, then the outputs
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.errors import UserError
+from latent_sindy.executors import Executor, Resources
+from latent_sindy.experiments.catalogue import ModelSpec
+from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
+from latent_sindy.experiments.evaluation import aggregate, baseline_errors
+from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
+from latent_sindy.experiments.probe import position_errors
+from latent_sindy.experiments.results import Baselines, Evaluations, RunResult
+from latent_sindy.progress import bar
+from latent_sindy.training import TrainConfig
+from latent_sindy.worlds.push.collect import CollectionPlan, collect
+
+__all__ = ["baseline_stage", "check_given_data", "collect_stage", "run_stage", "train_config"]
+
+Say = Callable[[str], None]
+
+
+# ----------------------------------------------------------------------------- stage 1: data
+def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
+    """The trajectory file of the study: as given, reused, or collected for the scale."""
+    path, scale = cfg.data_path, cfg.preset
+    if cfg.data is not None and path.exists():
+        say(f"[1/4] data: using {path} as given")
+        return path
+    plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
+    if path.exists():  # collect() returns it if it was collected to this plan, else refuses
+        say(f"[1/4] data: reusing {path}")
+    else:
+        say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
+            f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
+
+    def progress(it, total, initial):
+        return bar(it, total, initial, desc="collect", unit="traj", leave=False)
+
+    return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
+
+
+def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
+    """A given trajectory file must hold images of ``--image-size``, where that is given."""
+    side = data.env_config.image_size
+    if cfg.image_size is not None and side != cfg.image_size:
+        raise UserError(f"--image-size {cfg.image_size}, but {cfg.data} holds {side}x{side} "
+                        f"images: drop --image-size, or give another --data")
+
+
+# ----------------------------------------------------------------------------- stage 2: runs
+def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say) -> Evaluations:
+    """Every (seed, model): train (or reuse), then evaluate and control, on the executor;
+    returns what was measured of every run that finished training."""
+    cfg, scale = plan.config, plan.scale
+    jobs = []
+    for seed in cfg.seeds:
+        for spec in plan.specs:
+            tc = train_config(plan, spec, seed, data)
+            jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
+    jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
+    episodes = sum(c.episodes for spec in plan.specs for c in scale.conditions(spec))
+    say(f"[2/4] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
+        f"({scale.epochs} epochs; {episodes} control episodes per seed), "
+        f"{cfg.executor} executor, {min(pool.slots, len(jobs))} at once")
+    results, per_seed, train_status, failures = _drain(pool, jobs, plan, data, say)
+    stats = {name: aggregate([per_seed[s][name] for s in cfg.seeds
+                              if name in per_seed.get(s, {})])
+             for name in plan.models}
+    return Evaluations(results, per_seed, stats, train_status, tuple(failures))
+
+
+def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, say: Say
+           ) -> tuple[dict[int, dict[str, RunResult]],
+                      dict[int, dict[str, dict[str, float | None]]], dict[str, str], list[str]]:
+    """Run the training jobs; each finished one queues its evaluation; until all are done.
+    Returns the results and metrics per seed and model, the training status per run and
+    the failures."""
+    scale, threads, n = plan.scale, plan.config.threads, len(jobs)
+    train_needs = Resources(cpus=threads, gpus=plan.config.gpus)
+    eval_needs = Resources(cpus=threads)
+    results: dict[int, dict[str, RunResult]] = {}
+    per_seed: dict[int, dict[str, dict[str, float | None]]] = {}
+    train_status: dict[str, str] = {}
+    failures: list[str] = []
+    t0 = time.perf_counter()
+    done_eval = 0
+    pending: dict[Future, tuple[str, Any]] = {
+        pool.submit(train_job, j, resources=train_needs,
+                    name=f"training {j.name} (seed {j.seed})"): ("train", j) for j in jobs}
+    while pending:
+        for fut in pool.wait_one(pending):
+            kind, job = pending.pop(fut)
+            result = fut.result()
+            elapsed = time.perf_counter() - t0
+            if kind == "train":
+                train_status[f"{job.name}/seed{job.seed}"] = result["status"]
+                if result["error"]:
+                    failures.append(f"{job.name} (seed {job.seed}): {result['error']}")
+                    say(f"  [{elapsed:5.0f} s] {job.name} (seed {job.seed}) FAILED: "
+                        f"{result['error']}")
+                    continue
+                say(f"  [{elapsed:5.0f} s] {result['status']} {job.name} (seed {job.seed})"
+                    f" in {result['seconds']:.0f} s")
+                spec = plan.spec(job.name)
+                controls = tuple((c, scale.control_config(c, job.seed, plan.config.world))
+                                 for c in scale.conditions(spec))
+                ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
+                pending[pool.submit(eval_job, ev, resources=eval_needs,
+                                    name=f"evaluating {ev.name} (seed {ev.seed})")] = ("eval", ev)
+            else:
+                done_eval += 1
+                results.setdefault(job.seed, {})[job.name] = result
+                m = result.metrics(scale.conditions(plan.spec(job.name)))
+                per_seed.setdefault(job.seed, {})[job.name] = m
+                say(f"  [{elapsed:5.0f} s] evaluated {job.name} (seed {job.seed}) in "
+                    f"{result.seconds:.0f} s: test loss {_num(m['loss/test'])}, "
+                    f"random-task success {_pct(m.get('control/random/latent/success_rate'))}"
+                    f" ({done_eval}/{n})")
+    return results, per_seed, train_status, failures
+
+
+def _pct(v: float | None) -> str:
+    return "n/a" if v is None or not math.isfinite(v) else f"{100 * v:.0f}%"
+
+
+def _num(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.4g}"
+
+
+# ----------------------------------------------------------------------------- stage 3
+def baseline_stage(data: SequenceData) -> Baselines:
+    """Prediction error against horizon of the predictors that learn nothing, and the block
+    position error of reading the true held-out images and of "nothing moves"."""
+    normalizer, test = Normalizer.from_trajectories(data), held_out(data)
+    return Baselines(pred_err=baseline_errors(data.split("train"), test, normalizer),
+                     position=position_errors(None, test, normalizer))
+
+
+@torch.no_grad()
+def train_config(plan: StudyPlan, spec: ModelSpec, seed: int, data: Path) -> TrainConfig:
+    """How the study trains ``spec`` for ``seed``: the scale's schedule (times the spec's
+    epochs factor), the spec's model, loss weights, window and threshold (if it sets one)."""
+    scale = plan.scale
+    return TrainConfig(data=data, out=plan.runs[seed][spec.name], model=spec.model,
+                       loss=spec.loss, window=spec.window,
+                       epochs=scale.epochs * spec.epochs_factor,
+                       batch_size=scale.batch_size,
+                       threshold=scale.threshold if spec.threshold is None else spec.threshold,
+                       threshold_every=scale.threshold_every * spec.epochs_factor,
+                       eval_every=scale.eval_every * spec.epochs_factor,
+                       sindy_init_threshold=spec.init_threshold,
+                       batching=scale.batching, seed=seed,
+                       device="auto" if plan.config.gpus > 0 else "cpu")
