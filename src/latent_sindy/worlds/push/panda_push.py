@@ -24,7 +24,8 @@ import numpy as np
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.worlds.push import register_env
 from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, PushEnvConfig
-from latent_sindy.worlds.push.world import PushWorld, wrap_angle
+from latent_sindy.worlds.push.scene import wrap_angle
+from latent_sindy.worlds.push.world import PushWorld
 
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
 
