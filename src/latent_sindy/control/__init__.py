@@ -1,23 +1,36 @@
-"""Control in latent space: MPPI over any latent model's batched ``step``, and its costs.
+"""Control in latent space: MPPI over any latent model's batched ``step``, its costs, a planner
+toward goal images, the world interface and the closed loop over any world.
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
->>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig(nu=3))
+>>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
 >>> action, info = mppi.command(z)
 """
 
+from latent_sindy.control.collect import collect_random
 from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
+from latent_sindy.control.episodes import Episode, run_closed_loop, run_episode, success_rates
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
+from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.control.sindy_step import SparseSindyStep
+from latent_sindy.control.world import Task, World
 
 __all__ = [
     "MPPI",
     "DynamicsStep",
+    "Episode",
     "ImageCost",
+    "ImagePlanner",
     "LatentCost",
     "MPPIConfig",
     "MPPIInfo",
     "PoseCost",
     "SparseSindyStep",
     "StateCost",
+    "Task",
+    "World",
+    "collect_random",
     "latent_step",
+    "run_closed_loop",
+    "run_episode",
+    "success_rates",
 ]

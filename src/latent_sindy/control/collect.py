@@ -1,0 +1,44 @@
+"""Random-action data from any world (:class:`~latent_sindy.control.world.World`): the first
+data set of a new system, to fit a model on and then plan with.
+
+    data = collect_random(world, sequences=100, steps=10, seed=0)
+    model = LatentSINDy(latent_dim=2).fit(data)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from latent_sindy.control.world import World
+from latent_sindy.data import SequenceData
+
+__all__ = ["collect_random"]
+
+
+def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> SequenceData:
+    """``sequences`` episodes of ``steps`` actions drawn uniformly from the world's box, from
+    the starts of tasks the world samples; images, actions and true states."""
+    rng = np.random.default_rng(seed)
+    low, high = np.asarray(world.action_low, float), np.asarray(world.action_high, float)
+    env = world.make_env()
+    images, actions, states = [], [], []
+    try:
+        for i in range(sequences):
+            task = world.sample_task(rng)
+            frames, us, xs = [world.reset(env, task, seed * 100_003 + i)], [], [world.state(env)]
+            for _ in range(steps):
+                u = rng.uniform(low, high).astype(np.float32)
+                obs, *_ = env.step(u)
+                frames.append(world.image(obs))
+                us.append(u)
+                xs.append(world.state(env))
+            images.append(np.stack(frames))
+            actions.append(np.stack(us))
+            states.append(np.stack(xs))
+    finally:
+        if hasattr(env, "close"):
+            env.close()
+    return SequenceData(np.stack(images), np.stack(actions), action_low=low, action_high=high,
+                        action_names=tuple(world.action_names),
+                        states=np.stack(states).astype(np.float32), seed=seed,
+                        source=f"<random actions in {world.name}>", split_seed=seed)
