@@ -13,13 +13,13 @@ import pytest
 import torch
 
 from latent_sindy.cli import main
-from latent_sindy.control.closed_loop import COSTS, ControlConfig, Controller
 from latent_sindy.control.costs import PoseCost
-from latent_sindy.data.store import Trajectories, write_trajectories
+from latent_sindy.data import write_sequences
 from latent_sindy.data.windows import pose_features
 from latent_sindy.errors import UserError
+from latent_sindy.experiments.catalogue import model_specs
 from latent_sindy.experiments.probe import latent_probe
-from latent_sindy.experiments.study import SCALES, model_specs
+from latent_sindy.experiments.scales import SCALES
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import SindyConfig
@@ -27,7 +27,9 @@ from latent_sindy.models.latent_model import LatentModel, LossWeights, ModelConf
 from latent_sindy.models.state import StateConfig, pose_cost_weights
 from latent_sindy.training import RunDir, TrainConfig, train
 from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
-from latent_sindy.worlds.push.world import CameraView
+from latent_sindy.worlds.push.data import push_data
+from latent_sindy.worlds.push.episodes import COSTS, ControlConfig, Controller
+from latent_sindy.worlds.push.scene import CameraView
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -36,7 +38,7 @@ PERIOD = math.pi / 2
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory) -> Path:
-    """Trajectories of true images of random poses (no pushing simulated: the poses of a
+    """SequenceData of true images of random poses (no pushing simulated: the poses of a
     trajectory are independent), 40 of 2 steps: 32 train, 4 val, 4 test."""
     cfg = PushEnvConfig()
     rng = np.random.default_rng(0)
@@ -51,7 +53,7 @@ def rendered(tmp_path_factory) -> Path:
     actions = rng.uniform(ACTION_LOW, ACTION_HIGH, (40, 2, 3))
     split = np.array([0] * 32 + [1] * 4 + [2] * 4, dtype=np.uint8)
     path = tmp_path_factory.mktemp("rendered") / "d.h5"
-    write_trajectories(path, Trajectories(images.astype(np.uint8), actions.astype(np.float32),
+    write_sequences(path, push_data(images.astype(np.uint8), actions.astype(np.float32),
                                           poses.astype(np.float32), split, cfg, seed=0))
     return path
 
@@ -99,9 +101,9 @@ def test_an_unweighted_head_changes_nothing_else(rendered: Path, tmp_path: Path)
 
 def test_pose_supervision_puts_the_orientation_into_the_latent(rendered: Path,
                                                                tmp_path: Path) -> None:
-    from latent_sindy.data.store import read_trajectories
+    from latent_sindy.data import read_sequences
 
-    data = read_trajectories(rendered)
+    data = read_sequences(rendered)
     r2 = {}
     for lam in (0.0, 10.0):
         run = RunDir(train(config(rendered, tmp_path / str(lam), "linear", lam, epochs=150,
@@ -190,9 +192,9 @@ def test_a_run_with_a_head_round_trips(rendered: Path, tmp_path: Path) -> None:
     assert model.pose_head is not None
     for k, v in model.state_dict().items():
         assert torch.equal(v, saved[k])
-    from latent_sindy.data.store import read_trajectories
+    from latent_sindy.data import read_sequences
 
-    train_poses = pose_features(read_trajectories(rendered).split("train").poses, PERIOD)
+    train_poses = pose_features(read_sequences(rendered).split("train").poses, PERIOD)
     torch.testing.assert_close(model.pose_head.mean, train_poses.flatten(0, 1).mean(0))
     assert RunDir(out).read_metrics()[-1]["train/pose"] > 0
 

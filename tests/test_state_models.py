@@ -88,12 +88,12 @@ def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_pat
     state SINDy's rollouts (torch and MPPI's fused kernel alike) keep (z2, z3) on the unit
     circle over 50 random pushes, and its equations say so."""
     from latent_sindy.control import SparseSindyStep, latent_step
-    from latent_sindy.data.store import write_trajectories
+    from latent_sindy.data import write_sequences
     from latent_sindy.equations import equations_report
     from synthetic import make_trajectories
 
     data, out = tmp_path / "d.h5", tmp_path / "run"
-    write_trajectories(data, make_trajectories(n=6, steps=3))
+    write_sequences(data, make_trajectories(n=6, steps=3))
     assert main(["train", "sindy", "--order", "1", "--library", "face", "--no-include-sine",
                  "--init-scale", "0.05", "state", "--data", str(data), "--out", str(out),
                  "--epochs", "3", "--batch-size", "4", "--sindy-init", "random",
@@ -119,12 +119,12 @@ def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_pat
 def symmetric_pushes(tmp_path_factory) -> tuple:
     """Transitions of 48 random trajectories (5 pushes each) in the default world, as
     (Z, U, Znext) of encoded poses: three quarters for fitting, a quarter held out."""
-    from latent_sindy.data.store import read_trajectories
+    from latent_sindy.data import read_sequences
 
     path = collect(tmp_path_factory.mktemp("sym") / "d.h5",
                    CollectionPlan(trajectories=48, steps=5, seed=3, val_fraction=0.25,
                                   test_fraction=0), workers=2)
-    d = read_trajectories(path)
+    d = read_sequences(path)
 
     def transitions(split: str):
         s = d.split(split)
@@ -140,7 +140,6 @@ def test_sindy_on_simulated_poses_prints_the_push_kinematics(symmetric_pushes) -
     predicts one push's position about as well as an MLP fitted to the same transitions."""
     from latent_sindy.models import MlpDynamics, SindyConfig
     from latent_sindy.sindy import STLSQ
-    from latent_sindy.sindy.fit import fit_gradient
 
     (Z, U, Zn), (Zv, Uv, Znv) = symmetric_pushes
     sindy = SindyConfig(order=1, library="push", include_sine=False).build(4, 3).double()
@@ -160,7 +159,11 @@ def test_sindy_on_simulated_poses_prints_the_push_kinematics(symmetric_pushes) -
     assert abs(gain("z1", "u2 cos(u1)")) < 0.2 * gain("z1", "u2 sin(u1)"), eqs[1]
     torch.manual_seed(0)
     mlp = MlpDynamics(4, 3).double()
-    fit_gradient(mlp, Z, U, Zn, epochs=1500, lr=3e-3)
+    opt = torch.optim.Adam(mlp.parameters(), lr=3e-3)
+    for _ in range(1500):  # full batch: the mean squared one-step error
+        opt.zero_grad()
+        (mlp.step(Z, U) - Zn).square().mean().backward()
+        opt.step()
     with torch.no_grad():
         err_sindy = (sindy.step(Zv, Uv) - Znv)[:, :2].norm(dim=1).mean()
         err_mlp = (mlp.step(Zv, Uv) - Znv)[:, :2].norm(dim=1).mean()
@@ -292,7 +295,8 @@ def test_the_study_writes_world_direction_pushes_with_the_face_library_only() ->
     """The face library's relative angle is ψ − θ for a push in a world direction ψ; where
     the push angle is measured from the block (the paper's and the marked world) the state
     and pose-latent rows keep the push library."""
-    from latent_sindy.experiments.study import SCALES, model_specs
+    from latent_sindy.experiments.catalogue import model_specs
+    from latent_sindy.experiments.scales import SCALES
 
     for push, library in (("symmetric", "face"), ("paper", "push")):
         specs = {s.name: s for s in model_specs(SCALES["tiny"], push=push)}
@@ -369,7 +373,9 @@ def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
 
 
 def test_the_init_threshold_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
-    from latent_sindy.experiments.study import ReproduceConfig, Sweep, study_specs
+    from latent_sindy.experiments.catalogue import study_specs
+    from latent_sindy.experiments.config import ReproduceConfig
+    from latent_sindy.experiments.sweeps import Sweep
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path,
                           models=("sindy2", "sindy_moments", "state_sindy"),
