@@ -92,3 +92,24 @@ def test_closed_loop_reaches_goals_with_a_fitted_model(world, one_torch_thread):
     end = [np.linalg.norm(r.final_state - r.task.goal) for r in results]
     assert np.mean(end) < 0.3 * np.mean(start), (start, end)
     assert rates["near"] >= 5 / 6, rates
+
+
+def test_the_pushing_world_is_a_world_found_by_name():
+    """The Panda world plugs in through the same interface: a zero-length push leaves the block
+    where the task started it, and its criteria are the course's and the strict one."""
+    from latent_sindy.plugins import get_world
+
+    push = get_world("push")
+    assert isinstance(push, World) and push.action_names == ("p", "psi", "ell")
+
+    class Still:
+        def reset(self, goal_image, seed=None):
+            assert goal_image.shape == (1, 32, 32)
+
+        def act(self, image):
+            return np.zeros(3, np.float32)
+
+    (episode,) = run_closed_loop(push, Still(), episodes=1, max_steps=2, seed=0)
+    assert episode.steps == 2 and set(episode.reached) == {"course", "strict"}
+    np.testing.assert_allclose(episode.final_state[:2], episode.task.start[:2], atol=2e-3)
+    assert push.success(episode.task.goal, episode.task.goal) == {"course": True, "strict": True}

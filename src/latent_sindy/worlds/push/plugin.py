@@ -1,24 +1,45 @@
 """The pushing world's plug-in (entry point ``push`` of ``latent_sindy.worlds``).
 
-Loading it registers what the core looks up by name and provides :data:`WORLD`, the object the
-core asks about this world's data and runs.
+:data:`WORLD` is the object the core asks about this world: its settings from a data file's or
+run's record, its data checks and model settings, and, as a
+:class:`~latent_sindy.control.world.World`, the closed loop's questions (environment, tasks,
+goal image, state, success criteria). The simulator loads only when an environment is made.
+
+    from latent_sindy.plugins import get_world
+    world = get_world("push")              # or PushWorld(PushEnvConfig.named("paper"))
+    results = run_closed_loop(world, planner, episodes=10, max_steps=20)
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
+import numpy as np
+
+from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.control.world import Task
 from latent_sindy.worlds.push import data as _data
-from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the presets)
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
+from latent_sindy.worlds.push.planner import world_planner
+
+__all__ = ["WORLD", "PushWorld"]
 
 
-class PushWorldPlugin:
-    """What the core asks the pushing world: its settings from a record, its data checks."""
+def _wrap(a: float, period: float) -> float:
+    return (a + period / 2) % period - period / 2
+
+
+class PushWorld:
+    """The Panda pushing world ``config`` (the symmetric world by default)."""
 
     name = "push"
 
+    def __init__(self, config: PushEnvConfig | None = None) -> None:
+        self.config = config or PushEnvConfig()
+
+    # ------------------------------------------------------ what the core asks of its data
     @staticmethod
     def config_from_record(record: dict[str, Any], where: str) -> PushEnvConfig:
         return PushEnvConfig.from_record(record.get("env_config"), f"{where}: env_config")
@@ -27,5 +48,53 @@ class PushWorldPlugin:
     read_legacy = staticmethod(_data.read_legacy)
     prepare_model = staticmethod(_prepare_model)
 
+    # ------------------------------------------------------ the world interface
+    @property
+    def action_low(self) -> tuple[float, ...]:
+        return self.config.action_low
 
-WORLD = PushWorldPlugin()
+    @property
+    def action_high(self) -> tuple[float, ...]:
+        return self.config.action_high
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        return self.config.action_names
+
+    def planner(self) -> MPPIConfig:
+        """The planner this world's study uses."""
+        return world_planner(self.config)
+
+    def make_env(self) -> Any:
+        from latent_sindy.worlds.push.panda_push import PandaPushEnv
+
+        return PandaPushEnv(self.config)
+
+    def sample_task(self, rng: np.random.Generator) -> Task:
+        low, high = np.array(self.config.workspace_low), np.array(self.config.workspace_high)
+        return Task(start=rng.uniform(low, high), goal=rng.uniform(low, high))
+
+    def reset(self, env: Any, task: Task, seed: int) -> np.ndarray:
+        return env.reset(seed=seed, options={"start": task.start, "goal": task.goal})[0]
+
+    def image(self, observation: Any) -> np.ndarray:
+        return observation
+
+    def goal_image(self, env: Any, task: Task) -> np.ndarray:
+        return env.goal_observation()
+
+    def state(self, env: Any) -> np.ndarray:
+        return env.world.block_pose()
+
+    def success(self, state: np.ndarray, goal: np.ndarray) -> dict[str, bool]:
+        """The course criterion (position within 0.1 m) and the strict one (2 cm, 10°)."""
+        cfg = self.config
+        dist = float(np.hypot(*(np.asarray(state)[:2] - np.asarray(goal)[:2])))
+        dth = abs(math.degrees(_wrap(float(state[2] - goal[2]), cfg.angle_period)))
+        course = dist < cfg.success_distance and (cfg.success_angle_deg is None
+                                                  or dth < cfg.success_angle_deg)
+        return {"course": bool(course),
+                "strict": bool(dist < cfg.strict_distance and dth < cfg.strict_angle_deg)}
+
+
+WORLD = PushWorld()
