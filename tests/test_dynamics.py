@@ -517,7 +517,7 @@ def test_sparse_dynamics_is_the_one_answer_to_whether_a_model_is_sparse(case: st
     others (the frozen compiled step included: nothing left to prune) are not."""
     model = _build(case)
     sparse = isinstance(model, SparseDynamics)
-    assert sparse == (isinstance(model, SindyDynamics))
+    assert sparse == model.sparse == isinstance(model, SindyDynamics)
     if not sparse:
         return
     pruned = model.threshold(0.03)

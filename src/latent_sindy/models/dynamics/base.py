@@ -77,6 +77,9 @@ class LatentDynamics(nn.Module):
     """
 
     kind: ClassVar[str] = ""
+    #: ``isinstance(self, SparseDynamics)`` as a class variable, for code that does not
+    #: import the models (True exactly for its subclasses).
+    sparse: ClassVar[bool] = False
     _circle_index: torch.Tensor  # (2,) long, or (0,) without a circle
 
     def __init__(self, nz: int, nu: int, circle: Sequence[int] | None = None,
@@ -186,6 +189,7 @@ class SparseDynamics(LatentDynamics):
     the counts and the active terms follow from them.
     """
 
+    sparse: ClassVar[bool] = True
     psi: nn.Parameter  # (p, nz)
     mask: torch.Tensor  # (p, nz) bool
 
