@@ -20,6 +20,7 @@ import numpy as np
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.world import Task
 from latent_sindy.worlds.push import data as _data
+from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the presets)
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
 from latent_sindy.worlds.push.planner import world_planner
