@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from latent_sindy.cli import main
-from latent_sindy.data.store import write_trajectories
+from latent_sindy.data import write_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
@@ -133,7 +133,7 @@ def test_training_fits_the_background_and_checks_the_order_against_the_world(
     an order that does not match the block's symmetry is refused with the one that does."""
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"
-    write_trajectories(data, d)
+    write_sequences(data, d)
     common = ["train", "sindy", "--order", "1", "--library", "face", "--no-include-sine",
               "--data", str(data), "--epochs", "2", "--batch-size", "4", "--no-progress"]
     image = ["image", "--encoder", "moments", "--latent-dim", "4", "--decoder", "conv"]
@@ -149,7 +149,8 @@ def test_training_fits_the_background_and_checks_the_order_against_the_world(
 
 
 def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
-    from latent_sindy.experiments.study import SCALES, model_specs
+    from latent_sindy.experiments.catalogue import model_specs
+    from latent_sindy.experiments.scales import SCALES
     from latent_sindy.worlds.push.config import PushEnvConfig
 
     for world, library, order in (("symmetric", "face", 4), ("marked", "push", 1)):
@@ -175,7 +176,7 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
 
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"
-    write_trajectories(data, d)
+    write_sequences(data, d)
     sense, offset = moment_frame(d.env_config)
     train = ["train", "--data", str(data), "--epochs", "1", "--batch-size", "4",
              "--no-progress"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from latent_sindy.data.store import Trajectories
+from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import (
@@ -17,7 +17,8 @@ from latent_sindy.experiments.probe import (
     state_position_errors,
 )
 from latent_sindy.worlds.push.config import PushEnvConfig
-from latent_sindy.worlds.push.world import CameraView
+from latent_sindy.worlds.push.data import push_data
+from latent_sindy.worlds.push.scene import CameraView
 
 HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
 
@@ -124,7 +125,7 @@ class LookupModel(torch.nn.Module):
         return self.latents[x[..., 0, 0, 0].round().long()]
 
 
-def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> Trajectories:
+def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> SequenceData:
     """Frames numbered in pixel (0, 0), random poses; splits train / val / test in turn."""
     rng = np.random.default_rng(seed)
     images = np.zeros((n, steps + 1, 1, 32, 32), np.uint8)
@@ -132,7 +133,7 @@ def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> Trajecto
     images[..., 0, 1, 1] = 1  # a non-constant image for the pixel statistics
     poses = rng.uniform((0.35, -0.35, -np.pi), (0.7, 0.35, np.pi), (n, steps + 1, 3))
     actions = np.zeros((n, steps, 3), np.float32)
-    return Trajectories(images, actions, poses.astype(np.float32),
+    return push_data(images, actions, poses.astype(np.float32),
                         (np.arange(n) % 3).astype(np.uint8), PushEnvConfig(), seed=seed)
 
 
@@ -183,12 +184,12 @@ class ReplayModel(torch.nn.Module):
 
 
 @pytest.fixture(scope="module")
-def moving(world) -> Trajectories:
+def moving(world) -> SequenceData:
     """Three blocks, each pushed 3 cm along x per step for 4 steps, rendered."""
     poses = np.array([[(0.4 + 0.03 * t, y, 0.2 * t) for t in range(5)]
                       for y in (-0.2, 0.0, 0.2)], np.float32)
     images = np.stack([[world.observe(p) for p in traj] for traj in poses])
-    return Trajectories(images, np.zeros((3, 4, 3), np.float32), poses,
+    return push_data(images, np.zeros((3, 4, 3), np.float32), poses,
                         np.array([0, 2, 2], np.uint8), world.cfg, seed=0)
 
 
@@ -255,8 +256,8 @@ def test_the_moment_frame_turns_the_images_angle_into_the_worlds(world):
 
     from latent_sindy.models import AutoencoderConfig
     from latent_sindy.models.autoencoder import MomentEncoder
-    from latent_sindy.sindy import face_variables
     from latent_sindy.worlds.push.camera import moment_frame
+    from latent_sindy.worlds.push.library import face_variables
 
     poses = random_poses(world, 40, seed=5)
     images = torch.tensor(np.stack([world.observe(p) for p in poses]), dtype=torch.float32)

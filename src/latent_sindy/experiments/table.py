@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from latent_sindy.control.closed_loop import wilson_interval
 from latent_sindy.experiments.evaluation import Stat, mean_std
+from latent_sindy.worlds.push.episodes import wilson_interval
 
 __all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "sweep_rows", "table1_rows",
            "write_sweep_table", "write_table1"]
