@@ -1,0 +1,33 @@
+"""The house as the README draws it: the layout section names what the tree holds, modules stay
+small, the README stays a front door."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "src" / "latent_sindy"
+
+
+def test_no_module_over_400_lines():
+    big = {str(p.relative_to(ROOT)): n for p in PACKAGE.rglob("*.py")
+           if (n := len(p.read_text().splitlines())) > 400}
+    assert not big, big
+
+
+def test_the_readme_is_a_front_door():
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 200
+
+
+def test_the_readme_layout_matches_the_tree():
+    text = (ROOT / "README.md").read_text()
+    block = text.split("## Layout", 1)[1].split("```")[1]
+    named = set(re.findall(r"^  (\S+)", block, re.M))
+    for name in named:
+        assert (PACKAGE / name.rstrip("/")).exists(), f"README names {name}, not in the tree"
+    shown = {n.split("/")[0] for n in named}
+    actual = {p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert actual <= shown, f"packages the README's layout leaves out: {actual - shown}"
+    for link in re.findall(r"\]\((docs/[^)#]+)", text):
+        assert (ROOT / link).exists(), link
