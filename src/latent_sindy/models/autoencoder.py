@@ -240,13 +240,14 @@ class Autoencoder(nn.Module):
         if not cfg.resolved:
             raise ValueError("AutoencoderConfig needs channels and image_size: resolve() first")
         self.config = cfg
+        self.image_shape = cfg.image_shape  # (C, H, W)
         self.encoder = ENCODERS[cfg.encoder_kind](cfg)
         self.decoder = DECODERS[cfg.decoder_kind](cfg)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, H, W) -> z (..., nz); any leading dimensions."""
-        if x.shape[-3:] != self.config.image_shape:
-            c, h, w = self.config.image_shape
+        if x.shape[-3:] != self.image_shape:
+            c, h, w = self.image_shape
             raise UserError(f"the autoencoder takes images of shape (C, H, W) = ({c}, {h}, {w}), "
                             f"got {tuple(x.shape[-3:])}: build the model for the data's images "
                             f"(leave channels and image_size unset to take them from the data)")
