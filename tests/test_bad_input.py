@@ -191,7 +191,7 @@ def test_10_control_out_that_is_a_file_is_refused(scratch: Path, capsys) -> None
 def test_11_an_edited_run_config_is_refused_before_any_output(scratch: Path, capsys) -> None:
     path = scratch / "run" / "config.json"
     record = json.loads(path.read_text())
-    record["model"]["encoder"]["image_size"] = 64
+    record["model"]["observation"]["image_size"] = 64
     path.write_text(json.dumps(record))
     before = snapshot(scratch)
     refused(capsys, ["control", str(scratch / "run"), "--task", "random", "--no-progress"],

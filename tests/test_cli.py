@@ -60,7 +60,7 @@ def test_info_on_missing_foreign_and_valid_files(tmp_path):
     good = tmp_path / "good.h5"
     write_sequences(good, make_trajectories())
     r = run("info", str(good))
-    assert r.returncode == 0 and "valid latent-sindy trajectory file" in r.stdout
+    assert r.returncode == 0 and "valid latent-sindy data file" in r.stdout
 
 
 def test_collect_does_not_overwrite_a_foreign_file(tmp_path):

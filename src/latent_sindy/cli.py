@@ -32,7 +32,7 @@ from typing import Annotated
 import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
-from latent_sindy.errors import UserError
+from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
 from latent_sindy.experiments.config import ReproduceConfig
 from latent_sindy.progress import bar
 from latent_sindy.training.config import TrainConfig
@@ -269,12 +269,14 @@ COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train
 def main(argv: list[str] | None = None) -> int:
     try:
         # settings are validated while tyro builds them, so parsing is inside the try
-        cmd = tyro.extras.subcommand_cli_from_dict(
-            COMMANDS, prog="latent-sindy", args=argv,
-            description="Sparse latent dynamics (SINDy) from images, for planar pushing.",
-            config=(tyro.conf.OmitSubcommandPrefixes, tyro.conf.CascadeSubcommandArgs))
+        with carried_through_parsers():
+            cmd = tyro.extras.subcommand_cli_from_dict(
+                COMMANDS, prog="latent-sindy", args=argv,
+                description="Sparse latent dynamics (SINDy) learned from images: train on "
+                            "your own data, read the equations, plan with them.",
+                config=(tyro.conf.OmitSubcommandPrefixes, tyro.conf.CascadeSubcommandArgs))
         cmd.run()
-    except UserError as e:
+    except (UserError, CarriedUserError) as e:
         if os.environ.get("LATENT_SINDY_DEBUG"):
             raise
         print(f"latent-sindy: error: {e}", file=sys.stderr)

@@ -63,10 +63,14 @@ Space = Literal["latent", "image", "pose"]
 #: value runs recorded before it was derived were built with): runs are compared on what
 #: their model was built with (the record's resolved "model"), not on what was asked.
 DERIVED: tuple[tuple[str, str, Any], ...] = (
-    ("encoder", "sprite_size", 11),
+    ("observation", "sprite_size", 11),
     ("dynamics", "frame_sense", 1),
     ("dynamics", "frame_offset", 0.0),
 )
+
+
+#: Parts of the model record under the names runs recorded before the renaming used.
+_OLD_PARTS = {"observation": "encoder"}
 
 
 class Run(NamedTuple):
@@ -305,7 +309,8 @@ class RunDir:
             for part, key, before in DERIVED:
                 asked = train["model"].get(part, {})
                 if key in asked:
-                    asked[key] = r["model"].get(part, {}).get(key, before)
+                    built = r["model"].get(part) or r["model"].get(_OLD_PARTS.get(part), {})
+                    asked[key] = built.get(key, before)
             return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
 
         was, now = flat(old), flat(record)
