@@ -8,14 +8,20 @@ ZeroDivisionError check), which lets the projection's divisions vectorise.
 
 A library's derived variables (:class:`latent_sindy.sindy.grammar.DerivedVariables`) come from
 a numba ``cfunc`` their node supplies, of signature :func:`derived_signature`, which the
-kernel calls once per block and step: a first-class function argument, so the kernel stays
-generic and numba's disk cache keeps it (a jitted function as argument would make numba
-compile the kernel again in every process).
+kernel calls once per block and step through its address (an integer argument): the kernel
+stays generic, one compiled kernel serves every derived-variable function, numba's disk cache
+keeps it, and a call costs what it did before (a jitted function as argument would make numba
+compile the kernel in every process; a cfunc object as argument costs ~30 µs of dispatch per
+call).
 """
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba import types
+from numba.core import cgutils
+from numba.core.typing import Signature
+from numba.extending import intrinsic
 
 _jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False,
                   error_model="numpy")
@@ -24,7 +30,7 @@ _jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=Fal
 CFUNC_FLAGS = {"fastmath": {"contract"}, "nogil": True, "cache": True, "error_model": "numpy"}
 
 
-def derived_signature(dtype: str) -> types.FunctionType:
+def derived_signature(dtype: str) -> Signature:
     """The signature of a derived-variable cfunc for the kernel in ``dtype`` ("float32" or
     "float64")::
 
@@ -43,18 +49,25 @@ def derived_signature(dtype: str) -> types.FunctionType:
                       types.int64)
 
 
-@numba.cfunc(derived_signature("float32"), **CFUNC_FLAGS)
-def _no_derived_float32(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
-    """The kernel's derive argument for a library without derived variables (never called)."""
+@intrinsic
+def _call_derived(typingctx, address, feat, n, inputs, params, first):
+    """Call the cfunc at ``address`` (of :func:`derived_signature`) on the arrays' data:
+    feat (rows, block) C-contiguous, inputs (n_inputs,) int64, params (n_params,)."""
+    sig = types.void(address, feat, n, inputs, params, first)
 
+    def codegen(context, builder, signature, args):
+        address, feat, n, inputs, params, first = args
+        _, feat_t, _, inputs_t, params_t, _ = signature.args
+        fa, ia, pa = (cgutils.create_struct_proxy(t)(context, builder, value=v)
+                      for t, v in ((feat_t, feat), (inputs_t, inputs), (params_t, params)))
+        rows, block = cgutils.unpack_tuple(builder, fa.shape, 2)
+        (n_inputs,), (n_params,) = (cgutils.unpack_tuple(builder, a.shape, 1) for a in (ia, pa))
+        argv = [fa.data, rows, block, n, ia.data, n_inputs, pa.data, n_params, first]
+        fnty = ir.FunctionType(ir.VoidType(), [a.type for a in argv])
+        builder.call(builder.inttoptr(address, fnty.as_pointer()), argv)
+        return context.get_dummy_value()
 
-@numba.cfunc(derived_signature("float64"), **CFUNC_FLAGS)
-def _no_derived_float64(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
-    """The kernel's derive argument for a library without derived variables (never called)."""
-
-
-#: A derive argument per dtype for libraries without derived variables.
-NO_DERIVED = {"float32": _no_derived_float32, "float64": _no_derived_float64}
+    return sig, codegen
 
 
 @numba.njit(fastmath={"contract"}, inline="always", cache=True)
@@ -84,8 +97,8 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
     z0t (nz, K) the start states and ut (H, nu, K) the actions, any strides (a zero stride
     repeats one start state); out (H, nz, K). Feature rows are [z, u, derived, trig]: for
     n_derived > 0 rows nz + nu .. nz + nu + n_derived - 1 are the library's derived variables,
-    which ``derive`` (a cfunc of :func:`derived_signature`) writes from the rows
-    ``derive_inputs`` with ``derive_params``. The next trig row i is
+    which the cfunc at address ``derive`` (of :func:`derived_signature`; 0 for none) writes
+    from the rows ``derive_inputs`` with ``derive_params``. The next trig row i is
     sin(trig_scale[i] feat[trig_var[i]] + trig_shift[i]), of a state (trig_var < nz), an
     action or a derived variable, and a cosine for shift π/2. terms (S, order): feature
     indices of the non-constant active terms in lexicographic order, degree (S,), start (S,)
@@ -98,7 +111,6 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
     nz, K = z0t.shape
     H, nu = ut.shape[0], ut.shape[1]
     block = feat.shape[1]
-    rows_f = feat.shape[0]
     base = nz + nu + n_derived
     for k0 in range(0, K, block):
         n = min(block, K - k0)
@@ -120,9 +132,7 @@ def sindy_rollout_kernel(z0t, ut, out, trig_var, trig_scale, trig_shift, bias, t
                 for k in range(n):
                     f[k] = src[k]
             if n_derived:
-                derive(feat.ctypes, rows_f, block, n, derive_inputs.ctypes,
-                       derive_inputs.shape[0], derive_params.ctypes, derive_params.shape[0],
-                       nz + nu)
+                _call_derived(derive, feat, n, derive_inputs, derive_params, nz + nu)
             for i in range(trig_var.shape[0]):
                 src = feat[trig_var[i], :n]
                 f = feat[base + i, :n]

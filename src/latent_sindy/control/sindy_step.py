@@ -61,14 +61,6 @@ def _kernel() -> Callable[..., None]:
     return sindy_rollout_kernel
 
 
-@functools.cache
-def _no_derived() -> dict[str, object]:
-    """The kernel's derive argument per dtype for a library without derived variables."""
-    from latent_sindy.control._sindy_kernel import NO_DERIVED
-
-    return NO_DERIVED
-
-
 class SparseSindyStep:
     """Frozen, fused evaluation of ``z + Θ_S(z, u) C_S`` over the active terms S.
 
@@ -167,9 +159,10 @@ class SparseSindyStep:
                 np.empty((self._order, BLOCK), np_dtype))
         return args
 
-    def _derive(self, dtype: str) -> object:
-        """The kernel's derive argument in ``dtype``: the node's cfunc, or a no-op."""
-        return _no_derived()[dtype] if self._node is None else self._node.numba_function(dtype)
+    def _derive(self, dtype: str) -> int:
+        """The kernel's derive argument in ``dtype``: the address of the node's cfunc (the
+        world's module holds the cfunc), or 0 for none."""
+        return 0 if self._node is None else self._node.numba_function(dtype).address
 
     def __call__(self, z: Tensor, u: Tensor) -> Tensor:
         """One step: z (K, nz), u (K, nu) -> (K, nz) (a transposed view)."""
