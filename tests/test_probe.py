@@ -262,7 +262,7 @@ def test_the_moment_frame_turns_the_images_angle_into_the_worlds(world):
     poses = random_poses(world, 40, seed=5)
     images = torch.tensor(np.stack([world.observe(p) for p in poses]), dtype=torch.float32)
     enc = MomentEncoder(AutoencoderConfig(channels=1, image_size=world.cfg.image_size,
-                                          latent_dim=4, encoder="moments", moment_order=4))
+                                          latent_dim=4, encoder_kind="moments", moment_order=4))
     x = (images - 180.0) / 17.0
     enc.fit_statistics(torch.cat([x, x.roll(1, 0)]))  # the median is the empty table's
     z = enc(x).double()

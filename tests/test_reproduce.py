@@ -176,14 +176,14 @@ def test_a_run_recorded_before_a_setting_existed_is_reused(study, tmp_path):
     run = tmp_path / "sindy1"
     shutil.copytree(src, run)
     record = json.loads((run / "config.json").read_text())
-    for key in ("encoder", "keypoint_channels"):  # added with the keypoints encoder
-        del record["train"]["model"]["encoder"][key]
+    for key in ("encoder_kind", "keypoint_channels"):  # added with the keypoints encoder
+        del record["train"]["model"]["observation"][key]
     (run / "config.json").write_text(json.dumps(record))
     cfg = replace(RunDir(src).train_config(), out=run)
     assert ensure_trained(cfg) == "reused"
-    keypoints = replace(cfg.model.encoder, encoder="keypoints")
-    with pytest.raises(UserError, match=r"encoder\.encoder"):
-        ensure_trained(replace(cfg, model=replace(cfg.model, encoder=keypoints)))
+    keypoints = replace(cfg.model.observation, encoder_kind="keypoints")
+    with pytest.raises(UserError, match=r"observation\.encoder_kind"):
+        ensure_trained(replace(cfg, model=replace(cfg.model, observation=keypoints)))
 
 
 def test_mean_std_over_seeds():
@@ -251,7 +251,7 @@ def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, 
     shutil.copytree(src, run)
     record = json.loads((run / "config.json").read_text())
     asked = record["train"]["model"]
-    for part, key, before in (("encoder", "sprite_size", 11), ("dynamics", "frame_sense", 1),
+    for part, key, before in (("observation", "sprite_size", 11), ("dynamics", "frame_sense", 1),
                               ("dynamics", "frame_offset", 0.0)):
         if key in asked[part]:
             asked[part][key] = before
@@ -259,8 +259,8 @@ def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, 
     cfg = replace(RunDir(src).train_config(), out=run)
     assert ensure_trained(cfg) == "reused"
     built = record["model"]
-    if "sprite_size" in built["encoder"]:
-        built["encoder"]["sprite_size"] = 23
+    if "sprite_size" in built["observation"]:
+        built["observation"]["sprite_size"] = 23
         (run / "config.json").write_text(json.dumps(record))
         with pytest.raises(UserError, match="sprite_size"):
             ensure_trained(cfg)

@@ -87,20 +87,21 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     directions, so a world whose push angle is relative to the block ("paper", "marked")
     keeps the push library in those rows."""
     h = scale.multistep_window
-    auto = AutoencoderConfig(decoder=decoder)
+    auto = AutoencoderConfig(decoder_kind=decoder)
     library = "face" if push == "symmetric" else "push"
     pose_dynamics = SindyConfig(order=1, library=library, include_sine=False,
                                 angle_frequency=2 * math.pi / angle_period)
     frame = library == "face"  # the frame library, like the face one, needs world directions
-    moments = dataclasses.replace(auto, encoder="moments", latent_dim=4, decoder="sprite",
+    moments = dataclasses.replace(auto, encoder_kind="moments", latent_dim=4,
+                                  decoder_kind="sprite",
                                   moment_order=round(2 * math.pi / angle_period))
     frame_dynamics = dataclasses.replace(pose_dynamics, library="frame") if frame else None
 
     def model(dynamics: Any) -> ModelConfig:
-        return ModelConfig(encoder=auto, dynamics=dynamics)
+        return ModelConfig(observation=auto, dynamics=dynamics)
 
     def state(dynamics: Any) -> ModelConfig:
-        return ModelConfig(encoder=StateConfig(), dynamics=dynamics)
+        return ModelConfig(observation=StateConfig(), dynamics=dynamics)
 
     return (
         *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model(SindyConfig(order=k)),
@@ -130,7 +131,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # MPPI's cost on those coordinates, the goal read from the goal image. Its encoder
         # needs data (RESULTS.md, "The pose rows").
         ModelSpec("sindy_pose", f"SINDy ({library} library), pose latent (privileged)",
-                  ModelConfig(encoder=dataclasses.replace(auto, latent_dim=4,
+                  ModelConfig(observation=dataclasses.replace(auto, latent_dim=4,
                                                           conv_channels=(16, 16)),
                               dynamics=pose_dynamics, pose_head="coordinates"),
                   loss=LossWeights(lambda_pose=10.0, lambda_l1=1e-3), cost=1.3, headline=True,
@@ -145,7 +146,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # The sprite decoder draws a learned template of the block at the latent's pose.
         # STLSQ at 0.2, the sprite decoder: RESULTS.md, "The moments row".
         ModelSpec("sindy_moments", f"SINDy ({library} library), image moments",
-                  ModelConfig(encoder=moments, dynamics=pose_dynamics),
+                  ModelConfig(observation=moments, dynamics=pose_dynamics),
                   loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
                   init_threshold=0.2,
                   cost=0.6, headline=True),
@@ -154,7 +155,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # threshold: the image row that predicts pushes best, at less sparsity (RESULTS.md,
         # "The moments frame row").
         *((ModelSpec("sindy_moments_frame", "SINDy (frame library, turning), image moments",
-                     dataclasses.replace(ModelConfig(encoder=moments, dynamics=frame_dynamics),
+                     dataclasses.replace(ModelConfig(observation=moments, dynamics=frame_dynamics),
                                          turn=True),
                      loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
                      init_threshold=0.05, cost=0.6, headline=True),

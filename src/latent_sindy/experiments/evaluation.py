@@ -46,7 +46,7 @@ def split_losses(model: LatentModel, data: SequenceData, normalizer: Normalizer,
         part = data.split(split)
         if part.n == 0:
             continue
-        windows = WindowDataset(part, 1, normalizer, model.config.encoder.kind)
+        windows = WindowDataset(part, 1, normalizer, model.config.observation.kind)
         terms = evaluate(model, *windows.tensors(), weights)
         out[split] = {k: terms[k] for k in ("objective", "recon", "pred_x", "pred_z")}
     return out
@@ -74,7 +74,7 @@ def rollouts(model: LatentModel, data: SequenceData, normalizer: Normalizer
              ) -> list[torch.Tensor]:
     """The model's open-loop predictions from every start t = 0..T-1 with the true actions:
     item t is (N, T-t+1, ...), its first frame dec(enc(x_t)) (what the model observes)."""
-    x = OBSERVATIONS[model.config.encoder.kind].batch(data, normalizer)  # (N, T+1, ...)
+    x = OBSERVATIONS[model.config.observation.kind].batch(data, normalizer)  # (N, T+1, ...)
     u = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
     model.eval()
     return [model.predict(x[:, t], u[:, t:]) for t in range(x.shape[1] - 1)]
@@ -86,7 +86,7 @@ def horizon_errors(model: LatentModel, data: SequenceData, normalizer: Normalize
     """Mean image MSE of the model's open-loop prediction at horizon h = 1..T (index h-1),
     over all starts t with t + h <= T. A rollout that diverged gives inf (never NaN).
     ``predictions``: :func:`rollouts` of the same model and data, when already made."""
-    x = OBSERVATIONS[model.config.encoder.kind].batch(data, normalizer)  # (N, T+1, ...)
+    x = OBSERVATIONS[model.config.observation.kind].batch(data, normalizer)  # (N, T+1, ...)
     pred = predictions if predictions is not None else rollouts(model, data, normalizer)
     return _by_horizon(x, lambda t: pred[t][:, 1:])
 

@@ -110,10 +110,10 @@ def _what_the_latent_knows(loaded: Any, data: SequenceData,
     """The latent probe and the block position errors of an image model; a state model's
     latent is the pose (no probe), its position errors are those of its predicted poses.
     ``predictions``: the model's rollouts on :func:`held_out`."""
-    if loaded.model.config.encoder.kind == "state":
+    if loaded.model.config.observation.kind == "state":
         return {"probe": None,
                 "position": probe.state_position_errors(held_out(data), predictions)}
-    if loaded.model.config.encoder.kind != "image":
+    if loaded.model.config.observation.kind != "image":
         return {"probe": None, "position": None}
     return {"probe": probe.latent_probe(loaded.model, data, loaded.normalizer,
                                         held_out_split(data)),
@@ -172,5 +172,5 @@ def eval_job(job: EvalJob) -> RunResult:
     train_s = sum(r["time_s"] or 0.0 for r in run.read_metrics())
     return RunResult(losses=record["losses"], horizon=record["horizon"], stats=record["stats"],
                      control=control, train_seconds=train_s, seconds=time.perf_counter() - t0,
-                     observation=loaded.model.config.encoder.kind, probe=record["probe"],
+                     observation=loaded.model.config.observation.kind, probe=record["probe"],
                      position=record["position"])

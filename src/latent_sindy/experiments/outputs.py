@@ -67,7 +67,7 @@ def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
              if s is not None and s.name in ok]
     strip += [(runs[s.name], s.label.replace(", ", ",\n", 1) if len(s.label) > 24 else s.label)
               for s in study.specs if s.headline and s.name in ok and s not in (single, multi)
-              and s.model.encoder.kind == "image"]
+              and s.model.observation.kind == "image"]
     if strip:
         files["rollouts"] = _rollout_figure(strip, held_out(data), fig_dir / "rollouts.png")
     for spec in study.specs:

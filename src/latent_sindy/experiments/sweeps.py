@@ -72,6 +72,10 @@ def _is_sindy(spec: ModelSpec) -> bool:
     return spec.model.dynamics.kind == "sindy"
 
 
+def _is_sindy_on_fixed_encoder(spec: ModelSpec) -> bool:
+    return _is_sindy(spec) and spec.model.observation.fixed_encoder
+
+
 def _set_order(spec: ModelSpec, order: int) -> ModelSpec:
     dyn = dataclasses.replace(spec.model.dynamics, order=order)
     return dataclasses.replace(spec, model=dataclasses.replace(spec.model, dynamics=dyn))
@@ -87,8 +91,7 @@ SWEEPABLE: dict[str, Sweepable] = {
                         lambda spec, v: dataclasses.replace(spec, window=v)),
     "threshold": Sweepable(float, "τ", _is_sindy,
                            lambda spec, v: dataclasses.replace(spec, threshold=v)),
-    "init_threshold": Sweepable(float, "STLSQ threshold",
-                                lambda spec: _is_sindy(spec) and spec.model.encoder.fixed_encoder,
+    "init_threshold": Sweepable(float, "STLSQ threshold", _is_sindy_on_fixed_encoder,
                                 lambda spec, v: dataclasses.replace(spec, init_threshold=v)),
 }
 
