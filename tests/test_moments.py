@@ -118,8 +118,11 @@ def test_the_moments_latent_has_four_coordinates_and_takes_the_face_library() ->
 def test_the_moments_cost_weighs_a_pixel_and_ten_degrees_alike() -> None:
     """MPPI's latent cost Q: one pixel of position error costs 1, and so does an orientation
     error of 10° (its angle features 2 - 2 cos(n·10°) apart, squared)."""
+    from latent_sindy.models import cost_weights
+
     enc, _, _ = fitted(4)
-    q = enc.cost_weights()
+    q = cost_weights(4, positions=(0, 1), position_scale=enc.pixel, circle=(2, 3),
+                     period=2 * math.pi / enc.order, angle_scale=math.radians(10.0))
     pixel = 2 / (SIDE - 1)
     assert math.isclose(float(q[0]) * pixel**2, 1.0, rel_tol=1e-5)
     z0, z1 = torch.tensor([0.0, 0, 1, 0]), torch.tensor(

@@ -21,7 +21,7 @@ import torch
 from latent_sindy.configs import from_json
 from latent_sindy.data import read_sequences, write_sequences
 from latent_sindy.data.windows import Normalizer, WindowDataset
-from latent_sindy.equations import equations_report
+from latent_sindy.equations import equations_report, name_actions
 from latent_sindy.errors import UserError
 from latent_sindy.models import (
     DYNAMICS_KINDS,
@@ -217,7 +217,8 @@ def test_equations_report_lists_the_active_terms(pruned_run) -> None:
         rhs = line.split(" = ", 1)[1]
         parts = re.split(r" [+-] ", rhs)[1:]  # the first part is the residual z_j
         terms = {p.split(" ", 1)[1] if " " in p else "1" for p in parts}
-        assert terms == {dyn.names[i] for i in dyn.mask[:, j].nonzero().flatten().tolist()}
+        names = name_actions(dyn.names, load_run(run).description["action_names"])
+        assert terms == {names[i] for i in dyn.mask[:, j].nonzero().flatten().tolist()}
     expected = dyn.coefficient_rows()
     with (run / CSV_FILE).open() as f:
         got = [(r["state"], r["term"], float(r["value"])) for r in csv.DictReader(f)]

@@ -89,8 +89,8 @@ class LatentSINDy:
                      "include_sine": self.include_sine}
         return ModelConfig(dynamics=DYNAMICS_KINDS[self.dynamics](**extra),
                            encoder=AutoencoderConfig(latent_dim=self.latent_dim,
-                                                     encoder=self.encoder,
-                                                     decoder=self.decoder))
+                                                     encoder_kind=self.encoder,
+                                                     decoder_kind=self.decoder))
 
     def train_config(self, **overrides: Any) -> TrainConfig:
         """The training settings of a fit (``overrides``: any TrainConfig field)."""
@@ -164,7 +164,7 @@ class LatentSINDy:
         if x.shape[-3:] != shape:
             raise UserError(f"images of shape {x.shape} do not fit this model, which takes "
                             f"frames {shape} (C, H, W)")
-        kind = self.model_.config.encoder.kind
+        kind = self.model_.config.observation.kind
         if kind != "image":
             raise UserError(f"this model observes {kind}s, not images")
         return self.normalizer_.normalize(x)
@@ -287,7 +287,7 @@ class LatentSINDy:
         weights are read with ``torch.load(weights_only=True)``."""
         run = RunDir(path).load()
         cfg = run.config
-        est = cls(run.model.config.encoder.latent_dim, model=run.model.config,
+        est = cls(run.model.config.observation.latent_dim, model=run.model.config,
                   settings=cfg, loss=cfg.loss, seed=cfg.seed, device="cpu")
         return est._adopt(run)
 

@@ -50,7 +50,7 @@ class TrainingDiverged(UserError):
 
 def is_sparse(dynamics: Any) -> bool:
     """Whether the dynamics have prunable coefficients (SINDy)."""
-    return bool(getattr(dynamics, "sparse", hasattr(dynamics, "threshold")))
+    return bool(getattr(dynamics, "sparse", False))
 
 
 @dataclass

@@ -52,7 +52,7 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
     if cfg.sindy_init == "regression" and not sindy:
         raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
                         f"dynamics are {model.dynamics.kind}: drop --sindy-init")
-    fixed = model.config.encoder.fixed_encoder  # its latents are data
+    fixed = model.config.observation.fixed_encoder  # its latents are data
     if cfg.sindy_init == "regression" and not fixed:
         raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
                         "this model's encoder learns: use --sindy-init random or auto, or "
@@ -82,7 +82,7 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
                      regression: bool = False) -> TrainingTensors:
     """The training and validation tensors of ``data`` on ``device``; for a ``fresh`` model
     (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
-    kind = model.config.encoder.kind
+    kind = model.config.observation.kind
     train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
     by_trajectory = resolve_batching(cfg) == "trajectories"
     if by_trajectory:  # (N, T+1, ..), (N, T, nu)

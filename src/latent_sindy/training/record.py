@@ -68,7 +68,7 @@ def run_record(cfg: TrainConfig, data: SequenceData, path: Path | str | None = "
         "train": to_json(cfg),
         "batching": resolve_batching(cfg),  # what train.batching ("auto") batched
         "model": to_json(model_cfg),
-        "normalizer": OBSERVATIONS[model_cfg.encoder.kind].normalizer(data).to_dict(),
+        "normalizer": OBSERVATIONS[model_cfg.observation.kind].normalizer(data).to_dict(),
         "data": data_identity(data, path),
         "description": data.describe(),  # what the model needs to know of its data
         # the world the images came from, its own record (for control)

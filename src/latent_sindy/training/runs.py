@@ -266,7 +266,7 @@ class RunDir:
         if not model_cfg.resolved:
             raise UserError(f"{where}: the model's image shape or action size is missing; "
                             "retrain the run")
-        enc = model_cfg.encoder
+        enc = model_cfg.observation
         c, h, w = description["frame_shape"]
         size = getattr(enc, "image_size", h)
         seen = (getattr(enc, "channels", c), *(size if isinstance(size, list | tuple)

@@ -145,16 +145,16 @@ class Controller:
         self.normalizer = normalizer
         self.settings = settings
         self.box = (env_config.action_low, env_config.action_high)
-        self._observe = OBSERVATIONS[model.config.encoder.kind].one
+        self._observe = OBSERVATIONS[model.config.observation.kind].one
         self.period = env_config.angle_period
         self._cost = COSTS[settings.space]
         if settings.space == "pose" and model.pose_head is None:
             self._cost(self, torch.zeros(0))  # its error, before any episode
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         t0 = time.perf_counter()
-        MPPI(self.step, torch.zeros(model.config.encoder.latent_dim),
+        MPPI(self.step, torch.zeros(model.config.observation.latent_dim),
              dataclasses.replace(settings.mppi, samples=2, horizon=2), *self.box).command(
-            torch.zeros(model.config.encoder.latent_dim))
+            torch.zeros(model.config.observation.latent_dim))
         self.warmup_s = time.perf_counter() - t0
 
     def observe(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
@@ -295,7 +295,7 @@ def model_memory_per_sample(model, space: str) -> int:
     if space != "image":
         return 0
     with torch.no_grad():
-        out = model.decode(torch.zeros(1, model.config.encoder.latent_dim))
+        out = model.decode(torch.zeros(1, model.config.observation.latent_dim))
     return 4 * out.numel() * 3  # decoder output and the cost's copies
 
 
@@ -308,7 +308,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
 
     out = check_output_dir(out, "--out")
     mppi = settings.mppi
-    check_memory(mppi.memory_bytes(env_config.action_dim, model.config.encoder.latent_dim)
+    check_memory(mppi.memory_bytes(env_config.action_dim, model.config.observation.latent_dim)
                  + mppi.samples * mppi.horizon * model_memory_per_sample(model, settings.space),
                  f"MPPI with --samples {mppi.samples} --horizon {mppi.horizon}",
                  "lower --samples or --horizon")

@@ -30,7 +30,7 @@ def _resolve_frame(model_cfg: ModelConfig, data: SequenceData, where: str) -> Mo
     frame library on the moments latent the data's camera's (a value given must match), else
     1 and 0 where unset (world angles; the other libraries do not read them)."""
     dyn = model_cfg.dynamics
-    moments = getattr(model_cfg.encoder, "encoder", None) == "moments"
+    moments = getattr(model_cfg.observation, "encoder_kind", None) == "moments"
     if dyn.library == "frame" and moments:
         sense, offset = moment_frame(push_config(data, where))
         off = dyn.frame_offset is not None and abs(
@@ -51,8 +51,8 @@ def _resolve_frame(model_cfg: ModelConfig, data: SequenceData, where: str) -> Mo
 def prepare_model(model_cfg: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
     """``model_cfg`` (its shapes resolved) checked against the pushing data ``data`` and with
     the settings this world derives stated."""
-    if getattr(model_cfg.encoder, "encoder", None) == "moments":
-        _check_symmetry("--moment-order", model_cfg.encoder.moment_order, data, where)
+    if getattr(model_cfg.observation, "encoder_kind", None) == "moments":
+        _check_symmetry("--moment-order", model_cfg.observation.moment_order, data, where)
     library = getattr(model_cfg.dynamics, "library", None)
     if library in ("face", "frame"):
         _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data, where)
