@@ -201,7 +201,8 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
         except UserError as e:
             raise UserError(f"--out {out} exists and is not a usable trajectory file ({e}); "
                             "delete it or choose another --out") from e
-        if existing.record.get("collection", {}).get("plan") == json.loads(json.dumps(to_json(plan))):
+        recorded = existing.record.get("collection", {}).get("plan")
+        if recorded == json.loads(json.dumps(to_json(plan))):
             return out  # already complete
         raise UserError(f"{out} already exists with other collection settings; choose another "
                         "--out or delete the file")

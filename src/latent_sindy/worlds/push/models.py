@@ -10,7 +10,6 @@ import math
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import ModelConfig
-from latent_sindy.worlds.push.camera import moment_frame
 from latent_sindy.worlds.push.data import push_config
 
 __all__ = ["prepare_model"]
@@ -32,6 +31,8 @@ def _resolve_frame(model_cfg: ModelConfig, data: SequenceData, where: str) -> Mo
     dyn = model_cfg.dynamics
     moments = getattr(model_cfg.observation, "encoder_kind", None) == "moments"
     if dyn.library == "frame" and moments:
+        from latent_sindy.worlds.push.camera import moment_frame  # (loads the simulator)
+
         sense, offset = moment_frame(push_config(data, where))
         off = dyn.frame_offset is not None and abs(
             math.remainder(dyn.frame_offset - offset, 2 * math.pi)) > 1e-4
