@@ -24,7 +24,7 @@ from torch import nn
 
 from latent_sindy.models import AutoencoderConfig
 from latent_sindy.models.autoencoder import Autoencoder
-from latent_sindy.training import loop
+from latent_sindy.training import core as fit
 
 
 def last_layer(channels: int) -> tuple[nn.Module, nn.Module, torch.Tensor]:
@@ -91,7 +91,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    loop._keep_freed_memory()
+    fit.keep_freed_memory()
     cases = {}
     for c in (1, 3):
         old, new, x = last_layer(c)

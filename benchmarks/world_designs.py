@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from latent_sindy.control.closed_loop import wilson_interval
+from latent_sindy.worlds.push.episodes import wilson_interval
 
 DESIGNS = ("symmetric", "marked", "paper")
 N_BINS = 8
