@@ -28,16 +28,18 @@ def test_seed_ranges_and_lists(args, seeds):
 
 def test_a_sweep_makes_one_variant_per_value_of_the_models_it_applies_to(tmp_path):
     cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
-                          sweep=(Sweep.parse("lambda_l1=1e-3,1e-2"), Sweep.parse("order=1,3")))
+                          sweep=(Sweep.parse("lambda_pred_x=1e-3,1e-2"),
+                                 Sweep.parse("order=1,3")))
     specs = {s.name: s for s in study_specs(cfg)}
-    # order applies to SINDy only: linear gets the λ3 variants, sindy2 every combination
-    assert list(specs) == ["sindy2.lambda_l1=0.001.order=1", "sindy2.lambda_l1=0.001.order=3",
-                           "sindy2.lambda_l1=0.01.order=1", "sindy2.lambda_l1=0.01.order=3",
-                           "linear.lambda_l1=0.001", "linear.lambda_l1=0.01"]
-    s = specs["sindy2.lambda_l1=0.01.order=3"]
-    assert s.loss.lambda_l1 == 0.01 and s.model.dynamics.order == 3
-    assert s.label == "SINDy-2, λ3=0.01, order=3"
-    assert specs["linear.lambda_l1=0.001"].loss.lambda_l1 == 0.001
+    # order applies to SINDy only: linear gets the λ1 variants, sindy2 every combination
+    assert list(specs) == ["sindy2.lambda_pred_x=0.001.order=1",
+                           "sindy2.lambda_pred_x=0.001.order=3",
+                           "sindy2.lambda_pred_x=0.01.order=1", "sindy2.lambda_pred_x=0.01.order=3",
+                           "linear.lambda_pred_x=0.001", "linear.lambda_pred_x=0.01"]
+    s = specs["sindy2.lambda_pred_x=0.01.order=3"]
+    assert s.loss.lambda_pred_x == 0.01 and s.model.dynamics.order == 3
+    assert s.label == "SINDy-2, λ1=0.01, order=3"
+    assert specs["linear.lambda_pred_x=0.001"].loss.lambda_pred_x == 0.001
     plain = ReproduceConfig(scale="tiny", out=tmp_path)
     assert study_specs(plain) == model_specs(SCALES["tiny"])  # no sweep or --models: as it was
 

@@ -204,14 +204,20 @@ def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
     for sweep in config.sweep:
         setting = SWEEPABLE[sweep.setting]
         if not any(setting.applies(s) for s in specs):
-            raise UserError(f"--sweep {sweep.setting}: none of the chosen models has this "
-                            "setting; choose others with --models")
+            raise UserError(f"{sweep.text}: none of the chosen models "
+                            f"({', '.join(s.name for s in specs)}) has this setting; "
+                            f"{sweep.setting} is a setting of {setting.models}: choose such "
+                            "models with --models")
     for spec in specs:
         sweeps = [sw for sw in config.sweep if SWEEPABLE[sw.setting].applies(spec)]
         for combo in itertools.product(*(sw.variants() for sw in sweeps)):
             variant = spec
-            for sw, (_, value) in zip(sweeps, combo, strict=True):
-                variant = SWEEPABLE[sw.setting].apply(variant, value)
+            for sw, (name, value) in zip(sweeps, combo, strict=True):
+                try:
+                    variant = SWEEPABLE[sw.setting].apply(variant, value)
+                except UserError as e:  # a value this model does not take: name both
+                    raise UserError(f"--sweep {name}: model {spec.name}: {e}; leave it out "
+                                    "with --models") from None
             if combo:
                 suffix = ".".join(name for name, _ in combo)
                 label = ", ".join(f"{SWEEPABLE[sw.setting].label}={v:g}"
@@ -219,8 +225,4 @@ def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
                 variant = dataclasses.replace(variant, name=f"{spec.name}.{suffix}",
                                               label=f"{spec.label}, {label}")
             out.append(variant)
-    for spec in out:
-        if spec.window < 1:
-            raise UserError(f"--sweep window: {spec.name} has window {spec.window}; use 1 or "
-                            "more pushes")
     return tuple(out)

@@ -16,14 +16,14 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
 
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.catalogue import SINGLE_STEP, ModelSpec, study_specs
 from latent_sindy.experiments.scales import SCALES, Scale
-from latent_sindy.experiments.sweeps import Seeds, Sweeps
+from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
 from latent_sindy.worlds.push.config import PushEnvConfig
 
 __all__ = ["ReproduceConfig", "StudyPlan"]
@@ -63,11 +63,8 @@ class ReproduceConfig:
     """torch CPU threads per process."""
     models: tuple[str, ...] = ()
     """Train only these of the study's models (default: all), e.g. sindy2 linear."""
-    sweep: Sweeps = ()
-    """Train every chosen model with each value of a setting, e.g. lambda_l1=1e-3,1e-2 or
-    order=1,2,3 (several: every combination). Sweepable: lambda_l1 (λ3), lambda_pred_x (λ1),
-    lambda_pred_z (λ2), order (SINDy models), window (H). Each variant is a model of its own
-    (NAME.SETTING=VALUE) in the tables, sweep.md and every figure."""
+    # Its --help is sweeps.sweep_help(), made from the registry of sweepable settings.
+    sweep: Annotated[Sweeps, tyro.conf.arg(help=sweep_help())] = ()
     executor: Literal["local", "ray"] = "local"
     """Where jobs run: local (processes on this machine) or ray (Ray tasks; `pip install
     'latent-sindy[ray]'`). Results are the same for the same seeds."""
@@ -86,6 +83,9 @@ class ReproduceConfig:
             raise UserError(f"--scale {self.scale}: use one of {', '.join(SCALES)}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
             raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
+        if len(self.seeds) > MAX_SEEDS:
+            raise UserError(f"--seeds: {len(self.seeds)} seeds; a study takes at most "
+                            f"{MAX_SEEDS} (each trains and evaluates every model)")
         if self.workers < 1 or not 1 <= self.threads <= 1024:
             raise UserError(f"--workers {self.workers} and --threads {self.threads}: use 1 or "
                             "more workers and 1 to 1024 threads")
@@ -98,7 +98,14 @@ class ReproduceConfig:
         if self.gpus > 0 and self.executor != "ray":
             raise UserError(f"--gpus {self.gpus} is for --executor ray (it reserves GPUs per "
                             "job); the local executor trains on the CPU: drop --gpus")
-        study_specs(self)  # unknown models, a sweep that changes none of them
+        if self.ray_address is not None and self.executor != "ray":
+            raise UserError(f"--ray-address {self.ray_address} is for --executor ray (the Ray "
+                            "cluster to join); the local executor runs on this machine: add "
+                            "--executor ray or drop --ray-address")
+        study_specs(self)  # unknown models, a sweep that changes none of them or a bad value
+        if self.data is None or not self.data.exists():  # collected for the scale
+            check_windows(self.sweep, self.preset.steps,
+                          f"the trajectories --scale {self.scale} collects")
 
     @property
     def preset(self) -> Scale:

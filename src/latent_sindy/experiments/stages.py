@@ -15,6 +15,7 @@ trains a model.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -24,7 +25,8 @@ from typing import Any
 
 import torch
 
-from latent_sindy.data import SequenceData
+from latent_sindy.configs import from_json
+from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Executor, Resources
@@ -34,11 +36,15 @@ from latent_sindy.experiments.evaluation import aggregate, baseline_errors
 from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
 from latent_sindy.experiments.probe import position_errors
 from latent_sindy.experiments.results import Baselines, Evaluations, RunResult
+from latent_sindy.experiments.scales import SCALES
+from latent_sindy.experiments.sweeps import check_windows
 from latent_sindy.progress import bar
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
+from latent_sindy.worlds.push.config import ENV_PRESETS, PushEnvConfig
 
-__all__ = ["baseline_stage", "check_given_data", "collect_stage", "run_stage", "train_config"]
+__all__ = ["baseline_stage", "check_given_data", "check_reused_data", "collect_stage", "run_stage",
+           "train_config"]
 
 Say = Callable[[str], None]
 
@@ -52,6 +58,7 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
         return path
     plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
     if path.exists():  # collect() returns it if it was collected to this plan, else refuses
+        check_reused_data(cfg, plan, path)
         say(f"[1/4] data: reusing {path}")
     else:
         say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
@@ -63,12 +70,68 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
 
 
+def _world_name(env: PushEnvConfig) -> str | None:
+    """The named world (``--world``) whose pushes and block ``env`` has, if any."""
+    return next((name for name, w in ENV_PRESETS.items()
+                 if (w.push, w.block_look) == (env.push, env.block_look)), None)
+
+
+def _scale_name(trajectories: int, steps: int) -> str | None:
+    return next((name for name, s in SCALES.items()
+                 if (s.trajectories, s.steps) == (trajectories, steps)), None)
+
+
+def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) -> None:
+    """OUT/data.h5 of an earlier study is reused only if collected to ``plan``: UserError
+    naming each option (--world, --image-size, --data-seed, --scale) it was collected with
+    otherwise. A file without a readable plan is left to :func:`collect`, which refuses it."""
+    try:
+        recorded = read_sequences(path).record.get("collection", {}).get("plan")
+        # a world recorded before the push style existed is the paper's (PushEnvConfig)
+        env = {"push": "paper", **recorded.get("env", {})}
+        old = from_json(CollectionPlan, {**recorded, "env": env}, str(path))
+    except (UserError, AttributeError, TypeError, ValueError):
+        return
+    if old == plan:
+        return
+    world, size = _world_name(old.env), old.env.image_size
+    differs = []
+    if (old.env.push, old.env.block_look) != (plan.env.push, plan.env.block_look):
+        differs.append(f"--world {world or 'of another kind'} (this study: --world {cfg.world})")
+    if size != plan.env.image_size:
+        differs.append(f"--image-size {size} (this study: --image-size {plan.env.image_size})")
+    if old.seed != plan.seed:
+        differs.append(f"--data-seed {old.seed} (this study: --data-seed {plan.seed})")
+    if (old.trajectories, old.steps) != (plan.trajectories, plan.steps):
+        scale = _scale_name(old.trajectories, old.steps)
+        differs.append(f"{f'--scale {scale}, ' if scale else ''}{old.trajectories} "
+                       f"trajectories of {old.steps} pushes (this study: --scale {cfg.scale}, "
+                       f"{plan.trajectories} of {plan.steps})")
+    if not differs:  # fractions or world details no option of the study sets
+        changed = [f.name for f in dataclasses.fields(plan) if getattr(old, f.name)
+                   != getattr(plan, f.name)]
+        differs.append(f"another {' and '.join(changed)} than this study's (`latent-sindy "
+                       "info` shows them)")
+    raise UserError(f"{path} already exists with other collection settings: it was collected "
+                    f"with {'; '.join(differs)}. Re-run with those settings, or choose another "
+                    "--out, or delete the file")
+
+
 def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
-    """A given trajectory file must hold images of ``--image-size``, where that is given."""
-    side = data.env_config.image_size
+    """A given trajectory file must be of the study's ``--world``, hold images of
+    ``--image-size`` (where that is given) and trajectories as long as every swept window."""
+    env = data.env_config
+    if (env.push, env.block_look) != (cfg.env_config().push, cfg.env_config().block_look):
+        world = _world_name(env)
+        raise UserError(f"--world {cfg.world}, but {cfg.data} was collected in "
+                        f"{f'the {world} world' if world else 'another world'}: "
+                        f"{f'give --world {world}' if world else 'drop --world'}, or another "
+                        "--data")
+    side = env.image_size
     if cfg.image_size is not None and side != cfg.image_size:
         raise UserError(f"--image-size {cfg.image_size}, but {cfg.data} holds {side}x{side} "
                         f"images: drop --image-size, or give another --data")
+    check_windows(cfg.sweep, data.steps, f"the trajectories of {cfg.data}")
 
 
 # ----------------------------------------------------------------------------- stage 2: runs

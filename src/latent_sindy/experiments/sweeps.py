@@ -1,7 +1,9 @@
 """What ``--sweep`` and ``--seeds`` accept: the sweepable settings, sweeps and seed lists.
 
 A sweep names one model setting (:data:`SWEEPABLE`) and its values; the study trains every
-chosen model that has the setting once per value (:func:`.catalogue.study_specs`).
+chosen model that has the setting once per value (:func:`.catalogue.study_specs`). Every
+value is checked when the sweep is read, before anything runs; :data:`SWEEPABLE` is also
+what ``reproduce --help`` lists (:func:`sweep_help`).
 
     latent-sindy reproduce --models sindy2 --sweep lambda_l1=1e-3,1e-2 --seeds 0..2
 
@@ -14,6 +16,7 @@ chosen model that has the setting once per value (:func:`.catalogue.study_specs`
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any
@@ -21,29 +24,39 @@ from typing import TYPE_CHECKING, Annotated, Any
 import tyro
 
 from latent_sindy.errors import UserError
+from latent_sindy.sindy import VALID_ORDERS
 
 if TYPE_CHECKING:
     from latent_sindy.experiments.catalogue import ModelSpec
 
-__all__ = ["SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps", "parse_seeds",
-           "parse_sweeps"]
+__all__ = ["MAX_SEEDS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps", "check_windows",
+           "parse_seeds", "parse_sweeps", "sweep_help"]
+
+#: The most seeds a study takes (each trains and evaluates every model).
+MAX_SEEDS = 1000
 
 
 def parse_seeds(args: list[str]) -> tuple[int, ...]:
     """Seeds from the command line: ``0 1 2``, ``0,1,2``, ranges ``0..9`` (both ends
-    included), or a mix; UserError naming the bad part."""
-    seeds: list[int] = []
+    included), or a mix; UserError naming the bad part. A list longer than
+    :data:`MAX_SEEDS` is refused from the ranges' sizes, before it is built."""
+    ranges: list[range] = []
     for arg in args:
         for part in arg.split(","):
             lo, dots, hi = part.partition("..")
             try:
-                seeds.extend(range(int(lo), int(hi) + 1) if dots else [int(part)])
+                ranges.append(range(int(lo), int(hi) + 1) if dots else range(int(part),
+                                                                              int(part) + 1))
             except ValueError:
                 raise UserError(f"--seeds {part!r}: give integers (0 1 2), a list (0,1,2) or "
                                 "a range (0..9)") from None
             if dots and int(hi) < int(lo):
                 raise UserError(f"--seeds {part}: a range runs from low to high (e.g. 0..9)")
-    return tuple(seeds)
+    total = sum(r.stop - r.start for r in ranges)  # len() overflows past 2**63
+    if total > MAX_SEEDS:
+        raise UserError(f"--seeds {' '.join(args)}: {total} seeds; a study takes at most "
+                        f"{MAX_SEEDS} (each trains and evaluates every model)")
+    return tuple(s for r in ranges for s in r)
 
 
 Seeds = Annotated[tuple[int, ...], tyro.constructors.PrimitiveConstructorSpec(
@@ -53,27 +66,52 @@ Seeds = Annotated[tuple[int, ...], tyro.constructors.PrimitiveConstructorSpec(
 
 @dataclass(frozen=True)
 class Sweepable:
-    """A model setting a sweep may vary: its value type, where it applies, how to set it."""
+    """A model setting a sweep may vary: its value type and label, what it is and which
+    models have it (the help's words), where it applies, how to set it, which values it
+    takes."""
 
     kind: type
     label: str
+    """Its name in tables and figures, e.g. λ3."""
+    meaning: str
+    """What it is, e.g. "the L1 weight of SINDy's coefficients"."""
+    models: str
+    """Which models have it, in words, e.g. "SINDy models"."""
     applies: Callable[[ModelSpec], bool]
     apply: Callable[[ModelSpec, Any], ModelSpec]
+    valid: Callable[[Any], bool]
+    rule: str
+    """The values it takes, in words: what a refused value is told to be."""
 
 
-def _loss_weight(name: str) -> Sweepable:
-    return Sweepable(float, {"lambda_pred_x": "λ1", "lambda_pred_z": "λ2",
-                             "lambda_l1": "λ3"}[name], lambda spec: True,
-                     lambda spec, v: dataclasses.replace(
-                         spec, loss=dataclasses.replace(spec.loss, **{name: v})))
+def _non_negative(v: float) -> bool:
+    return math.isfinite(v) and v >= 0
+
+
+def _every_model(spec: ModelSpec) -> bool:
+    return True
 
 
 def _is_sindy(spec: ModelSpec) -> bool:
     return spec.model.dynamics.kind == "sindy"
 
 
+def _has_order(spec: ModelSpec) -> bool:
+    """SINDy whose library takes an order: the face and frame libraries are order 1 by
+    construction (their push terms hold the higher products)."""
+    return _is_sindy(spec) and not spec.model.dynamics.pose_library
+
+
 def _is_sindy_on_fixed_encoder(spec: ModelSpec) -> bool:
     return _is_sindy(spec) and spec.model.observation.fixed_encoder
+
+
+def _loss_weight(name: str, label: str, meaning: str, applies: Callable[[ModelSpec], bool],
+                 models: str) -> Sweepable:
+    return Sweepable(float, label, meaning, models, applies,
+                     lambda spec, v: dataclasses.replace(
+                         spec, loss=dataclasses.replace(spec.loss, **{name: v})),
+                     _non_negative, "a finite number >= 0")
 
 
 def _set_order(spec: ModelSpec, order: int) -> ModelSpec:
@@ -83,17 +121,54 @@ def _set_order(spec: ModelSpec, order: int) -> ModelSpec:
 
 #: The settings ``--sweep`` may vary, by name.
 SWEEPABLE: dict[str, Sweepable] = {
-    "lambda_l1": _loss_weight("lambda_l1"),
-    "lambda_pred_x": _loss_weight("lambda_pred_x"),
-    "lambda_pred_z": _loss_weight("lambda_pred_z"),
-    "order": Sweepable(int, "order", _is_sindy, _set_order),
-    "window": Sweepable(int, "H", lambda spec: True,
-                        lambda spec, v: dataclasses.replace(spec, window=v)),
-    "threshold": Sweepable(float, "τ", _is_sindy,
-                           lambda spec, v: dataclasses.replace(spec, threshold=v)),
-    "init_threshold": Sweepable(float, "STLSQ threshold", _is_sindy_on_fixed_encoder,
-                                lambda spec, v: dataclasses.replace(spec, init_threshold=v)),
+    "lambda_l1": _loss_weight("lambda_l1", "λ3", "the L1 weight of SINDy's coefficients",
+                              _is_sindy, "SINDy models"),
+    "lambda_pred_x": _loss_weight("lambda_pred_x", "λ1", "the image prediction weight",
+                                  _every_model, "every model"),
+    "lambda_pred_z": _loss_weight("lambda_pred_z", "λ2", "the latent prediction weight",
+                                  _every_model, "every model"),
+    "order": Sweepable(int, "order", "the library's polynomial order",
+                       "SINDy models but those of the face and frame libraries (order 1)",
+                       _has_order, _set_order, lambda v: v in VALID_ORDERS,
+                       f"one of {', '.join(map(str, VALID_ORDERS))}"),
+    "window": Sweepable(int, "H", "the training window in pushes", "every model",
+                        _every_model, lambda spec, v: dataclasses.replace(spec, window=v),
+                        lambda v: v >= 1, "1 or more pushes"),
+    "threshold": Sweepable(float, "τ", "the pruning threshold", "SINDy models", _is_sindy,
+                           lambda spec, v: dataclasses.replace(spec, threshold=v),
+                           _non_negative, "a finite number >= 0"),
+    "init_threshold": Sweepable(float, "STLSQ threshold",
+                                "the threshold of the sparse regression the coefficients "
+                                "start from", "SINDy models on a fixed encoder (moments, state)",
+                                _is_sindy_on_fixed_encoder,
+                                lambda spec, v: dataclasses.replace(spec, init_threshold=v),
+                                _non_negative, "a finite number >= 0"),
 }
+
+
+def sweep_help() -> str:
+    """The ``--sweep`` help of ``reproduce``: every setting of :data:`SWEEPABLE`."""
+    settings = "; ".join(f"{name} ({'' if s.label == name else f'{s.label}, '}{s.meaning}: "
+                         f"{s.models})" for name, s in SWEEPABLE.items())
+    return ("Train every chosen model that has a setting with each value of it, e.g. "
+            "lambda_l1=1e-3,1e-2 or order=1,2,3 (several: every combination); the other "
+            f"models train once. Sweepable: {settings}. Each variant is a model of its own "
+            "(NAME.SETTING=VALUE) in the tables, sweep.md and every figure.")
+
+
+def _check_values(setting: str, values: tuple[Any, ...], text: str) -> None:
+    """UserError, named as the sweep ``text``, for an unknown setting or a value it
+    does not take."""
+    if setting not in SWEEPABLE:
+        raise UserError(f"{text}: unknown setting {setting!r}; sweepable: "
+                        f"{', '.join(SWEEPABLE)}")
+    if not values or len(set(values)) != len(values):
+        raise UserError(f"{text}: give distinct values, e.g. {setting}=1,2")
+    s = SWEEPABLE[setting]
+    bad = [v for v in values if not s.valid(v)]
+    if bad:
+        raise UserError(f"{text}: {setting} {', '.join(f'{v:g}' for v in bad)}: use "
+                        f"{s.rule} ({s.label}, {s.meaning})")
 
 
 @dataclass(frozen=True)
@@ -104,12 +179,12 @@ class Sweep:
     values: tuple[float, ...]
 
     def __post_init__(self) -> None:
-        text = f"--sweep {self.setting}={','.join(map(str, self.values))}"
-        if self.setting not in SWEEPABLE:
-            raise UserError(f"{text}: unknown setting {self.setting!r}; sweepable: "
-                            f"{', '.join(SWEEPABLE)}")
-        if not self.values or len(set(self.values)) != len(self.values):
-            raise UserError(f"{text}: give distinct values, e.g. {self.setting}=1,2")
+        _check_values(self.setting, self.values, self.text)
+
+    @property
+    def text(self) -> str:
+        """As written on the command line, e.g. ``--sweep lambda_l1=0.001,0.01``."""
+        return f"--sweep {self.setting}={','.join(f'{v:g}' for v in self.values)}"
 
     @staticmethod
     def parse(text: str) -> Sweep:
@@ -126,6 +201,7 @@ class Sweep:
             except ValueError:
                 raise UserError(f"--sweep {text}: {v!r} is not a{'n' if kind is int else ''} "
                                 f"{kind.__name__}") from None
+        _check_values(setting, tuple(parsed), f"--sweep {text}")
         names = [f"{v:g}" for v in parsed]
         if len(set(names)) != len(names):
             raise UserError(f"--sweep {text}: values {', '.join(values.split(','))} name the same "
@@ -135,6 +211,16 @@ class Sweep:
     def variants(self) -> list[tuple[str, Any]]:
         """(name suffix, value) per value, e.g. ``("lambda_l1=0.001", 0.001)``."""
         return [(f"{self.setting}={v:g}", v) for v in self.values]
+
+
+def check_windows(sweeps: tuple[Sweep, ...], steps: int, trajectories: str) -> None:
+    """UserError, named as the sweep's, for a swept window longer than the ``steps`` pushes
+    of the study's ``trajectories`` (words naming them)."""
+    for sweep in sweeps:
+        if sweep.setting == "window" and max(sweep.values) > steps:
+            long = ", ".join(f"{v:g}" for v in sweep.values if v > steps)
+            raise UserError(f"{sweep.text}: window {long} is longer than {trajectories} "
+                            f"({steps} pushes): use 1 to {steps}")
 
 
 def parse_sweeps(args: list[str]) -> tuple[Sweep, ...]:
