@@ -147,7 +147,7 @@ def main_error(capsys, *args: str) -> str:
         (["--sweep", "order=1,x"], "'x' is not an int"),
         (["--sweep", "order=2,5"], "order 5"),
         (["--sweep", "lambda_l1=1e-3,1e-3"], "distinct values"),
-        (["--sweep", "lambda_l1=-1"], "--lambda-l1 -1.0"),
+        (["--sweep", "lambda_l1=-1"], "--sweep lambda_l1=-1"),
         (["--sweep", "order=1,2", "--models", "linear"], "none of the chosen models"),
         (["--models", "sindy9"], "--models sindy9"),
         (["--gpus", "-1"], "--gpus -1.0"),
