@@ -156,6 +156,37 @@ def test_6_7_bad_training_settings_touch_nothing_even_with_overwrite(scratch: Pa
     assert snapshot(scratch) == before
 
 
+def test_d10_a_library_that_cannot_fit_is_refused_from_its_size(scratch: Path,
+                                                                 capsys) -> None:
+    """An order-2 library on 100000 latents has about 5e9 terms: refused before it is built."""
+    before = snapshot(scratch)
+    refused(capsys, ["train", "sindy", "--data", str(scratch / "data.h5"), "--out",
+                     str(scratch / "big"), "--epochs", "1", "--no-progress", *TINY,
+                     "--latent-dim", "100000"], "--latent-dim 100000", "GiB of memory")
+    refused(capsys, ["train", "linear", "--data", str(scratch / "data.h5"), "--out",
+                     str(scratch / "big"), "--epochs", "1", "--no-progress", *TINY,
+                     "--latent-dim", "1000000"], "--latent-dim 1000000", "GiB of memory")
+    assert snapshot(scratch) == before
+
+
+@pytest.mark.parametrize("weight", ["1e308", "1e5"])
+def test_d13_a_foreground_weight_beyond_its_bound_is_refused(scratch: Path, capsys,
+                                                              weight: str) -> None:
+    before = snapshot(scratch)
+    refused(capsys, ["train", "sindy", "--data", str(scratch / "data.h5"), "--out",
+                     str(scratch / "fg"), "--epochs", "1", "--no-progress", *TINY,
+                     "--foreground-weight", weight], f"--foreground-weight {float(weight)}")
+    assert snapshot(scratch) == before
+
+
+def test_d19_a_foreground_weight_on_a_state_model_is_refused(scratch: Path, capsys) -> None:
+    before = snapshot(scratch)
+    refused(capsys, ["train", "sindy", "state", "--data", str(scratch / "data.h5"), "--out",
+                     str(scratch / "st"), "--epochs", "1", "--no-progress",
+                     "--foreground-weight", "3"], "--foreground-weight", "image")
+    assert snapshot(scratch) == before
+
+
 def test_overwrite_removes_the_whole_old_run(scratch: Path, capsys) -> None:
     run = RunDir(scratch / "run")
     (run / run.EVALUATION).write_text("{}")
@@ -197,6 +228,20 @@ def test_11_an_edited_run_config_is_refused_before_any_output(scratch: Path, cap
     refused(capsys, ["control", str(scratch / "run"), "--task", "random", "--no-progress"],
             "config.json", "edited")
     assert snapshot(scratch) == before
+
+
+def test_d4_d17_a_cost_the_model_cannot_compute_is_refused_leaving_no_folder(
+        scratch: Path, capsys) -> None:
+    """Image space needs a decoder of images (a state model decodes poses), pose space a
+    pose head; either is refused before the control folder is made."""
+    assert main(["train", "sindy", "state", "--data", str(scratch / "data.h5"), "--out",
+                 str(scratch / "state"), "--epochs", "1", "--no-progress"]) == 0
+    before = snapshot(scratch)
+    refused(capsys, ["control", str(scratch / "state"), "--space", "image", "--max-steps", "1",
+                     "--no-progress"], "--space image", "state")
+    refused(capsys, ["control", str(scratch / "run"), "--space", "pose", "--max-steps", "1",
+                     "--no-progress"], "--space pose", "pose head")
+    assert snapshot(scratch) == before  # no empty control-paper-image/ or -pose/
 
 
 def test_equations_of_a_file_says_it_is_a_file(world: Path, capsys) -> None:

@@ -218,7 +218,7 @@ class Control:
 
         from latent_sindy.control.mppi import MPPIConfig
         from latent_sindy.training import RunDir
-        from latent_sindy.worlds.push.episodes import format_summary, run_control
+        from latent_sindy.worlds.push.episodes import check_space, format_summary, run_control
         from latent_sindy.worlds.push.planner import world_planner
 
         s = self.settings
@@ -227,6 +227,7 @@ class Control:
         run_dir = RunDir(self.run_dir)
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
+        check_space(run.model, s.space)  # before the planner's note: the refusal alone
         if s.mppi == MPPIConfig():  # no planner option given: the planner of the run's world
             s = replace(s, mppi=world_planner(run.env_config))
             m = s.mppi

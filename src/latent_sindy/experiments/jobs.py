@@ -4,6 +4,8 @@ A :class:`TrainJob` trains one (model, seed) or reuses its finished run folder (
 interrupted one); an :class:`EvalJob` measures one trained run (losses, prediction error,
 model statistics, what the latent knows: cached in RUN/evaluation.json) and runs its
 closed-loop conditions (cached per condition in RUN/control-<task>-<space>/results.json).
+A cache that is truncated or holds the wrong types is computed again; a reused run's lost
+metrics.csv and loss.png are restored from its checkpoint (:func:`restore_finished`).
 Jobs run on the study's executor (:mod:`latent_sindy.executors`: local processes, this
 process, or Ray tasks); each may run again after its worker died, and then reuses or resumes
 what the lost attempt wrote.
@@ -31,6 +33,7 @@ from latent_sindy.experiments.results import RunResult
 from latent_sindy.experiments.scales import Condition
 from latent_sindy.progress import Milestones
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
+from latent_sindy.training.loop import restore_finished
 from latent_sindy.training.record import run_record
 from latent_sindy.worlds.push.episodes import ControlConfig, run_control
 
@@ -75,6 +78,7 @@ def ensure_trained(cfg: TrainConfig, progress=None) -> str:
         if diffs:
             raise UserError(f"{run.path} holds a model trained with other settings or data "
                             f"({'; '.join(diffs)}): delete {run.path} or choose another --out")
+        restore_finished(run)  # a deleted or damaged metrics.csv, a missing loss.png
         return "reused"
     if run.interrupted:
         train(replace(cfg, resume=True), progress)
@@ -126,21 +130,69 @@ def _eval_key(run: RunDir, data: Path) -> dict[str, Any]:
             "data": str(data.resolve()), "data_mtime_ns": data.stat().st_mtime_ns}
 
 
+def _read_json(path: Path) -> Any:
+    """The JSON value in ``path``; None where it is missing, truncated or not text."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):  # JSONDecodeError, UnicodeDecodeError
+        return None
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _numbers(v: Any) -> bool:
+    return isinstance(v, list) and all(map(_number, v))
+
+
+def _whole_evaluation(record: Any, key: dict[str, Any]) -> bool:
+    """Whether ``record`` is evaluation.json as :func:`eval_job` writes it for ``key``."""
+    if not (isinstance(record, dict) and record.get("key") == key):
+        return False
+    losses, stats = record.get("losses"), record.get("stats")
+    probe, position = record.get("probe", 0), record.get("position", 0)
+    if not (isinstance(losses, dict) and isinstance(stats, dict)
+            and _numbers(record.get("horizon")) and record["horizon"]):
+        return False
+    if not all(isinstance(v, dict) and all(map(_number, v.values())) for v in losses.values()):
+        return False
+    if not all(v is None or _number(v) for v in stats.values()):
+        return False
+    if probe is not None and not (isinstance(probe, dict) and {"cos", "sin"} <= probe.keys()
+                                  and all(map(_number, probe.values()))):
+        return False
+    return position is None or (isinstance(position, dict) and _number(position.get("recon"))
+                                and _numbers(position.get("model"))
+                                and _numbers(position.get("still")))
+
+
+def _whole_results(record: Any, settings: dict[str, Any]) -> bool:
+    """Whether ``record`` is a results.json that :func:`run_control` wrote with
+    ``settings``."""
+    return (isinstance(record, dict) and record.get("settings") == settings
+            and isinstance(record.get("summary"), dict)
+            and all(_number(record["summary"].get(k))
+                    for k in ("plan_ms_mean", "discarded_total", "success_rate"))
+            and isinstance(record.get("episodes"), list)
+            and all(isinstance(ep, dict) and isinstance(ep.get("actions"), list)
+                    and all(map(_numbers, ep["actions"])) for ep in record["episodes"]))
+
+
 def _control(loaded: Any, run: RunDir, condition: Condition, settings: ControlConfig
              ) -> dict[str, Any]:
-    """Closed-loop summary of one condition, reusing results.json written with equal settings.
+    """Closed-loop summary of one condition, reusing results.json written with equal settings
+    (run again where it is older than the model, or damaged).
 
     Adds ``nonfinite_actions``: executed pushes with a NaN or inf component (should be 0).
     """
     folder = run.control_dir(condition.task, condition.cost_space)
     results = folder / "results.json"
     want = json.loads(json.dumps(to_json(settings)))
-    fresh = not (results.exists() and results.stat().st_mtime_ns >= (
-        run / run.MODEL).stat().st_mtime_ns)
-    if not fresh:
-        record = json.loads(results.read_text())
-        fresh = record.get("settings") != want
-    if fresh:
+    record = None
+    if results.exists() and results.stat().st_mtime_ns >= (run / run.MODEL).stat().st_mtime_ns:
+        record = _read_json(results)
+    if not _whole_results(record, want):
         run_control(loaded.model, loaded.normalizer, loaded.env_config, settings, folder)
         record = json.loads(results.read_text())
     actions = [a for ep in record["episodes"] for a in ep["actions"]]
@@ -155,8 +207,8 @@ def eval_job(job: EvalJob) -> RunResult:
     run = RunDir(job.run)
     loaded = run.load()
     cache, key = run / run.EVALUATION, _eval_key(run, job.data)
-    record = json.loads(cache.read_text()) if cache.exists() else {}
-    if record.get("key") != key:
+    record = _read_json(cache)
+    if not _whole_evaluation(record, key):  # missing, stale or damaged: measured again
         data = read_sequences(job.data)
         # One set of open-loop rollouts for the image MSE and the block position errors.
         rollouts = evaluation.rollouts(loaded.model, held_out(data), loaded.normalizer)
@@ -169,7 +221,7 @@ def eval_job(job: EvalJob) -> RunResult:
                   **_what_the_latent_knows(loaded, data, rollouts)}
         write_atomic(cache, lambda f: f.write(json.dumps(record, indent=1)), binary=False)
     control = {cond.name: _control(loaded, run, cond, s) for cond, s in job.controls}
-    train_s = sum(r["time_s"] or 0.0 for r in run.read_metrics())
+    train_s = sum(r.get("time_s") or 0.0 for r in run.read_metrics())
     return RunResult(losses=record["losses"], horizon=record["horizon"], stats=record["stats"],
                      control=control, train_seconds=train_s, seconds=time.perf_counter() - t0,
                      observation=loaded.model.config.observation.kind, probe=record["probe"],

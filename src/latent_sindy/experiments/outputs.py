@@ -15,6 +15,7 @@ from typing import Any
 
 import torch
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.data import SequenceData
 from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import BASELINES
@@ -23,15 +24,13 @@ from latent_sindy.experiments.results import Study
 from latent_sindy.experiments.table import write_sweep_table, write_table1
 from latent_sindy.training import RunDir, load_run, read_metrics
 
-__all__ = ["output_stage"]
+__all__ = ["output_stage", "write_equations"]
 
 Say = Callable[[str], None]
 
 
 def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
     """Figures, equations and tables of a finished study; returns what the report shows."""
-    from latent_sindy.equations import equations_report
-
     out, cfg = study.config.out, study.config
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -99,24 +98,34 @@ def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
                 shutil.copyfile(src, dst)
                 files["gifs"].append((m, cond, dst))
 
-    for m in study.models:
-        parts = []
-        for s in cfg.seeds:
-            run = RunDir(study.runs[s][m])
-            if m in study.results.get(s, {}):
-                export = not (run / run.COEFFICIENTS_CSV).exists()
-                parts.append(f"# seed {s}\n{equations_report(run.path, export=export)}")
-        if parts:
-            path = out / f"equations_{m}.txt"
-            path.write_text("\n\n".join(parts) + "\n")
-            files["equations"][m] = path
-
+    files["equations"] = write_equations(study)
     files["table_md"], files["table_csv"] = write_table1(
         out, study.models, study.labels, study.stats, len(cfg.seeds))
     if cfg.sweep:
         files["sweep"] = write_sweep_table(out / "sweep.md", study.models, study.labels,
                                            study.per_seed, cfg.seeds)
     say(f"[3/4] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
+    return files
+
+
+def write_equations(study: Study) -> dict[str, Path]:
+    """OUT/equations_<model>.txt: each finished seed's equations (and each run's exported
+    coefficients, where missing); returns {model: path}."""
+    from latent_sindy.equations import equations_report
+
+    files = {}
+    for m in study.models:
+        parts = []
+        for s in study.config.seeds:
+            run = RunDir(study.runs[s][m])
+            if m in study.results.get(s, {}):
+                export = not (run / run.COEFFICIENTS_CSV).exists()
+                parts.append(f"# seed {s}\n{equations_report(run.path, export=export)}")
+        if parts:
+            path = study.config.out / f"equations_{m}.txt"
+            text = "\n\n".join(parts) + "\n"
+            write_atomic(path, lambda f, text=text: f.write(text), binary=False)
+            files[m] = path
     return files
 
 

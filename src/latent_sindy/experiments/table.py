@@ -15,7 +15,9 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.experiments.evaluation import Stat, mean_std
 from latent_sindy.worlds.push.episodes import wilson_interval
 
@@ -178,8 +180,9 @@ def write_table1(out: Path, models: Sequence[str], labels: Mapping[str, str],
     note = ("\n\nOurs: mean ± sample std over seeds where several; n/a: does not apply; —: no "
             "value (the paper did not report it, or no episode reached the goal); diverged: "
             "the open-loop rollout overflowed.\n")
-    (out / "table1.md").write_text("\n".join(md) + note)
-    with (out / "table1.csv").open("w", newline="") as f:
+    write_atomic(out / "table1.md", lambda f: f.write("\n".join(md) + note), binary=False)
+
+    def write_csv(f: IO[str]) -> None:
         w = csv.writer(f)
         w.writerow(["metric", "model", "paper", "ours_mean", "ours_std", "ours_n", "ours"])
         for row in ROWS:
@@ -190,6 +193,8 @@ def write_table1(out: Path, models: Sequence[str], labels: Mapping[str, str],
                             "" if s is None or s.mean is None else s.mean,
                             "" if s is None or s.std is None else s.std,
                             0 if s is None else s.n, format_stat(s, row.fmt, seeds)])
+
+    write_atomic(out / "table1.csv", write_csv, binary=False)
     return out / "table1.md", out / "table1.csv"
 
 
@@ -253,5 +258,5 @@ def write_sweep_table(path: Path, models: Sequence[str], labels: Mapping[str, st
     note = ("\n\nMean ± sample std over the seeds that finished; success rates also with the "
             "95 % Wilson interval of all those seeds' episodes pooled [low–high, successes/"
             "episodes]. n/a: does not apply; —: no value.\n")
-    path.write_text("\n".join(md) + note)
+    write_atomic(path, lambda f: f.write("\n".join(md) + note), binary=False)
     return path

@@ -166,6 +166,10 @@ class ModelConfig:
             action_dim=action_dim)
 
 
+#: Largest :attr:`LossWeights.foreground_weight` (1e308 made the first epoch's loss NaN).
+MAX_FOREGROUND_WEIGHT = 1000.0
+
+
 @dataclass(frozen=True)
 class LossWeights:
     """λ1, λ2, λ3 of the loss (see the module docstring)."""
@@ -194,6 +198,11 @@ class LossWeights:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise UserError(f"--{name.replace('_', '-')} {v}: use a finite number >= 0")
+        if self.foreground_weight > MAX_FOREGROUND_WEIGHT:
+            raise UserError(f"--foreground-weight {self.foreground_weight}: use 0 to "
+                            f"{MAX_FOREGROUND_WEIGHT:g} (the object's pixels count 1 + this; "
+                            "far larger drowns the background and overflows the loss; "
+                            "3 and 10 were tried, RESULTS.md)")
 
 
 _DEFAULT_WEIGHTS = LossWeights()

@@ -149,6 +149,11 @@ class TrainConfig:
                 raise UserError(message)
         if not isinstance(self.model, ModelConfig):
             raise TypeError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+        kind = self.model.observation.kind
+        if self.loss.foreground_weight > 0 and kind != "image":
+            raise UserError(f"--foreground-weight {self.loss.foreground_weight} weights the "
+                            f"object's pixels in the image terms; a {kind} model has no "
+                            "images: leave it at 0 (image models only)")
         if self.loss.lambda_pose > 0 and not self.model.has_pose_head:
             raise UserError(f"--lambda-pose {self.loss.lambda_pose} weights a pose head the "
                             "model does not have: add --pose-head linear or coordinates "

@@ -17,6 +17,7 @@ devices see the same mini-batches.
 from __future__ import annotations
 
 import contextlib
+import math
 from pathlib import Path
 from typing import Any
 
@@ -38,11 +39,12 @@ from latent_sindy.training.core import (
     keep_freed_memory,
     to_cpu,
 )
+from latent_sindy.training.metrics import METRIC_COLUMNS
 from latent_sindy.training.prepare import new_model, regression_init, training_tensors
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 
-__all__ = ["TrainingDiverged", "run_record", "train"]
+__all__ = ["TrainingDiverged", "restore_finished", "run_record", "train"]
 
 
 def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
@@ -78,6 +80,33 @@ def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str,
         raise UserError(f"{run.path} holds an interrupted run ({run / run.CHECKPOINT}): pass "
                         "--resume to continue it or --overwrite to start over")
     return None
+
+
+def _check_model_size(model_cfg: ModelConfig, cfg: TrainConfig) -> None:
+    """Refuse, from the settings alone, latent dynamics that cannot fit in memory (an order-2
+    library on 100000 latents has 5e9 terms), before a term of it is enumerated."""
+    nz, nu, dyn = model_cfg.observation.latent_dim, model_cfg.action_dim or 0, model_cfg.dynamics
+    fix = "use a smaller --latent-dim"
+    if dyn.kind == "sindy":  # the polynomial part alone; a preset's other terms come on top
+        terms = math.comb(nz + nu + dyn.order, dyn.order)
+        terms += nz * (getattr(dyn, "include_sine", False) + getattr(dyn, "include_cosine", False))
+        params, activations = terms * nz, cfg.batch_size * terms  # Ψ (p, nz); Θ (B, p)
+        what = (f"SINDy of order {dyn.order} on --latent-dim {nz} ({terms:.3g} library terms "
+                f"x {nz} coefficients)")
+        fix += " or --order"
+    elif dyn.kind == "linear":
+        params, activations = nz * (nz + nu + 1), 0
+        what = f"linear dynamics on --latent-dim {nz} ({nz} x {nz + nu + 1} coefficients)"
+    elif dyn.kind == "mlp":
+        width = dyn.hidden
+        params = (nz + nu + 2 * dyn.harmonics) * width + (dyn.layers - 1) * width**2 + width * nz
+        activations = 0
+        what = f"an MLP of {dyn.layers} x {width} on --latent-dim {nz}"
+    else:
+        return
+    # float32 weights, gradients and two AdamW moments, a bool mask; the batch's activations
+    # and their gradients
+    check_memory(17 * params + 8 * activations, what, fix)
 
 
 def _diverged(cfg: TrainConfig, e: TrainingDiverged, last_ckpt: int | None) -> TrainingDiverged:
@@ -138,6 +167,7 @@ def train(cfg: TrainConfig, progress: Progress | None = None,
     ckpt = _prepare(run, cfg, record)
     norm = Normalizer.from_dict(record["normalizer"])
     model_cfg = from_json(ModelConfig, record["model"], "model")
+    _check_model_size(model_cfg, cfg)
 
     model, opt, gen = new_model(model_cfg, cfg, device)
     regression = regression_init(cfg, model)  # (checks the settings before anything is written)
@@ -192,11 +222,54 @@ def train(cfg: TrainConfig, progress: Progress | None = None,
         progress.close()
     from latent_sindy.version import __version__
 
-    run.write_record({**record, "kept": kept})  # before model.pt, which marks the run finished
+    # both before model.pt, which marks the run finished: a finished run lacks neither
+    run.write_record({**record, "kept": kept})
+    loss_histories({"run": result.metrics}, {}, run / run.PLOT, dpi=100)
     run.save_torch(run.MODEL, {"epoch": kept["epoch"], "epochs": cfg.epochs,
                                "selection": kept["selection"], "model": to_cpu(result.state),
                                "model_config": record["model"],
                                "normalizer": record["normalizer"],
                                "package_version": __version__})
-    loss_histories({"run": result.metrics}, {}, run / run.PLOT, dpi=100)
     return run.path
+
+
+def restore_finished(run: RunDir) -> list[str]:
+    """Give a finished run back the files it lost that it still holds elsewhere: metrics.csv
+    (missing, damaged, or short of the run's epochs) from checkpoint.pt, whose last save has
+    every epoch's row, and loss.png from the metrics. Returns the names restored; UserError
+    naming the fix where metrics.csv is unreadable and the checkpoint cannot restore it."""
+    epochs = run.train_config().epochs
+    restored = []
+    try:
+        rows: list[dict[str, Any]] | None = run.read_metrics()
+        problem = None if len(rows) == epochs else f"{run / run.METRICS} holds {len(rows)} rows"
+    except UserError as e:
+        rows, problem = None, str(e)
+    if problem is not None:
+        saved = _checkpoint_metrics(run, epochs)
+        if saved is not None:
+            run.write_metrics(saved)
+            rows = saved
+            restored.append(run.METRICS)
+        elif rows is None:
+            raise UserError(f"{problem.rstrip('.')}; {run / run.CHECKPOINT} cannot restore it "
+                            f"(missing, or not at the last epoch): delete {run.path} to retrain "
+                            "the run")
+    if rows is not None and not (run / run.PLOT).is_file():
+        loss_histories({"run": rows}, {}, run / run.PLOT, dpi=100)
+        restored.append(run.PLOT)
+    return restored
+
+
+def _checkpoint_metrics(run: RunDir, epochs: int) -> list[dict[str, Any]] | None:
+    """The metrics rows of the run's checkpoint if it holds all ``epochs`` of them, else None."""
+    if not (run / run.CHECKPOINT).is_file():
+        return None
+    try:
+        ckpt = run.load_torch(run.CHECKPOINT)
+    except UserError:
+        return None
+    rows = ckpt.get("metrics")
+    ok = (ckpt.get("epoch") == epochs and isinstance(rows, list) and len(rows) == epochs
+          and all(isinstance(r, dict) and set(r) <= set(METRIC_COLUMNS) for r in rows))
+    return rows if ok else None

@@ -226,13 +226,23 @@ class RunDir:
 
     # ---------------------------------------------------------------- metrics.csv
     def read_metrics(self) -> list[dict[str, float | None]]:
-        """metrics.csv as rows of numbers (None for empty cells)."""
+        """metrics.csv as rows of numbers (None for empty cells); UserError naming the file
+        and the line where a cell is not a number or a row has the wrong number of cells."""
         path = self.path / self.METRICS
         if not path.is_file():
-            raise UserError(f"{path} does not exist: {self.path} is not a (started) run folder")
-        with path.open(newline="") as f:
-            return [{k: (float(v) if v != "" else None) for k, v in row.items()}
-                    for row in csv.DictReader(f)]
+            raise UserError(f"{path} does not exist: {self.path} is not a (started) run "
+                            "folder, or the file was deleted (a study restores a finished "
+                            f"run's from its {self.CHECKPOINT}; else retrain with --overwrite)")
+        rows = []
+        try:
+            with path.open(newline="", encoding="utf-8") as f:
+                reader = csv.DictReader(f)
+                for row in reader:
+                    rows.append(_metric_row(row, path, reader.line_num, self.CHECKPOINT))
+        except (UnicodeDecodeError, csv.Error) as e:
+            raise UserError(f"{path} is damaged ({e}): a study restores a finished run's "
+                            f"from its {self.CHECKPOINT}; else retrain with --overwrite") from e
+        return rows
 
     def write_metrics(self, rows: list[dict[str, Any]]) -> None:
         def write(f: io.TextIOBase) -> None:
@@ -329,6 +339,27 @@ def load_run(run_dir: str | os.PathLike, checkpoint: bool = False) -> Run:
 def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, float | None]]:
     """:meth:`RunDir.read_metrics` of ``run_dir``."""
     return RunDir(run_dir).read_metrics()
+
+
+def _metric_row(row: dict[Any, Any], path: Path, line: int, checkpoint: str
+                ) -> dict[str, float | None]:
+    """One row of metrics.csv as numbers; UserError naming ``path`` and ``line`` if damaged."""
+    def damaged(what: str) -> UserError:
+        return UserError(f"{path} line {line}: {what}; the file is damaged (a study restores "
+                         f"a finished run's from its {checkpoint}; else retrain with "
+                         "--overwrite)")
+
+    if None in row:  # more cells than the header names
+        raise damaged(f"{len(row) - 1 + len(row[None])} cells for {len(row) - 1} columns")
+    out: dict[str, float | None] = {}
+    for k, v in row.items():
+        if v is None:  # fewer cells than the header names
+            raise damaged(f"no value for {k}")
+        try:
+            out[k] = float(v) if v != "" else None
+        except ValueError:
+            raise damaged(f"{k} {v!r} is not a number") from None
+    return out
 
 
 def _flatten(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

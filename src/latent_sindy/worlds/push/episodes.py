@@ -90,12 +90,22 @@ def _image_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
 
 def _pose_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
     head = controller.model.pose_head
-    if head is None:
+    return PoseCost(head, head(controller.model.encode(goal[None])[0]),
+                    pose_cost_weights(controller.period))
+
+
+def check_space(model, space: str) -> None:
+    """UserError unless ``model`` can compute the cost of planning ``space``: image space
+    compares decoded images (an image model's), pose space reads a pose head."""
+    kind = model.config.observation.kind
+    if space == "image" and kind != "image":
+        raise UserError(f"--space image compares decoded images with the goal image; this "
+                        f"{kind} model decodes no images (it would plan on the raw {kind} "
+                        "distance): use --space latent")
+    if space == "pose" and model.pose_head is None:
         raise UserError("--space pose needs a model trained with a pose head (latent-sindy "
                         "train ... --pose-head linear --lambda-pose 10); this one has none: use "
                         "--space latent")
-    return PoseCost(head, head(controller.model.encode(goal[None])[0]),
-                    pose_cost_weights(controller.period))
 
 
 #: Planning space -> the cost MPPI minimises, built from the controller and the goal as the
@@ -147,9 +157,8 @@ class Controller:
         self.box = (env_config.action_low, env_config.action_high)
         self._observe = OBSERVATIONS[model.config.observation.kind].one
         self.period = env_config.angle_period
+        check_space(model, settings.space)  # its error, before any episode
         self._cost = COSTS[settings.space]
-        if settings.space == "pose" and model.pose_head is None:
-            self._cost(self, torch.zeros(0))  # its error, before any episode
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         t0 = time.perf_counter()
         MPPI(self.step, torch.zeros(model.config.observation.latent_dim),
@@ -312,6 +321,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
                  + mppi.samples * mppi.horizon * model_memory_per_sample(model, settings.space),
                  f"MPPI with --samples {mppi.samples} --horizon {mppi.horizon}",
                  "lower --samples or --horizon")
+    check_space(model, settings.space)  # refused before the folder is made
     out.mkdir(parents=True, exist_ok=True)
     env = PandaPushEnv(env_config, render_mode="rgb_array")
     controller = Controller(model, normalizer, settings, env_config)
