@@ -5,7 +5,8 @@ An executor takes picklable module-level functions with their arguments and give
 one of the given futures is done. The study never asks which executor it holds.
 
 - ``local``: this machine's processes, as before: one worker runs jobs in this process
-  (:class:`Inline`); more run them in freshly spawned processes (:class:`Pool`).
+  (:class:`Inline`); more run them in freshly spawned processes (:class:`Pool`), which die
+  with the process that made them, even when it is killed -9 (:func:`die_with_parent`).
 - ``ray``: Ray tasks (:class:`RayExecutor`), on a one-node Ray started here or on the cluster at
   ``--ray-address``. Each task declares its CPUs (and GPUs); a task whose worker process or
   node dies is run again (``max_retries``), and once those are spent its job fails with a
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 from collections.abc import Callable, Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -27,7 +29,7 @@ from typing import Any, Protocol
 from latent_sindy.errors import UserError
 
 __all__ = ["EXECUTORS", "Executor", "ExecutorOptions", "Inline", "Pool", "RayExecutor",
-           "Resources", "make_executor"]
+           "Resources", "die_with_parent", "make_executor"]
 
 #: Environment every worker needs before torch loads (see cli.py: OpenMP threads sleep
 #: instead of spinning while they wait).
@@ -112,14 +114,39 @@ class Inline:
     def __exit__(self, *exc: object) -> None: ...
 
 
+def die_with_parent() -> None:
+    """In a worker process started by multiprocessing: end it as soon as its parent ends.
+
+    A worker initializer. A killed (-9) parent runs no clean-up, and a worker waiting for work
+    or busy with a job would live on, idle or writing into its parent's outputs. A daemon
+    thread waits on multiprocessing's sentinel of the parent (a pipe whose other end only the
+    parent holds, so it reads end-of-file when the parent is gone, on every platform) and then
+    exits the process at once. In a process without a multiprocessing parent it does nothing.
+    """
+    import multiprocessing as mp
+    from multiprocessing.connection import wait as wait_ready
+
+    parent = mp.parent_process()
+    if parent is None or parent.sentinel is None:
+        return
+
+    def watch() -> None:
+        wait_ready([parent.sentinel])
+        os._exit(1)
+
+    threading.Thread(target=watch, name="latent-sindy-parent-watch", daemon=True).start()
+
+
 class Pool:
-    """Worker processes started fresh (spawn: no inherited PyBullet or torch state)."""
+    """Worker processes started fresh (spawn: no inherited PyBullet or torch state), which
+    end with this process (:func:`die_with_parent`)."""
 
     def __init__(self, workers: int) -> None:
         import multiprocessing as mp
 
         self.slots = workers
-        self._pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
+        self._pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"),
+                                         initializer=die_with_parent)
 
     def submit(self, fn: Callable, *args: Any, resources: Resources = Resources(),
                name: str | None = None) -> Future:

@@ -69,6 +69,7 @@ from latent_sindy.experiments.stages import (
     run_stage,
 )
 from latent_sindy.experiments.study_report import write_report
+from latent_sindy.locks import exclusive
 from latent_sindy.progress import say_stderr
 
 __all__ = ["reproduce", "summary_record", "versions"]
@@ -157,6 +158,14 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     if config.data is not None and config.data.exists():
         # a foreign or damaged file, or one of another image size, is refused before any output
         check_given_data(config, read_sequences(config.data))
+    # One study per folder at a time. Its workers do not lock it: they write into it only
+    # while this process holds it, and die with this process (latent_sindy.executors).
+    with exclusive(out, "study folder"):
+        return _study(config, out, say, t_start)
+
+
+def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path:
+    """The study of :func:`reproduce`, once its folder ``out`` is this process's."""
     out.mkdir(parents=True, exist_ok=True)
     plan = StudyPlan.of(config)
     threads = torch.get_num_threads()

@@ -28,6 +28,7 @@ from latent_sindy.configs import from_json
 from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
+from latent_sindy.locks import exclusive
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
@@ -151,6 +152,11 @@ def train(cfg: TrainConfig, progress: Progress | None = None,
     folders and :class:`TrainingDiverged` (a UserError) when a loss becomes NaN/inf; the last
     checkpoint stays loadable then.
     """
+    with exclusive(cfg.out, "run folder"):  # one process per run folder, refused at once
+        return _train(cfg, progress, data)
+
+
+def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | None) -> Path:
     progress = progress or Silent()
     device = torch.device(resolve_device(cfg.device))
     if device.type == "cpu":

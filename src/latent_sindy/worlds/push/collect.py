@@ -31,7 +31,8 @@ from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data import SPLITS, read_sequences, write_sequences
 from latent_sindy.errors import UserError
-from latent_sindy.executors import Executor
+from latent_sindy.executors import Executor, die_with_parent
+from latent_sindy.locks import exclusive
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.data import push_data
 
@@ -113,6 +114,7 @@ _worker_env = None
 
 def _worker_init(env_config: dict) -> None:
     global _worker_env
+    die_with_parent()
     from latent_sindy.worlds.push.panda_push import PandaPushEnv
 
     _worker_env = PandaPushEnv(from_json(PushEnvConfig, env_config, "environment"))
@@ -195,6 +197,13 @@ def collect(out: str | os.PathLike, plan: CollectionPlan, workers: int = 2,
     out = Path(out)
     if workers < 1:
         raise UserError(f"--workers {workers}: use 1 or more worker processes")
+    with exclusive(out, "trajectory file"):  # one collection into `out` at a time
+        return _collect(out, plan, workers, progress, executor)
+
+
+def _collect(out: Path, plan: CollectionPlan, workers: int,
+             progress: Callable[[Iterable, int, int], Iterable] | None,
+             executor: Executor | None) -> Path:
     if out.exists():
         try:
             existing = read_sequences(out)
