@@ -571,7 +571,7 @@ register_derived(_Hypot)
 def _hypot_cfunc(dtype: str) -> Any:
     import numba
 
-    from latent_sindy.control._sindy_kernel import CFUNC_FLAGS, derived_signature
+    from latent_sindy.control.derived import CFUNC_FLAGS, derived_signature
 
     def hypot(feat, rows, block, n, inputs, n_inputs, params, n_params, first):
         f = numba.carray(feat, (rows, block))

@@ -7,7 +7,7 @@ discards diverging samples by them. Division follows numpy's error model (IEEE r
 ZeroDivisionError check), which lets the projection's divisions vectorise.
 
 A library's derived variables (:class:`latent_sindy.sindy.grammar.DerivedVariables`) come from
-a numba ``cfunc`` their node supplies, of signature :func:`derived_signature`, which the
+a numba ``cfunc`` their node supplies (:mod:`latent_sindy.control.derived`), which the
 kernel calls once per block and step through its address (an integer argument): the kernel
 stays generic, one compiled kernel serves every derived-variable function, numba's disk cache
 keeps it, and a call costs what it did before (a jitted function as argument would make numba
@@ -20,34 +20,10 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
-from numba.core.typing import Signature
 from numba.extending import intrinsic
 
 _jit = numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False,
                   error_model="numpy")
-
-#: Compiler flags for a derived-variable cfunc, those of the kernel.
-CFUNC_FLAGS = {"fastmath": {"contract"}, "nogil": True, "cache": True, "error_model": "numpy"}
-
-
-def derived_signature(dtype: str) -> Signature:
-    """The signature of a derived-variable cfunc for the kernel in ``dtype`` ("float32" or
-    "float64")::
-
-        derive(feat, rows, block, n, inputs, n_inputs, params, n_params, first) -> None
-
-    ``feat`` points to the (rows, block) C-contiguous feature scratch of the running block (its
-    first n columns are the samples; rows 0 .. nz + nu - 1 hold [z, u]); ``inputs`` to the
-    n_inputs indices into [z, u] of the variables the node reads (its ``inputs()``), ``params``
-    to its ``numba_parameters()`` in ``dtype``. It writes the derived variables into rows
-    first, first + 1, .. (first = nz + nu), columns 0 .. n - 1. In a cfunc,
-    ``numba.carray(feat, (rows, block))`` makes the arrays.
-    """
-    dt = getattr(types, dtype)
-    return types.void(types.CPointer(dt), types.int64, types.int64, types.int64,
-                      types.CPointer(types.int64), types.int64, types.CPointer(dt), types.int64,
-                      types.int64)
-
 
 @intrinsic
 def _call_derived(typingctx, address, feat, n, inputs, params, first):

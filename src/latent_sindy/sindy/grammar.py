@@ -285,7 +285,7 @@ class DerivedVariables(LibrarySpec):
 
     def numba_function(self, dtype: str) -> Any:
         """A numba ``cfunc`` of signature
-        :func:`latent_sindy.control._sindy_kernel.derived_signature` ``(dtype)`` that writes
+        :func:`latent_sindy.control.derived.derived_signature` ``(dtype)`` that writes
         the derived variables into the control kernel's feature rows, or None (the control
         step then runs in torch). ``dtype``: ``"float32"`` or ``"float64"``."""
         return None

@@ -9,7 +9,7 @@ the compiled functions on disk.
 import numba
 import numpy as np
 
-from latent_sindy.control._sindy_kernel import CFUNC_FLAGS, derived_signature
+from latent_sindy.control.derived import CFUNC_FLAGS, derived_signature
 
 
 @numba.njit(fastmath={"contract"}, nogil=True, cache=True, boundscheck=False,
