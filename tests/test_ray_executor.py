@@ -146,3 +146,4 @@ def test_a_wrong_ray_address_fails_at_once_in_one_line(tmp_path, capsys):
     assert err.startswith(f"latent-sindy: error: --ray-address {address}: nothing answers at "
                           f"{address} (") and err.count("\n") == 1, err
     assert not ray.is_initialized()
+    assert not (tmp_path / "study").exists()  # a refused study leaves no folder behind

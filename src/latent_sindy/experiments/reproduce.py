@@ -53,7 +53,7 @@ from typing import Any
 
 import torch
 
-from latent_sindy.atomic import check_output_dir
+from latent_sindy.atomic import check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
@@ -161,7 +161,13 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     # One study per folder at a time. Its workers do not lock it: they write into it only
     # while this process holds it, and die with this process (latent_sindy.executors).
     with exclusive(out, "study folder"):
-        return _study(config, out, say, t_start)
+        created = not out.exists()
+        try:
+            return _study(config, out, say, t_start)
+        except BaseException:
+            if created and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()  # a study refused before it wrote anything leaves no folder
+            raise
 
 
 def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path:
@@ -195,7 +201,8 @@ def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path
             **timings, "outputs": time.perf_counter() - t,
             "total": time.perf_counter() - t_start})
         summary = summary_record(study, data, data_path)
-        (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False))
+        text = json.dumps(summary, indent=1, allow_nan=False)
+        write_atomic(out / "summary.json", lambda f: f.write(text), binary=False)
         report = write_report(study, files, summary, out / "report.html")
     finally:
         torch.set_num_threads(threads)
