@@ -742,3 +742,13 @@ def test_a_batch_parallel_run_on_two_threads_is_reproducible(data: Path,
         assert torch.allclose(v, runs["ops"].state_dict()[k], rtol=1e-3, atol=1e-5), k
     assert json.loads((tmp_path / "a" / "config.json").read_text())["train"]["parallel"] == \
         "batch"
+
+
+def test_a_divergence_crosses_process_boundaries_whole() -> None:
+    """The study's workers send a TrainingDiverged back to the parent: it must unpickle with
+    its epoch, what diverged and the message (and stay a UserError, a ValueError)."""
+    import pickle
+
+    e = pickle.loads(pickle.dumps(TrainingDiverged(4, "loss term pred_x (nan)", "the text")))
+    assert (e.epoch, e.what, str(e)) == (4, "loss term pred_x (nan)", "the text")
+    assert isinstance(e, UserError) and isinstance(e, ValueError)

@@ -47,6 +47,9 @@ class TrainingDiverged(UserError):
                          "finite; lower the learning rate and start over")
         self.epoch, self.what = epoch, what
 
+    def __reduce__(self):  # crosses process boundaries (the study's workers) whole
+        return type(self), (self.epoch, self.what, str(self))
+
 
 def is_sparse(dynamics: Any) -> bool:
     """Whether the dynamics have prunable coefficients (SINDy)."""
