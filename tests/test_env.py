@@ -17,8 +17,8 @@ from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.push import PAPER_GOAL, PAPER_START, PushEnvConfig, register_env
 from latent_sindy.worlds.push.config import ENV_PRESETS
+from latent_sindy.worlds.push.criteria import wrap_angle
 from latent_sindy.worlds.push.panda_push import PandaPushEnv
-from latent_sindy.worlds.push.scene import wrap_angle
 
 
 @pytest.fixture(scope="module")

@@ -118,8 +118,7 @@ class LatentSINDy:
         if cfg.window > data.steps:
             raise UserError(f"window {cfg.window} is longer than the sequences of "
                             f"{data.source} ({data.steps} steps): use 1..{data.steps}")
-        record = run_record(cfg, data, None if data.source.startswith("<") else
-                            Path(data.source))
+        record = run_record(cfg, data)
         device = torch.device(resolve_device(cfg.device))
         model_cfg = _model_of(record)
         model, opt, gen = new_model(model_cfg, cfg, device)

@@ -55,6 +55,21 @@ def _names(given: Sequence[str] | None, n: int, stem: str, what: str, where: str
     return names
 
 
+def _float_array(name: str, value: np.ndarray, lead: tuple[int, int], last: str,
+                 where: str) -> np.ndarray:
+    """``value`` as a finite floating-point array of shape (*lead, any); UserError if not."""
+    arr = np.asarray(value)
+    if arr.ndim != 3 or arr.shape[:2] != lead:
+        raise UserError(f"{where}: {name} have shape {arr.shape}, expected "
+                        f"({lead[0]}, {lead[1]}, {last})")
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise UserError(f"{where}: {name} must be floating point, got {arr.dtype}")
+    if not np.all(np.isfinite(arr)):
+        i = int(np.argwhere(~np.isfinite(arr))[0][0])
+        raise UserError(f"{where}: {name} of sequence {i} contain NaN or inf values")
+    return arr
+
+
 @dataclass
 class SequenceData:
     """N sequences of images (N, T+1, C, H, W) and actions (N, T, nu), with their context.
@@ -123,15 +138,7 @@ class SequenceData:
     def _check_actions(self, n: int, steps: int, where: str) -> None:
         if self.actions is None:
             self.actions = np.zeros((n, steps, 0), np.float32)
-        actions = np.asarray(self.actions)
-        if actions.ndim != 3 or actions.shape[:2] != (n, steps):
-            raise UserError(f"{where}: actions have shape {actions.shape}, expected "
-                            f"({n}, {steps}, nu) for images of shape {self.images.shape}")
-        if not np.issubdtype(actions.dtype, np.floating):
-            raise UserError(f"{where}: actions must be floating point, got {actions.dtype}")
-        if not np.all(np.isfinite(actions)):
-            i = int(np.argwhere(~np.isfinite(actions))[0][0])
-            raise UserError(f"{where}: actions of sequence {i} contain NaN or inf values")
+        actions = _float_array("actions", self.actions, (n, steps), "nu", where)
         nu = actions.shape[2]
         self.actions = actions
         self.action_names = _names(self.action_names, nu, "u", "action_names", where)
@@ -161,15 +168,7 @@ class SequenceData:
                 raise UserError(f"{where}: state_names or state_periods given without states")
             self.state_names, self.state_periods = (), ()
             return
-        states = np.asarray(self.states)
-        if states.ndim != 3 or states.shape[:2] != (n, t1):
-            raise UserError(f"{where}: states have shape {states.shape}, expected "
-                            f"({n}, {t1}, ns)")
-        if not np.issubdtype(states.dtype, np.floating):
-            raise UserError(f"{where}: states must be floating point, got {states.dtype}")
-        if not np.all(np.isfinite(states)):
-            i = int(np.argwhere(~np.isfinite(states))[0][0])
-            raise UserError(f"{where}: states of sequence {i} contain NaN or inf values")
+        states = _float_array("states", self.states, (n, t1), "ns", where)
         ns = states.shape[2]
         self.states = states
         self.state_names = _names(self.state_names, ns, "s", "state_names", where)

@@ -51,11 +51,6 @@ class TrainingDiverged(UserError):
         return type(self), (self.epoch, self.what, str(self))
 
 
-def is_sparse(dynamics: Any) -> bool:
-    """Whether the dynamics have prunable coefficients (SINDy)."""
-    return bool(getattr(dynamics, "sparse", False))
-
-
 @dataclass
 class FitResult:
     """What :func:`fit` returns: the per-epoch metrics rows, the kept weights and why."""
@@ -78,7 +73,7 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
     metrics = [] if metrics is None else metrics
     best = best or BestValidation()
     x, u, s = train
-    sparse = is_sparse(model.dynamics)
+    sparse = model.dynamics.sparse
     pruning = sparse and cfg.threshold_every > 0
     grads = Gradients(model, parts)
     model.train()

@@ -17,7 +17,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, resolve_batching
-from latent_sindy.training.core import Sequences, is_sparse
+from latent_sindy.training.core import Sequences
 
 __all__ = ["TrainingTensors", "new_model", "regression_init", "training_tensors"]
 
@@ -48,7 +48,7 @@ class TrainingTensors:
 def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
     """Whether SINDy's coefficients start at the sparse-regression fit (``sindy_init``);
     UserError where a setting would be ignored."""
-    sindy = is_sparse(model.dynamics)
+    sindy = model.dynamics.sparse
     if cfg.sindy_init == "regression" and not sindy:
         raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
                         f"dynamics are {model.dynamics.kind}: drop --sindy-init")

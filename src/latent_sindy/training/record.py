@@ -48,18 +48,16 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     return cfg
 
 
-def run_record(cfg: TrainConfig, data: SequenceData, path: Path | str | None = "data"
-               ) -> dict[str, Any]:
-    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values); ``path``:
-    the data's file (by default ``cfg.data``; None for data held in memory).
+def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
+    """What RUN/config.json holds for training ``cfg`` on ``data`` (JSON values); the data's
+    identity names its file (``data.source``), or none for data held in memory.
 
     Resolves the model's shapes from the data; raises UserError where they contradict it.
     """
     from latent_sindy.version import __version__
 
-    path = cfg.data if path == "data" else path
-    where = str(path or data.source)
-    model_cfg = resolve_model(cfg.model, data, where)
+    path = None if data.source.startswith("<") else Path(data.source)  # (held in memory)
+    model_cfg = resolve_model(cfg.model, data, data.source)
     record = {
         "format": RUN_FORMAT,
         "format_version": RUN_FORMAT_VERSION,

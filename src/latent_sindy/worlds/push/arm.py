@@ -18,7 +18,7 @@ import numpy as np
 
 from latent_sindy.worlds.push._bullet import BulletClient
 from latent_sindy.worlds.push._bullet import pybullet as pb
-from latent_sindy.worlds.push.scene import wrap_angle
+from latent_sindy.worlds.push.criteria import wrap_angle
 
 __all__ = ["HOME", "Arm"]
 

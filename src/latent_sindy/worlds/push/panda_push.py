@@ -15,7 +15,6 @@ block's visible symmetry (``config.angle_period``).
 
 from __future__ import annotations
 
-import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -24,7 +23,7 @@ import numpy as np
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.worlds.push import register_env
 from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, PushEnvConfig
-from latent_sindy.worlds.push.scene import wrap_angle
+from latent_sindy.worlds.push.criteria import goal_criteria
 from latent_sindy.worlds.push.world import PushWorld
 
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
@@ -136,18 +135,11 @@ class PandaPushEnv(gym.Env):
         cfg = self.config
         pose = self._world.block_pose()
         goal = self._world.goal_pose
-        dist = float(np.hypot(*(pose[:2] - goal[:2])))
-        dth = wrap_angle(float(pose[2] - goal[2]), cfg.angle_period)
-        angle_ok = cfg.success_angle_deg is None or abs(math.degrees(dth)) < cfg.success_angle_deg
         in_bounds = bool(np.all(pose[:2] >= cfg.bounds_low) and np.all(pose[:2] <= cfg.bounds_high))
         return {
             "pose": pose,
             "goal": goal.copy(),
-            "distance": dist,
-            "angle_error": dth,
-            "is_success": bool(dist < cfg.success_distance and angle_ok),
-            "is_success_strict": bool(dist < cfg.strict_distance
-                                      and abs(math.degrees(dth)) < cfg.strict_angle_deg),
+            **goal_criteria(cfg, pose, goal),
             "in_bounds": in_bounds,
             "push_executed": self._world.last_push_executed,
         }

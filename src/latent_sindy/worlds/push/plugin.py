@@ -12,7 +12,6 @@ goal image, state, success criteria). The simulator loads only when an environme
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -22,14 +21,11 @@ from latent_sindy.control.world import Task
 from latent_sindy.worlds.push import data as _data
 from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the presets)
 from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.criteria import goal_criteria
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
 from latent_sindy.worlds.push.planner import world_planner
 
 __all__ = ["WORLD", "PushWorld"]
-
-
-def _wrap(a: float, period: float) -> float:
-    return (a + period / 2) % period - period / 2
 
 
 class PushWorld:
@@ -89,13 +85,8 @@ class PushWorld:
 
     def success(self, state: np.ndarray, goal: np.ndarray) -> dict[str, bool]:
         """The course criterion (position within 0.1 m) and the strict one (2 cm, 10°)."""
-        cfg = self.config
-        dist = float(np.hypot(*(np.asarray(state)[:2] - np.asarray(goal)[:2])))
-        dth = abs(math.degrees(_wrap(float(state[2] - goal[2]), cfg.angle_period)))
-        course = dist < cfg.success_distance and (cfg.success_angle_deg is None
-                                                  or dth < cfg.success_angle_deg)
-        return {"course": bool(course),
-                "strict": bool(dist < cfg.strict_distance and dth < cfg.strict_angle_deg)}
+        met = goal_criteria(self.config, np.asarray(state), np.asarray(goal))
+        return {"course": met["is_success"], "strict": met["is_success_strict"]}
 
 
 WORLD = PushWorld()

@@ -20,7 +20,7 @@ from latent_sindy.worlds.push._bullet import pybullet as pb
 from latent_sindy.worlds.push.camera import Camera
 from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
 
-__all__ = ["CameraView", "add_table_and_block", "place", "wrap_angle", "yaw_quaternion"]
+__all__ = ["CameraView", "add_table_and_block", "place", "yaw_quaternion"]
 
 TABLE_HALF = (0.6, 0.6, 0.02)
 TABLE_CENTRE = (0.55, 0.0, -0.02)
@@ -29,11 +29,6 @@ BLOCK_RGBA = (0.30, 0.45, 0.85, 1.0)
 MARK_RGBA = (0.55, 0.10, 0.10, 1.0)  # the marked block's +x half: darker in grayscale too
 GOAL_RGBA = (0.10, 0.90, 0.10, 0.4)
 PARKED = (0.0, 0.0, -5.0)  # far below the table: out of every view
-
-
-def wrap_angle(a: float, period: float = 2 * math.pi) -> float:
-    """Map an angle to (-period/2, period/2] (default: (-pi, pi])."""
-    return -((-a + period / 2) % period - period / 2)
 
 
 def yaw_quaternion(theta: float) -> list[float]:

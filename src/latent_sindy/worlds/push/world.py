@@ -32,13 +32,13 @@ from latent_sindy.worlds.push._bullet import BulletClient, pybullet_data, quiet_
 from latent_sindy.worlds.push._bullet import pybullet as pb
 from latent_sindy.worlds.push.arm import HOME, Arm
 from latent_sindy.worlds.push.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
+from latent_sindy.worlds.push.criteria import wrap_angle
 from latent_sindy.worlds.push.scene import (
     GOAL_RGBA,
     PARKED,
     CameraView,
     add_table_and_block,
     place,
-    wrap_angle,
     yaw_quaternion,
 )
 
