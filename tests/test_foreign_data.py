@@ -140,3 +140,32 @@ def test_in_memory_data_without_a_split_is_split_by_seed():
         SequenceData(images, np.zeros((10, 2, 1), np.float32))
     with pytest.raises(ValueError, match=r"lie in \[0, 1\]"):
         SequenceData(images + 2, np.zeros((10, 2, 1), np.float32), [-1], [1])
+
+
+def test_derivatives_and_executed_flags_round_trip_and_are_checked(tmp_path):
+    import numpy as np
+    import pytest
+
+    from latent_sindy import SequenceData
+    from latent_sindy.data.store import read_sequences, write_sequences
+    from latent_sindy.errors import UserError
+
+    rng = np.random.default_rng(0)
+    images = rng.random((4, 6, 2, 5, 7)).astype(np.float32)  # two stacked frames per image
+    dot = rng.normal(size=images.shape).astype(np.float32)
+    executed = np.ones((4, 5), bool)
+    executed[1, 2] = False
+    data = SequenceData(images, None, images_dot=dot, images_ddot=-dot, executed=executed,
+                        dt=0.02)
+    write_sequences(tmp_path / "d.h5", data)
+    back = read_sequences(tmp_path / "d.h5")
+    np.testing.assert_array_equal(back.images_dot, dot)
+    np.testing.assert_array_equal(back.images_ddot, -dot)
+    np.testing.assert_array_equal(back.executed, executed)
+    part = back.subset(np.array([1, 3]))
+    assert part.executed.shape == (2, 5) and not part.executed[0, 2]
+    assert part.images_dot.shape == (2, 6, 2, 5, 7)
+    with pytest.raises(UserError, match="images_dot has shape"):
+        SequenceData(images, None, images_dot=dot[:, :3])
+    with pytest.raises(UserError, match="executed must be a bool array"):
+        SequenceData(images, None, executed=np.ones((4, 6), bool))

@@ -74,10 +74,15 @@ def _float_array(name: str, value: np.ndarray, lead: tuple[int, int], last: str,
 class SequenceData:
     """N sequences of images (N, T+1, C, H, W) and actions (N, T, nu), with their context.
 
-    ``images`` are uint8 (0..255) or floating point in [0, 1]; C is 1 or 3; any H, W.
+    ``images`` are uint8 (0..255) or floating point in [0, 1]; any C (1 gray, 3 colour, or
+    stacked frames), H and W.
     ``actions=None`` means an autonomous system (nu = 0). ``split`` labels each sequence
     0 (train), 1 (validation) or 2 (test); without it a split seeded by ``split_seed`` is made.
     ``state_periods`` gives, per state, the period of an angle (None for other states).
+    ``images_dot`` and ``images_ddot`` are optional exact time derivatives of the images (same
+    shape, floating point, in the images' pixel scale per unit time) for continuous-time models.
+    ``executed`` (N, T) bool says whether each action was carried out (a world may skip one it
+    cannot make, e.g. out of a robot's reach); absent means all were.
     ``world`` names the world plug-in whose ``record`` travels with the data.
     """
 
@@ -92,6 +97,9 @@ class SequenceData:
     split: InitVar[np.ndarray | None] = None
     dt: float | None = None
     world: str | None = None
+    images_dot: np.ndarray | None = None
+    images_ddot: np.ndarray | None = None
+    executed: np.ndarray | None = None
     record: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
     source: str = "<memory>"
@@ -105,9 +113,9 @@ class SequenceData:
             raise UserError(f"{where}: images must be (N, T+1, C, H, W), got shape "
                             f"{images.shape}")
         n, t1, c = images.shape[:3]
-        if c not in (1, 3):
-            raise UserError(f"{where}: images must have 1 or 3 channels (axis 2), got {c} "
-                            f"in shape {images.shape}")
+        if c < 1:
+            raise UserError(f"{where}: images need at least one channel (axis 2), shape "
+                            f"{images.shape}")
         if t1 < 2:
             raise UserError(f"{where}: sequences need at least one step, images have {t1} "
                             "frame(s)")
@@ -122,6 +130,7 @@ class SequenceData:
         self.images = images
         self._check_actions(n, t1 - 1, where)
         self._check_states(n, t1, where)
+        self._check_extras(n, t1, where)
         if split is None or callable(split):  # (the class's split method shadows the default)
             split = seeded_split(n, self.split_seed)
         split = np.asarray(split)
@@ -180,6 +189,26 @@ class SequenceData:
                             f"period or None, got {self.state_periods}")
         self.state_periods = periods
 
+    def _check_extras(self, n: int, t1: int, where: str) -> None:
+        for name in ("images_dot", "images_ddot"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value)
+            if arr.shape != self.images.shape:
+                raise UserError(f"{where}: {name} has shape {arr.shape}, expected the images' "
+                                f"{self.images.shape}")
+            if not np.issubdtype(arr.dtype, np.floating) or not np.all(np.isfinite(arr)):
+                raise UserError(f"{where}: {name} must be finite floating-point values")
+            setattr(self, name, arr)
+        if self.executed is not None:
+            arr = np.asarray(self.executed)
+            if arr.shape != (n, t1 - 1) or arr.dtype != np.bool_:
+                raise UserError(f"{where}: executed must be a bool array of shape "
+                                f"{(n, t1 - 1)} (one flag per action), got {arr.dtype} "
+                                f"{arr.shape}")
+            self.executed = arr
+
     # ------------------------------------------------------------------ views
 
     @property
@@ -209,8 +238,12 @@ class SequenceData:
 
     def subset(self, keep: np.ndarray) -> SequenceData:
         """The sequences selected by ``keep`` (a boolean mask or indices), same context."""
+        def part(arr: np.ndarray | None) -> np.ndarray | None:
+            return None if arr is None else arr[keep]
+
         return self.replace(images=self.images[keep], actions=self.actions[keep],
-                            states=None if self.states is None else self.states[keep],
+                            states=part(self.states), images_dot=part(self.images_dot),
+                            images_ddot=part(self.images_ddot), executed=part(self.executed),
                             split=self.split_ids[keep])
 
     def split(self, name: str) -> SequenceData:  # noqa: F811  (the constructor takes split=)

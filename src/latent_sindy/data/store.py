@@ -60,6 +60,12 @@ def write_sequences(path: str | os.PathLike, data: SequenceData) -> None:
             f.create_dataset("actions", data=data.actions.astype(np.float32))
         if data.states is not None:
             f.create_dataset("states", data=data.states.astype(np.float32))
+        for name in ("images_dot", "images_ddot"):
+            if getattr(data, name) is not None:
+                f.create_dataset(name, data=getattr(data, name).astype(np.float32),
+                                 chunks=(1, *data.images.shape[1:]), compression="gzip")
+        if data.executed is not None:
+            f.create_dataset("executed", data=data.executed)
         f.create_dataset("split", data=data.split_ids.astype(np.uint8))
         f["split"].attrs["names"] = json.dumps(SPLITS)
         attrs: dict[str, Any] = {
@@ -100,7 +106,8 @@ def _strings(value: Any) -> list[str] | None:
 def _check_sizes(f: h5py.File, path: Path) -> None:
     """Refuse from the shapes alone what would not fit in memory (before reading a byte)."""
     total = sum(int(np.prod(f[k].shape)) * f[k].dtype.itemsize
-                for k in ("images", "actions", "states", "poses", "split") if k in f)
+                for k in ("images", "actions", "states", "poses", "split", "images_dot",
+                           "images_ddot", "executed") if k in f)
     check_memory(total, f"{path} ({', '.join(f'{k} {f[k].shape}' for k in f)})",
                  "use a smaller data set")
 
@@ -138,6 +145,9 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
         state_names=_strings(a.get("state_names")),
         state_periods=None if periods is None else [float(p) for p in np.ravel(periods)],
         split=f["split"][()] if "split" in f else None,
+        images_dot=f["images_dot"][()] if "images_dot" in f else None,
+        images_ddot=f["images_ddot"][()] if "images_ddot" in f else None,
+        executed=f["executed"][()].astype(bool) if "executed" in f else None,
         dt=float(a["dt"]) if "dt" in a else None,
         world=_strings(a.get("world"))[0] if "world" in a else None,
         record=record, seed=None if seed < 0 else seed, source=str(path))
