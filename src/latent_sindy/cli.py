@@ -117,6 +117,10 @@ class Info:
             moves = np.abs(np.diff(d.states, axis=1)).mean(axis=(0, 1))
             print("  states " + ", ".join(f"{n} (moves {m:.4g} per step)" for n, m in
                                           zip(d.state_names, moves, strict=True)))
+        if d.executed is not None:  # actions the world could not carry out (out of reach)
+            missed = int(d.executed.size - np.count_nonzero(d.executed))
+            print(f"  not executed: {missed} of {d.executed.size} actions "
+                  f"({missed / max(d.executed.size, 1):.1%})")
 
 
 @dataclass
