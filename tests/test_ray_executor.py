@@ -99,6 +99,7 @@ def studies(tmp_path_factory) -> dict:
         cluster.shutdown()
 
 
+@pytest.mark.slow  # two tiny studies and a two-node cluster: about 90 s on 2 cores
 def test_a_killed_worker_is_retried_and_the_study_equals_the_local_one(studies):
     assert len(studies["killed"]) == 1, "no training worker was seen to kill"
     with pytest.raises(ProcessLookupError):

