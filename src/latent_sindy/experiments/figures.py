@@ -8,7 +8,11 @@ Drawn with matplotlib's object API (no pyplot, so no global backend or open figu
 * :func:`coefficient_map` (Fig. 9/10): M ⊙ Ψ, rows latent states, columns candidate terms;
 * :func:`horizon_plot`: prediction error against horizon, a line per model (image MSE, or
   the block position error);
-* :func:`control_bars`: closed-loop success rates and planning time per model.
+* :func:`control_bars`: closed-loop success rates and planning time per model;
+* :func:`overview_figure`: the report's first figure, success under both criteria with
+  intervals, and active terms against prediction error, per model.
+
+Every file is written atomically (a reader never sees half a PNG).
 
     from latent_sindy.experiments import figures
     figures.coefficient_map(run.model.dynamics, "SINDy order 2", Path("figures/coef.png"))
@@ -22,11 +26,16 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
+from latent_sindy.atomic import atomic_path
+from latent_sindy.experiments.overview import Overview
 from latent_sindy.models.dynamics import SindyDynamics
 from latent_sindy.plots import loss_histories
 
-__all__ = ["coefficient_map", "control_bars", "horizon_plot", "loss_histories", "rollout_strip"]
+__all__ = ["coefficient_map", "control_bars", "horizon_plot", "loss_histories", "overview_figure",
+           "rollout_strip"]
 
 #: Most columns a coefficient map shows (each labelled with its term's name).
 MAX_COLUMNS = 240
@@ -37,9 +46,9 @@ def _figure(nrows: int = 1, ncols: int = 1, **kw) -> tuple[Figure, np.ndarray]:
     return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+def _save(fig: Figure, path: Path, dpi: int = 110) -> Path:
+    with atomic_path(path) as tmp:  # the same suffix: savefig infers the format from it
+        fig.savefig(tmp, dpi=dpi)
     return path
 
 
@@ -173,3 +182,75 @@ def control_bars(models: Sequence[str], labels: Mapping[str, str],
     ax2.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     return _save(fig, path)
+
+
+#: Marker of each dynamics kind in :func:`overview_figure`.
+_MARKERS = {"sindy": "o", "linear": "s", "mlp": "^"}
+
+
+def overview_figure(view: Overview, path: Path) -> Path:
+    """Left: closed-loop success on the random tasks per model, under the 0.1 m criterion and
+    the strict one, with 95 % Wilson intervals (best at the top). Right: active dynamics terms
+    (a dense network: its parameters) against the prediction error, a point per model,
+    numbered as the rows. 1000 px wide, short enough to share a screen with the table."""
+    rows = view.rows
+    n = len(rows)
+    height = min(2.8, max(2.0, 0.8 + 0.11 * n))
+    fig, axes = _figure(1, 2, figsize=(10, height), width_ratios=(1.2, 1))
+    ax, ax2 = axes[0]
+    y = np.arange(n)[::-1].astype(float)  # row 1 at the top
+    for off, crit, style in ((0.17, "coarse", dict(fmt="o", mfc="white", color="C0")),
+                             (-0.17, "strict", dict(fmt="o", color="C3"))):
+        succ = [getattr(r, crit) for r in rows]
+        has = np.array([s.n > 0 for s in succ])
+        rate = np.array([100 * s.rate for s in succ])
+        lo = np.array([100 * s.interval[0] for s in succ])
+        hi = np.array([100 * s.interval[1] for s in succ])
+        label = "within 0.1 m" if crit == "coarse" else "within 2 cm and 10°"
+        xerr = np.maximum(0.0, [rate[has] - lo[has], hi[has] - rate[has]])  # rounding at 0, 1
+        ax.errorbar(rate[has], y[has] + off, xerr=xerr,
+                    ms=3.5, elinewidth=1, capsize=1.5, label=label, **style)
+    ax.set_yticks(y, [f"{i} {r.label}" for i, r in enumerate(rows, start=1)], fontsize=6)
+    ax.set_ylim(-0.7, n - 0.3)
+    ax.set_xlim(-2, 102)
+    ax.set_xlabel("success on random tasks, latent MPPI (%, 95% interval)", fontsize=7)
+    ax.tick_params(axis="x", labelsize=7)
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize=6, ncol=2, loc="lower left", bbox_to_anchor=(0, 1), frameon=False,
+              borderaxespad=0.2)
+
+    left_out = []
+    for i, r in enumerate(rows, start=1):
+        x = None if r.active is None else r.active.mean
+        e = None if r.error is None else r.error.mean
+        if x is None or e is None or not (np.isfinite(x) and np.isfinite(e) and x > 0 and e > 0):
+            left_out.append(str(i))
+            continue
+        color = "C1" if r.observes == "state" else "C0"
+        ax2.errorbar(x, e, yerr=np.nan_to_num(r.error.std or 0.0), fmt=_MARKERS.get(
+            r.dynamics, "D"), color=color, ms=4, elinewidth=0.8, capsize=1.5)
+        ax2.annotate(str(i), (x, e), xytext=(3, 2), textcoords="offset points", fontsize=6)
+    ax2.set_xscale("log")
+    ax2.margins(0.08)
+    errors = [r.error.mean for r in rows if r.error is not None and r.error.mean
+              and np.isfinite(r.error.mean) and r.error.mean > 0]
+    if errors and max(errors) > 4 * min(errors):
+        ax2.set_yscale("log")
+        ax2.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax2.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax2.yaxis.set_minor_formatter(NullFormatter())
+    ax2.set_xlabel("active dynamics terms (dense: parameters)", fontsize=7)
+    ax2.set_ylabel(view.error_label, fontsize=7)
+    ax2.tick_params(labelsize=7)
+    ax2.grid(alpha=0.3, which="both")
+    kinds = [Line2D([], [], ls="", marker=mk, color="0.4", ms=4, label=k)
+             for k, mk in (("SINDy", "o"), ("linear", "s"), ("MLP", "^"))]
+    kinds += [Line2D([], [], ls="", marker="o", color=c, ms=4, label=lab)
+              for c, lab in (("C0", "sees images"), ("C1", "sees the true state"))]
+    ax2.legend(handles=kinds, fontsize=6, ncol=5, loc="lower left", bbox_to_anchor=(0, 1),
+               frameon=False, handletextpad=0.2, columnspacing=0.8, borderaxespad=0.2)
+    if left_out:
+        ax2.text(1, -0.2, f"not shown (no finite value): {', '.join(left_out)}", fontsize=6,
+                 ha="right", va="top", transform=ax2.transAxes)
+    fig.tight_layout(pad=0.4, w_pad=1.0)
+    return _save(fig, path, dpi=100)

@@ -1,5 +1,8 @@
-"""The study's report.html: Table I, control results, findings beyond the paper, figures, GIFs,
-equations, configuration and versions, built with :class:`~.report.Report`.
+"""The study's report.html, built with :class:`~.report.Report`. Its first screen answers
+"which model, how well": a figure (success under both criteria with intervals; active terms
+against prediction error) and a short table of the models (:mod:`.overview`). How the numbers
+reproduce, the setting, then Table I, control results, findings beyond the paper, figures,
+GIFs, equations, configuration and versions.
 
 Written by :func:`latent_sindy.experiments.reproduce.reproduce`; the findings are sentences
 computed from the measured numbers, never fixed text.
@@ -14,7 +17,9 @@ import math
 from pathlib import Path
 from typing import Any
 
+from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import Stat
+from latent_sindy.experiments.overview import overview, overview_table, reproduction_notes
 from latent_sindy.experiments.report import Report
 from latent_sindy.experiments.results import Study
 from latent_sindy.experiments.scales import SCALES
@@ -167,6 +172,29 @@ def _ci(study: Study, model: str, key: str, which: str) -> str:
     return f"{100 * lo:.0f}–{100 * hi:.0f}%"
 
 
+def _first_screen(r: Report, study: Study, figure: Path) -> None:
+    """The overview figure and the short table (best first), then how the numbers reproduce."""
+    view = overview(study)
+    seeds = len(study.config.seeds)
+    r.image(figures.overview_figure(view, figure),
+            "Which model, how well: closed-loop success on random tasks, and active dynamics "
+            "terms against prediction error (numbers as in the table below).", cls="overview")
+    header, rows = overview_table(view, seeds)
+    r.table(header, rows, cls="overview")
+    ours = "mean ± std over seeds" if seeds > 1 else "one seed"
+    r.paragraph(f"Best first (strict success, then the 0.1 m one); {ours}. Success on the random "
+                "tasks with latent MPPI: within 0.1 m (the course's criterion; figure: open "
+                "circles) and within 2 cm and 10° (filled), with the 95% Wilson interval of all "
+                "seeds' episodes together. Active terms: non-zero dynamics coefficients of all "
+                "candidates (sparsity: the share that is zero); a dense network counts its "
+                f"parameters. Error: the {view.error_label} of open-loop predictions on the test "
+                "trajectories. State rows see the block's true pose: the bound for the image "
+                "models.", cls="note")
+    r.heading("How these numbers reproduce")
+    for text in reproduction_notes(view):
+        r.paragraph(text, cls="note")
+
+
 def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                  path: Path) -> Path:
     """Assemble and write report.html (self-contained) from the study and its output files."""
@@ -174,6 +202,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     seeds = ", ".join(map(str, cfg.seeds))
     data = summary["data"]
     r = Report(f"latent-sindy: the paper's study, reproduced ({cfg.scale} scale)")
+    _first_screen(r, study, path.parent / "figures" / "overview.png")
     train_s = sum(m.get("train/seconds") or 0.0 for d in study.per_seed.values()
                   for m in d.values())
     load = ", ".join(f"{v:.1f}" for v in summary["machine"]["load_average"])
@@ -193,6 +222,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
              "paper": "the paper's world: pushes from the block's −x face, angle relative to "
                       "its x axis",
              "marked": "the paper's push on a block whose +x half is marked"}[cfg.world]
+    r.heading("The study")
     r.paragraph(f"World: {cfg.world} ({world}). The strict criterion compares orientations "
                 "modulo the block's visible symmetry (90° for the uniform block, 360° for the "
                 "marked one).")
@@ -217,7 +247,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
 
     r.heading("Table I: the paper's values beside ours")
     header = ["metric", *(study.labels[m] for m in study.models)]
-    r.table(header, table1_rows(study.models, study.stats, len(cfg.seeds)))
+    r.table(header, table1_rows(study.models, study.stats, len(cfg.seeds)), cls="wide")
     r.paragraph("Losses: the objective without the L1 term (reconstruction + image prediction "
                 "+ latent prediction, mean squared error per normalised pixel or latent "
                 "coordinate) on the single-step windows of each split, for every model alike. "

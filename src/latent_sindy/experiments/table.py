@@ -21,8 +21,8 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.experiments.evaluation import Stat, mean_std
 from latent_sindy.worlds.push.episodes import wilson_interval
 
-__all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "sweep_rows", "table1_rows",
-           "write_sweep_table", "write_table1"]
+__all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "pooled_counts", "sweep_rows",
+           "table1_rows", "write_sweep_table", "write_table1"]
 
 #: The paper's Table I by column (SINDy orders 1-4, E2C); sparsity in percent.
 PAPER: dict[str, dict[str, float | None]] = {
@@ -213,16 +213,24 @@ SWEEP_COLUMNS: tuple[Row, ...] = (
 )
 
 
-def _pooled_interval(per_seed: Sequence[Mapping[str, float | None]], row: Row) -> str:
-    """" [lo–hi%, k/n]": the 95 % Wilson interval of all seeds' episodes together."""
+def pooled_counts(per_seed: Sequence[Mapping[str, float | None]], rate_key: str,
+                  episodes_key: str) -> tuple[int, int]:
+    """(successes, episodes) of every seed's episodes together: each seed's rate (metric
+    ``rate_key``) times its episode count (``episodes_key``); seeds without both are left out."""
     k = n = 0
     for m in per_seed:
-        rate, episodes = m.get(row.key), m.get(f"{row.ci}/episodes")
+        rate, episodes = m.get(rate_key), m.get(episodes_key)
         if rate is None or episodes is None or not (math.isfinite(rate)
                                                     and math.isfinite(episodes)):
             continue
         k += round(rate * episodes)
         n += int(episodes)
+    return k, n
+
+
+def _pooled_interval(per_seed: Sequence[Mapping[str, float | None]], row: Row) -> str:
+    """" [lo–hi%, k/n]": the 95 % Wilson interval of all seeds' episodes together."""
+    k, n = pooled_counts(per_seed, row.key, f"{row.ci}/episodes")
     if n == 0:
         return ""
     lo, hi = wilson_interval(k, n)
