@@ -11,7 +11,9 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from fake_study import fake_study
 from latent_sindy.experiments.report import Report
+from latent_sindy.experiments.study_report import write_report
 
 CHECK = """
 <script>
@@ -100,3 +102,16 @@ def test_report_renders_in_headless_chromium(tmp_path, chromium):
     broken = tmp_path / "broken.html"
     broken.write_text(page.read_text().replace("base64,", "base64,AAAA", 1))
     assert _render_title(chromium, broken, tmp_path) == "RENDER images 2/3 cells 4"
+
+
+def test_study_report_opens_with_the_overview(tmp_path):
+    study, files, summary = fake_study(tmp_path, models=("sindy2", "mlp", "state_sindy"))
+    text = write_report(study, files, summary, tmp_path / "report.html").read_text()
+    body = text.split("<body>", 1)[1]
+    order = ['<figure class="overview">', '<table class="overview">',
+             "How these numbers reproduce", "<h2>The study</h2>", "Table I",
+             "Closed-loop control"]
+    at = [body.find(s) for s in order]
+    assert -1 not in at and at == sorted(at), dict(zip(order, at, strict=True))
+    assert body.count("<table") == body.count('<div class="scroll"><table') == 3
+    assert (tmp_path / "figures" / "overview.png").exists()

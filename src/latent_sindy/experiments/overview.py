@@ -177,11 +177,11 @@ def reproduction_notes(view: Overview) -> list[str]:
         "its load, not the model.",
     ]
     widest = max(((r, crit, s) for r in view.rows for crit, s in
-                  (("0.1 m", r.coarse), ("2 cm & 10°", r.strict)) if s.n),
+                  (("0.1 m", r.coarse), ("2 cm and 10°", r.strict)) if s.n),
                  key=lambda t: t[2].interval[1] - t[2].interval[0], default=None)
     if widest is not None:
         r, crit, s = widest
         lo, hi = s.interval
-        notes[1] += (f" The widest here: {r.label}, {crit}, {s.k} of {s.n} episodes, "
-                     f"{100 * lo:.0f}–{100 * hi:.0f}%.")
+        notes[1] += (f" The widest interval here: {r.label}'s success within {crit}, {s.k} of "
+                     f"{s.n} episodes, {100 * lo:.0f}–{100 * hi:.0f}%.")
     return notes
