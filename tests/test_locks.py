@@ -211,3 +211,63 @@ def test_d20_collect_workers_die_with_it(tmp_path):
         assert_workers_die_with(proc, 2, busy=3.0)
     finally:
         kill(proc)
+
+
+REAPED = textwrap.dedent("""
+    import subprocess, sys, time
+    from latent_sindy.reaper import start_reaper
+    # a child that ignores SIGTERM and has a child of its own, like Ray's dashboard agent
+    code = ("import signal, subprocess, sys, time; "
+            "signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+            "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)']); "
+            "time.sleep(600)")
+    subprocess.Popen([sys.executable, "-c", code])
+    start_reaper(every=0.1)
+    print("ready", flush=True)
+    time.sleep(600)
+""")
+
+
+@linux_only
+def test_d20_a_reaper_kills_the_descendants_of_a_killed_process(tmp_path):
+    from latent_sindy.reaper import descendants
+
+    script = tmp_path / "guarded.py"
+    script.write_text(REAPED)
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    try:
+        assert proc.stdout.readline().strip() == b"ready"
+        deadline = time.monotonic() + 30
+        while len(descendants(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # the reaper has noted them
+        guarded = descendants(proc.pid)
+        assert len(guarded) >= 2, guarded  # the child and the grandchild (not the reaper)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 10
+        alive = set(guarded)
+        while alive and time.monotonic() < deadline:
+            alive = {p for p in alive if Path(f"/proc/{p}").exists()
+                     and "Z" not in Path(f"/proc/{p}/stat").read_text().split(")")[1][:3]}
+            time.sleep(0.1)
+        assert not alive, f"still alive after the parent's kill -9: {alive}"
+    finally:
+        kill(proc)
+        proc.stdout.close()
+
+
+def test_a_stopped_reaper_kills_nothing(tmp_path):
+    from latent_sindy.reaper import start_reaper
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        reaper = start_reaper(every=0.05)
+        time.sleep(0.5)
+        reaper.stop()
+        time.sleep(0.3)
+        assert child.poll() is None
+    finally:
+        child.kill()
+        child.wait()

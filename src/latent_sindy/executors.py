@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from latent_sindy.errors import UserError
+from latent_sindy.reaper import start_reaper
 
 __all__ = ["EXECUTORS", "Executor", "ExecutorOptions", "Inline", "Pool", "RayExecutor",
            "Resources", "die_with_parent", "make_executor"]
@@ -185,6 +186,7 @@ class RayExecutor:
 
         self._ray = ray
         self._retries = options.retries
+        self._reaper = None
         self._remote: dict[Callable, Any] = {}
         self._refs: dict[Future, Any] = {}
         self._names: dict[Future, str] = {}
@@ -206,6 +208,9 @@ class RayExecutor:
                 where = f"--ray-address {options.address}" if options.address else "a local Ray"
                 raise UserError(f"{where}: Ray did not start ({e}); check the address or run "
                                 "`ray start --head`") from None
+        # A kill -9 of this process leaves a local Ray's processes behind (its dashboard agent
+        # ignores SIGTERM): a reaper kills them when we are gone.
+        self._reaper = start_reaper() if self._owner and not options.address else None
         cpus = ray.cluster_resources().get("CPU", 1.0)
         self.slots = max(1, int(cpus // options.threads))
 
@@ -254,6 +259,9 @@ class RayExecutor:
         if self._owner and self._ray.is_initialized():
             self._ray.shutdown()
             self._owner = False
+        if self._reaper is not None:
+            self._reaper.stop()
+            self._reaper = None
 
     def __enter__(self) -> RayExecutor:
         return self
