@@ -157,7 +157,8 @@ class _RecordingEnv:
 
     def step(self, a):
         self.actions.append(np.asarray(a))
-        return np.zeros((1, 32, 32), np.uint8), 0.0, False, False, {"pose": np.zeros(3)}
+        info = {"pose": np.zeros(3), "push_executed": True}
+        return np.zeros((1, 32, 32), np.uint8), 0.0, False, False, info
 
 
 @pytest.mark.parametrize("world", ["symmetric", "paper"])

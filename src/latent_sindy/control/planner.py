@@ -12,7 +12,7 @@ the generic closed loop (:mod:`latent_sindy.control.episodes`) drives.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Literal
 
 import numpy as np
@@ -23,7 +23,7 @@ from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 
-__all__ = ["ImagePlanner"]
+__all__ = ["ImagePlanner", "feasible_action"]
 
 
 class ImagePlanner:
@@ -72,3 +72,26 @@ class ImagePlanner:
             raise UserError("give the planner a goal image first: act(image, goal_image)")
         action, self.last = self.mppi.command(self.encode(image))
         return action.numpy()
+
+
+def feasible_action(action: np.ndarray, mppi: MPPI, feasible: Callable[[np.ndarray], np.ndarray],
+                    tries: int = 64, chunk: int = 8) -> tuple[np.ndarray, bool]:
+    """The action to execute after ``mppi.command``: ``action`` (nu,) if ``feasible`` says so,
+    else the first action of the lowest-cost sample of that update that is feasible.
+
+    ``feasible(actions (k, nu)) -> (k,) bool`` answers for the world's true state now (a
+    world's ``feasible`` with the state bound). At most ``tries`` samples are asked, in order
+    of cost, ``chunk`` at a time; when none is feasible ``action`` is kept. Returns the
+    action and whether it was replaced.
+    """
+    if feasible(np.asarray(action)[None])[0]:
+        return action, False
+    costs = mppi.costs  # (K,) of the last update; inf for discarded samples
+    order = torch.argsort(costs)[:tries]
+    order = order[torch.isfinite(costs[order])]
+    firsts = mppi.actions[order, 0].numpy()  # (tries, nu), lowest cost first
+    for k in range(0, len(firsts), chunk):
+        ok = np.flatnonzero(feasible(firsts[k:k + chunk]))
+        if len(ok):
+            return firsts[k + ok[0]].copy(), True
+    return action, False

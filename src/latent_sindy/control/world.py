@@ -15,6 +15,12 @@ only ever sees this interface.
         def goal_image(self, env, task): return image
         def state(self, env): return env.unwrapped.x
         def success(self, state, goal): return {"reached": abs(state - goal) < 0.05}
+
+A world may also answer which actions it can carry out: ``feasible(states (K, ns), actions
+(K, nu)) -> (K,) bool`` (a robot that cannot reach where an action starts skips it). It is
+optional; :func:`feasible` asks a world that has it and takes every action as feasible
+otherwise. Closed loops that know the true state use it to replace a planned action the
+world would skip.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Task", "World"]
+__all__ = ["Task", "World", "feasible"]
 
 
 @dataclass(frozen=True)
@@ -65,3 +71,13 @@ class World(Protocol):
 
     def success(self, state: np.ndarray, goal: np.ndarray) -> dict[str, bool]:
         """Which success criteria ``state`` meets for ``goal`` (criterion name -> met)."""
+
+
+def feasible(world: World, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """(K,) bool: which ``actions`` (K, nu) ``world`` can carry out from ``states`` (K, ns)
+    or one state (ns,); all of them for a world without a ``feasible`` method."""
+    actions = np.asarray(actions)
+    answer = getattr(world, "feasible", None)
+    if answer is None:
+        return np.ones(len(actions), dtype=bool)
+    return np.asarray(answer(states, actions), dtype=bool).reshape(len(actions))

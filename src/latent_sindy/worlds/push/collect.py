@@ -94,17 +94,18 @@ def collect_one(env, index: int, plan: CollectionPlan) -> dict[str, np.ndarray]:
         rng = np.random.default_rng([plan.seed, index, attempt])
         obs, info = env.reset(seed=int(rng.integers(2**31)))
         actions = rng.uniform(low, high, size=(plan.steps, plan.env.action_dim)).astype(np.float32)
-        images, poses = [obs], [info["pose"]]
+        images, poses, executed = [obs], [info["pose"]], []
         for a in actions:
             obs, _, terminated, _, info = env.step(a)
             images.append(obs)
             poses.append(info["pose"])
+            executed.append(bool(info["push_executed"]))
             if terminated:
                 break
         else:
             return {"images": np.stack(images), "actions": actions,
                     "poses": np.stack(poses).astype(np.float32),
-                    "attempts": np.array(attempt + 1)}
+                    "executed": np.array(executed), "attempts": np.array(attempt + 1)}
     raise RuntimeError(f"trajectory {index}: the block left the workspace in all "
                        f"{MAX_ATTEMPTS} attempts")
 
@@ -156,6 +157,7 @@ def _load_done(partial: Path, plan: CollectionPlan) -> dict[int, dict]:
                 item = {k: z[k] for k in z.files}
             ok = (0 <= i < plan.trajectories
                   and item["actions"].shape == (plan.steps, plan.env.action_dim)
+                  and item["executed"].shape == (plan.steps,)
                   and item["images"].shape[0] == plan.steps + 1)
         except (ValueError, OSError, KeyError, IndexError, zipfile.BadZipFile):
             ok = False
@@ -237,6 +239,7 @@ def _collect(out: Path, plan: CollectionPlan, workers: int,
         images=np.stack([done[i]["images"] for i in order]),
         actions=np.stack([done[i]["actions"] for i in order]),
         poses=np.stack([done[i]["poses"] for i in order]),
+        executed=np.stack([done[i]["executed"] for i in order]),
         split_ids=plan.split_ids(),
         env_config=plan.env,
         seed=plan.seed,

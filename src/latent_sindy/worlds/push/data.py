@@ -29,8 +29,9 @@ POSE_NAMES = ("x", "y", "θ")
 def push_data(images: np.ndarray, actions: np.ndarray, poses: np.ndarray,
               split_ids: np.ndarray | None = None, env_config: PushEnvConfig | None = None,
               seed: int | None = None, collection: dict | None = None,
-              source: str = "<memory>") -> SequenceData:
-    """Sequences recorded in the pushing world ``env_config`` (validated against it)."""
+              source: str = "<memory>", executed: np.ndarray | None = None) -> SequenceData:
+    """Sequences recorded in the pushing world ``env_config`` (validated against it);
+    ``executed`` (N, T) bool: which pushes the arm made (``info["push_executed"]``)."""
     env = env_config or PushEnvConfig()
     _check_actions(actions, env, source)
     if np.asarray(poses).ndim != 3 or np.asarray(poses).shape[2] != 3:
@@ -40,6 +41,7 @@ def push_data(images: np.ndarray, actions: np.ndarray, poses: np.ndarray,
         images, actions, action_low=env.action_low, action_high=env.action_high,
         action_names=env.action_names, states=poses, state_names=POSE_NAMES,
         state_periods=(None, None, env.angle_period), split=split_ids, world="push",
+        executed=executed,
         record={"env_config": to_json(env), "collection": collection or {}}, seed=seed,
         source=source)
     check_data(data)

@@ -33,10 +33,12 @@ from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, wri
 from latent_sindy.configs import to_json
 from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
+from latent_sindy.control.planner import feasible_action
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.models.state import pose_cost_weights
 from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.reach import Reach
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,10 @@ class ControlConfig:
     """Stop an episode when this success criterion is met."""
     gif_episodes: int = 1
     """Save a GIF of the first this many episodes."""
+    reach: bool = True
+    """Replace a planned push the arm cannot make from the block's true pose by the
+    lowest-cost sampled push it can (the world's reach answer, worlds/push/reach.py);
+    --no-reach executes MPPI's push as planned (out of reach: the block stays)."""
     mppi: tyro.conf.OmitArgPrefixes[MPPIConfig] = field(default_factory=MPPIConfig)
     """The planner (K, H, Σ, λ)."""
 
@@ -138,6 +144,10 @@ class EpisodeResult:
     """MPPI samples given zero weight because their rollout or cost was not finite."""
     pushes_executed: int = 0
     """Pushes the arm could carry out (the others were out of its reach)."""
+    pushes_replaced: int = 0
+    """Planned pushes out of the arm's reach replaced by a sampled push within it."""
+    reach_ms_mean: float = 0.0
+    """Time per step asking the world's reach (not in the planning time)."""
     actions: list[list[float]] = field(default_factory=list)
 
 
@@ -160,6 +170,7 @@ class Controller:
         check_space(model, settings.space)  # its error, before any episode
         self._cost = COSTS[settings.space]
         self.step = latent_step(model.dynamics)  # active SINDy terms only
+        self.reach = Reach(env_config) if settings.reach else None
         t0 = time.perf_counter()
         MPPI(self.step, torch.zeros(model.config.observation.latent_dim),
              dataclasses.replace(settings.mppi, samples=2, horizon=2), *self.box).command(
@@ -181,8 +192,20 @@ class Controller:
         self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
 
     def act(self, image: np.ndarray, pose: np.ndarray):
+        """MPPI's push from this observation, or (with ``reach``) the lowest-cost sampled
+        push the arm can make from the true ``pose`` when MPPI's is out of its reach.
+        Returns (action, MPPI's info, replaced, seconds asking the reach)."""
         action, info = self.mppi.command(self.encode(image, pose))
-        return action.numpy(), info
+        action = action.numpy()
+        if self.reach is None:
+            return action, info, False, 0.0
+        t0 = time.perf_counter()
+        action, replaced = feasible_action(action, self.mppi, lambda a: self.reach(pose, a))
+        return action, info, replaced, time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self.reach is not None:
+            self.reach.close()
 
 
 def _episode_options(env, settings: ControlConfig, seed: int) -> tuple[int, dict]:
@@ -210,11 +233,13 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
         frames.append(env.render())
     steps_goal = 0 if info["is_success"] else None
     steps_strict = 0 if info["is_success_strict"] else None
-    plan_ms, actions, discarded, left = [], [], 0, False
-    steps = executed = 0
+    plan_ms, reach_ms, actions, discarded, left = [], [], [], 0, False
+    steps = executed = replaced = 0
     while steps < settings.max_steps and not info[key]:
-        action, plan = controller.act(obs, info["pose"])
+        action, plan, swapped, reach_s = controller.act(obs, info["pose"])
         plan_ms.append(plan.seconds * 1e3)
+        reach_ms.append(reach_s * 1e3)
+        replaced += swapped
         discarded += plan.discarded
         actions.append([float(a) for a in action])
         obs, _, terminated, _, info = env.step(action)
@@ -238,7 +263,8 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
         left_workspace=left,
         plan_ms_mean=float(np.mean(plan_ms)) if plan_ms else 0.0,
         plan_ms_max=float(np.max(plan_ms)) if plan_ms else 0.0,
-        discarded=discarded, pushes_executed=executed, actions=actions)
+        discarded=discarded, pushes_executed=executed, pushes_replaced=replaced,
+        reach_ms_mean=float(np.mean(reach_ms)) if reach_ms else 0.0, actions=actions)
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -271,6 +297,7 @@ def summarize(results: list[EpisodeResult]) -> dict[str, float]:
         "final_angle_error_deg_mean": float(np.mean([abs(r.final_angle_error_deg)
                                                      for r in results])),
         "executed_rate": sum(r.pushes_executed for r in results) / pushes if pushes else math.nan,
+        "replaced_rate": sum(r.pushes_replaced for r in results) / pushes if pushes else math.nan,
         "steps_to_goal_mean": float(np.mean([r.steps_to_goal for r in ok])) if ok else math.nan,
         "steps_to_strict_mean": (float(np.mean([r.steps_to_strict for r in ok_strict]))
                                  if ok_strict else math.nan),
@@ -292,7 +319,8 @@ def format_summary(summary: dict[str, float], title: str) -> str:
         f"  final distance     {100 * s['final_distance_mean']:.1f} cm (mean)",
         f"  planning           {s['plan_ms_mean']:.1f} ms per step (mean; one-time warm-up "
         f"{s.get('warmup_ms', math.nan):.0f} ms not included)",
-        f"  pushes executed    {s['executed_rate']:6.1%}",
+        f"  pushes executed    {s['executed_rate']:6.1%}   (planned out of reach, replaced "
+        f"{s.get('replaced_rate', math.nan):.1%})",
         f"  discarded samples  {s['discarded_total']}   left workspace "
         f"{s['left_workspace']} episode(s)",
     ])
@@ -337,6 +365,7 @@ def run_control(model, normalizer: Normalizer, env_config: PushEnvConfig,
                 save_gif(frames, out / f"episode_{i:03d}.gif")
     finally:
         env.close()
+        controller.close()
     summary = {**summarize(results), "warmup_ms": 1e3 * controller.warmup_s}
     record = {"settings": to_json(settings), "summary": summary,
               "episodes": [asdict(r) for r in results]}

@@ -24,6 +24,7 @@ from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.criteria import goal_criteria
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
 from latent_sindy.worlds.push.planner import world_planner
+from latent_sindy.worlds.push.reach import Reach
 
 __all__ = ["WORLD", "PushWorld"]
 
@@ -35,6 +36,7 @@ class PushWorld:
 
     def __init__(self, config: PushEnvConfig | None = None) -> None:
         self.config = config or PushEnvConfig()
+        self._reach: Reach | None = None
 
     # ------------------------------------------------------ what the core asks of its data
     @staticmethod
@@ -87,6 +89,14 @@ class PushWorld:
         """The course criterion (position within 0.1 m) and the strict one (2 cm, 10°)."""
         met = goal_criteria(self.config, np.asarray(state), np.asarray(goal))
         return {"course": met["is_success"], "strict": met["is_success_strict"]}
+
+    def feasible(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """(K,) bool: can the arm start each push ``actions`` (K, nu) with the block at
+        ``states`` (K, 3) or (3,)? The world's own IK search in a kinematic copy
+        (:class:`~latent_sindy.worlds.push.reach.Reach`, built on the first call)."""
+        if self._reach is None:
+            self._reach = Reach(self.config)
+        return self._reach(states, actions)
 
 
 WORLD = PushWorld()

@@ -162,28 +162,17 @@ class PushWorld:
 
         The config's `push` style says what the angle means (see :func:`contact_frame`).
         """
-        x, y, th = self.block_pose()
-        if self._canonical:
-            th = self._turn_to_canonical(th)
-        frame, phi, (hx, hy) = contact_frame(self.cfg.push, th, angle)
-        cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the face's frame
-        rot = np.array([[math.cos(frame), -math.sin(frame)],
-                        [math.sin(frame), math.cos(frame)]])
-        contact = np.array([x, y]) + rot @ cl
-        psi = frame + phi
-        d = np.array([math.cos(psi), math.sin(psi)])
-        for gap, orn, seed in self.arm.start_candidates(contact, psi):
-            start = contact - d * (PUSHER_RADIUS + gap)
-            if seed is not None:
-                self.arm.teleport_joints(seed)
-            self.arm.teleport([*start, PUSH_HEIGHT], orn)
-            if self.arm.can_start_at(start, self.block):
-                break
-        else:
+        contact, psi = self._push_line(p, angle)
+        self.arm.teleport_joints(HOME)  # the search starts where can_push's does, not from
+        #                                 wherever the arm drooped while the block settled
+        found = self._find_start(contact, psi)
+        if found is None:
             # out of the arm's reach: the robot does not attempt it, the block stays put
             self.last_push_executed = False
             self.arm.teleport_joints(HOME)
             return
+        start, gap, orn = found
+        d = np.array([math.cos(psi), math.sin(psi)])
         self.last_push_executed = True
         touch = self.arm.distance_to_touch(d, gap, self.block)
         travel = touch + ell * MAX_PUSH  # ell counts from first touch
@@ -198,6 +187,47 @@ class PushWorld:
             np.column_stack([end - d * back * f, PUSH_HEIGHT + lift * f]), orn)
         self.arm.teleport_joints(HOME)
         self._settle()
+
+    def can_push(self, p: float, angle: float, pose=None) -> bool:
+        """Could the arm start push u = [p, angle, *] with the block at `pose` (default:
+        where it is)?
+
+        The same search for a start as :meth:`push` makes, from the same arm posture (HOME),
+        without moving the block: it answers exactly what a push would do (a few ms; about
+        20 ms for a push no posture reaches). Given a `pose`, the block is put there first.
+        """
+        if pose is not None:
+            self._turned = 0.0
+            place(self.sim, self.block, pose)
+        contact, psi = self._push_line(p, angle)
+        self.arm.teleport_joints(HOME)
+        found = self._find_start(contact, psi)
+        self.arm.teleport_joints(HOME)
+        return found is not None
+
+    def _push_line(self, p: float, angle: float) -> tuple[np.ndarray, float]:
+        """The contact point (2,) in the world and the push direction psi of u = [p, angle]."""
+        x, y, th = self.block_pose()
+        if self._canonical:
+            th = self._turn_to_canonical(th)
+        frame, phi, (hx, hy) = contact_frame(self.cfg.push, th, angle)
+        cl = np.array([-hx, p * hy * CONTACT_SPAN])  # contact point in the face's frame
+        rot = np.array([[math.cos(frame), -math.sin(frame)],
+                        [math.sin(frame), math.cos(frame)]])
+        return np.array([x, y]) + rot @ cl, frame + phi
+
+    def _find_start(self, contact: np.ndarray, psi: float):
+        """(start (2,), approach gap, hand orientation) of the first posture the arm reaches
+        behind `contact` for a push along `psi`, the arm left there; None if none."""
+        d = np.array([math.cos(psi), math.sin(psi)])
+        for gap, orn, seed in self.arm.start_candidates(contact, psi):
+            start = contact - d * (PUSHER_RADIUS + gap)
+            if seed is not None:
+                self.arm.teleport_joints(seed)
+            self.arm.teleport([*start, PUSH_HEIGHT], orn)
+            if self.arm.can_start_at(start, self.block):
+                return start, gap, orn
+        return None
 
     def _turn_to_canonical(self, th: float) -> float:
         """Turn the simulated block by whole quarter turns into (-pi/4, pi/4]; returns its
