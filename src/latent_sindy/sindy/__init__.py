@@ -4,9 +4,11 @@
 derived-variable nodes worlds add), ``latent_sindy.sindy.terms`` the compiler from a spec to
 terms and names, ``latent_sindy.sindy.torch_library`` the differentiable libraries Θ(z, u),
 ``latent_sindy.sindy.presets`` the library presets by name; ``latent_sindy.sindy.optimizers``
-the sparsifier (:class:`STLSQ`); ``latent_sindy.sindy.fit`` the fit to state transitions. The
-package works on libraries and arrays only: it imports neither :mod:`latent_sindy.models`
-(which builds on it) nor any world (worlds register their presets and nodes here).
+the sparsifier (:class:`STLSQ`), ``latent_sindy.sindy.ensemble`` its bagged form for noisy data
+(:class:`EnsembleSTLSQ`); ``latent_sindy.sindy.fit`` the fits to state transitions and, in a
+windowed form for noisy data, to whole trajectories. The package works on libraries and
+arrays only: it imports neither :mod:`latent_sindy.models` (which builds on it) nor any world
+(worlds register their presets and nodes here).
 
     >>> from latent_sindy.sindy import CandidateLibrary, Identity, Polynomial, Sine, SindyLibrary
     >>> CandidateLibrary(n_state=16, n_control=3, order=2).n_terms
@@ -15,7 +17,8 @@ package works on libraries and arrays only: it imports neither :mod:`latent_sind
     227
 """
 
-from latent_sindy.sindy.fit import fit_state_data
+from latent_sindy.sindy.ensemble import EnsembleSTLSQ
+from latent_sindy.sindy.fit import fit_state_data, fit_trajectory_data, window_regression_data
 from latent_sindy.sindy.grammar import (
     Constant,
     Cosine,
@@ -53,6 +56,7 @@ __all__ = [
     "Constant",
     "Cosine",
     "DerivedVariables",
+    "EnsembleSTLSQ",
     "Identity",
     "LibrarySpec",
     "LibrarySubset",
@@ -62,6 +66,7 @@ __all__ = [
     "Sine",
     "Sum",
     "fit_state_data",
+    "fit_trajectory_data",
     "has_preset",
     "library_preset",
     "poly_library",
@@ -69,4 +74,5 @@ __all__ = [
     "register_derived",
     "register_preset",
     "spec_from_dict",
+    "window_regression_data",
 ]

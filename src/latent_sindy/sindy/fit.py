@@ -7,21 +7,40 @@ The residual step ``z_{t+1} − z_t = Θ(z_t, u_t) Ψ`` is linear in Ψ, so a sp
 parameters train by gradient in :mod:`latent_sindy.training` (the one gradient loop, with the
 one pruning rule).
 
+On noisy states, :func:`fit_trajectory_data` fits whole trajectories in a windowed (integral)
+form: summed over any ``w`` consecutive steps, the model telescopes to
+``x_{k+w} − x_k = (Σ_{j<w} Θ(x_{k+j}, u_{k+j})) Ψ`` exactly, so the target grows with ``w``
+while its measurement noise does not, and the sums average the noise of the regressors. The
+inputs enter step by step, so unlike smoothing the states this keeps every input's effect
+(window 1 is the plain one-step fit). Pair it with :class:`EnsembleSTLSQ` on noisy data.
+
 This package does not import :mod:`latent_sindy.models` (which imports it).
 
     >>> lib = CandidateLibrary(n_state=3, n_control=1, order=2)
     >>> opt = fit_state_data(lib, Z, U, Znext)  # Z (N, 3), U (N, 1), Znext (N, 3)
     >>> opt.coef_.shape, int(opt.mask_.sum())  # (p, nz), active coefficients
+    >>> opt = fit_trajectory_data(lib, X, U, window=10, optimizer=EnsembleSTLSQ(seed=0))
+    >>> # X (B, T+1, 3) measured trajectories, U (B, T, 1) their inputs
 """
 
 from __future__ import annotations
 
 import torch
 
+from latent_sindy.errors import UserError
+from latent_sindy.sindy.ensemble import EnsembleSTLSQ
 from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.torch_library import SindyLibrary
 
-__all__ = ["fit_state_data", "library_regression_data"]
+__all__ = [
+    "Sparsifier",
+    "fit_state_data",
+    "fit_trajectory_data",
+    "library_regression_data",
+    "window_regression_data",
+]
+
+Sparsifier = STLSQ | EnsembleSTLSQ
 
 
 def _check_data(nz: int, nu: int, Z: torch.Tensor, U: torch.Tensor, Znext: torch.Tensor) -> None:
@@ -51,19 +70,84 @@ def fit_state_data(
     Z: torch.Tensor,
     U: torch.Tensor,
     Znext: torch.Tensor,
-    optimizer: STLSQ | None = None,
+    optimizer: Sparsifier | None = None,
     mask: torch.Tensor | None = None,
-) -> STLSQ:
+) -> Sparsifier:
     """Sparse regression of ``Znext − Z`` on ``library(Z, U)``; returns the fitted optimizer.
 
     Args:
         library: the candidate library (its sizes must match the data).
         Z, U, Znext: (N, nz), (N, nu), (N, nz) transitions.
-        optimizer: the sparsifier (default ``STLSQ()``); it is fitted in place and returned.
+        optimizer: the sparsifier (default ``STLSQ()``; ``EnsembleSTLSQ(...)`` on noisy
+            data); it is fitted in place and returned.
         mask: optional (p, nz) bool, the terms allowed (default all).
 
     Returns:
         ``optimizer`` with ``coef_`` (p, nz) float64 and ``mask_`` (p, nz) bool.
     """
     theta, target = library_regression_data(library, Z, U, Znext)
+    return (STLSQ() if optimizer is None else optimizer).fit(theta, target, mask)
+
+
+@torch.no_grad()
+def window_regression_data(
+    library: SindyLibrary, X: torch.Tensor, U: torch.Tensor, window: int = 1
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The windowed linear problem of trajectories, float64 on the CPU.
+
+    Args:
+        library: the candidate library.
+        X: (B, T+1, nz) states of B trajectories; U: (B, T, nu) the inputs between them.
+        window: steps per window, 1 <= window <= T.
+
+    Returns:
+        Θ_w (R, p) and target (R, nz), R = B·(T+1−window), one row per window start k:
+        ``Σ_{j<window} Θ(x_{k+j}, u_{k+j})`` and ``x_{k+window} − x_k``.
+    """
+    nz, nu = library.n_state, library.n_control
+    if (
+        X.ndim != 3
+        or U.ndim != 3
+        or X.shape[2] != nz
+        or U.shape[2] != nu
+        or (X.shape[0] != U.shape[0] or X.shape[1] != U.shape[1] + 1)
+    ):
+        raise UserError(
+            f"expected trajectories X of shape (B, T+1, nz={nz}) and inputs U of shape "
+            f"(B, T, nu={nu}), got X {tuple(X.shape)}, U {tuple(U.shape)}"
+        )
+    steps = U.shape[1]
+    if isinstance(window, bool) or not isinstance(window, int) or not 1 <= window <= steps:
+        raise UserError(
+            f"window={window!r} is not valid: use an integer from 1 to the {steps} steps "
+            "of a trajectory"
+        )
+    B, p = X.shape[0], library.n_terms
+    theta, _ = library_regression_data(
+        library, X[:, :-1].reshape(-1, nz), U.reshape(-1, nu), X[:, 1:].reshape(-1, nz)
+    )
+    theta = theta.reshape(B, steps, p)  # (B, T, p)
+    X64 = X.detach().to("cpu", torch.float64)
+    if window > 1:  # window sums as differences of running sums
+        run = torch.cat([theta.new_zeros(B, 1, p), theta.cumsum(dim=1)], dim=1)  # (B, T+1, p)
+        theta = run[:, window:] - run[:, :-window]
+    target = X64[:, window:] - X64[:, :-window]  # (B, T+1−window, nz)
+    return theta.reshape(-1, p), target.reshape(-1, nz)
+
+
+def fit_trajectory_data(
+    library: SindyLibrary,
+    X: torch.Tensor,
+    U: torch.Tensor,
+    window: int = 1,
+    optimizer: Sparsifier | None = None,
+    mask: torch.Tensor | None = None,
+) -> Sparsifier:
+    """Sparse regression of trajectories in the windowed form (:func:`window_regression_data`).
+
+    X (B, T+1, nz), U (B, T, nu); ``optimizer`` (default ``STLSQ()``) is fitted in place and
+    returned, with ``coef_`` (p, nz) the one-step Ψ, as :func:`fit_state_data` gives.
+    With ``window=1`` this is :func:`fit_state_data` on the trajectories' transitions.
+    """
+    theta, target = window_regression_data(library, X, U, window)
     return (STLSQ() if optimizer is None else optimizer).fit(theta, target, mask)

@@ -32,11 +32,12 @@ __all__ = ["STLSQ"]
 ArrayLike = torch.Tensor | np.ndarray
 
 
-def _as_matrix(x: ArrayLike, name: str) -> torch.Tensor:
+def as_matrix(x: ArrayLike, name: str, where: str = "STLSQ.fit") -> torch.Tensor:
+    """``x`` as a 2-D float64 CPU tensor; ``where`` names the caller in the error."""
     t = torch.as_tensor(x).detach().to("cpu", torch.float64)
     if t.ndim != 2:
         raise ValueError(
-            f"STLSQ.fit expects {name} as a 2-D (N, .) array, got shape {tuple(t.shape)}"
+            f"{where} expects {name} as a 2-D (N, .) array, got shape {tuple(t.shape)}"
         )
     return t
 
@@ -101,8 +102,8 @@ class STLSQ:
             target: (N, m) what the terms should explain (for SINDy steps: z_{t+1} − z_t).
             mask: optional (p, m) bool: terms allowed at the start (default all).
         """
-        th = _as_matrix(theta, "theta")  # (N, p)
-        y = _as_matrix(target, "target")  # (N, m)
+        th = as_matrix(theta, "theta")  # (N, p)
+        y = as_matrix(target, "target")  # (N, m)
         n, p = th.shape
         m = y.shape[1]
         if y.shape[0] != n:
@@ -158,8 +159,8 @@ class STLSQ:
         ``mask & (|coef| · rms(theta) >= threshold · rms(target))``, on ``coef``'s device.
         """
         c = torch.as_tensor(coef).detach()
-        th = _as_matrix(theta, "theta")
-        y = _as_matrix(target, "target")
+        th = as_matrix(theta, "theta")
+        y = as_matrix(target, "target")
         if c.shape != (th.shape[1], y.shape[1]):
             raise ValueError(
                 f"keep_mask: coef must be (p, m) = ({th.shape[1]}, {y.shape[1]}) to match theta "
