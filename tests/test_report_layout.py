@@ -118,7 +118,7 @@ def test_overview_figure_replaces_its_file_only_when_drawn(tmp_path, monkeypatch
     path = tmp_path / "figures" / "overview.png"
     figures.overview_figure(overview(study), path)
     height, width = iio.imread(path).shape[:2]
-    assert width == 1000 and 200 <= height <= 280  # 10 × 2-2.8 in at 100 dpi
+    assert width == 1150 and 220 <= height <= 280  # 11.5 × 2.2-2.8 in at 100 dpi
     before = path.read_bytes()
 
     def fail(self, fname, **kw):

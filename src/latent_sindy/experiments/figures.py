@@ -192,11 +192,11 @@ def overview_figure(view: Overview, path: Path) -> Path:
     """Left: closed-loop success on the random tasks per model, under the 0.1 m criterion and
     the strict one, with 95 % Wilson intervals (best at the top). Right: active dynamics terms
     (a dense network: its parameters) against the prediction error, a point per model,
-    numbered as the rows. 1000 px wide, short enough to share a screen with the table."""
+    numbered as the rows. 1150 px wide, short enough to share a screen with the table."""
     rows = view.rows
     n = len(rows)
-    height = min(2.8, max(2.0, 0.8 + 0.11 * n))
-    fig, axes = _figure(1, 2, figsize=(10, height), width_ratios=(1.2, 1))
+    height = min(2.8, max(2.2, 0.8 + 0.11 * n))
+    fig, axes = _figure(1, 2, figsize=(11.5, height), width_ratios=(1.2, 1))
     ax, ax2 = axes[0]
     y = np.arange(n)[::-1].astype(float)  # row 1 at the top
     for off, crit, style in ((0.17, "coarse", dict(fmt="o", mfc="white", color="C0")),
@@ -239,8 +239,9 @@ def overview_figure(view: Overview, path: Path) -> Path:
         ax2.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         ax2.yaxis.set_major_formatter(FormatStrFormatter("%g"))
         ax2.yaxis.set_minor_formatter(NullFormatter())
-    ax2.set_xlabel("active dynamics terms (dense: parameters)", fontsize=7)
-    ax2.set_ylabel(view.error_label, fontsize=7)
+    missing = f"; not shown: {', '.join(left_out)}" if left_out else ""
+    ax2.set_xlabel(f"active dynamics terms (dense: parameters){missing}", fontsize=7)
+    ax2.set_ylabel(view.error_short, fontsize=7)
     ax2.tick_params(labelsize=7)
     ax2.grid(alpha=0.3, which="both")
     kinds = [Line2D([], [], ls="", marker=mk, color="0.4", ms=4, label=k)
@@ -249,8 +250,5 @@ def overview_figure(view: Overview, path: Path) -> Path:
               for c, lab in (("C0", "sees images"), ("C1", "sees the true state"))]
     ax2.legend(handles=kinds, fontsize=6, ncol=5, loc="lower left", bbox_to_anchor=(0, 1),
                frameon=False, handletextpad=0.2, columnspacing=0.8, borderaxespad=0.2)
-    if left_out:
-        ax2.text(1, -0.2, f"not shown (no finite value): {', '.join(left_out)}", fontsize=6,
-                 ha="right", va="top", transform=ax2.transAxes)
     fig.tight_layout(pad=0.4, w_pad=1.0)
     return _save(fig, path, dpi=100)

@@ -79,16 +79,24 @@ class Overview:
     error_key: str
     error_label: str
     """What the prediction error measures, with its unit."""
+    error_short: str
+    """The same in a few words, for an axis."""
+    error_column: str
+    """The same in fewer, for the short table's column."""
 
 
-def _error_key(study: Study) -> tuple[str, str]:
-    """The block position error at the longest of 10, 5, 1 pushes every model has (it is on
-    the same footing for image and state models), else the test loss."""
+def _error_key(study: Study) -> tuple[str, str, str, str]:
+    """The block position error at the longest of 10, 5, 1 pushes that every measured model
+    has (it is on the same footing for image and state models; a diverged one counts), else
+    the test loss."""
+    measured = [st for m in study.models if (st := study.stats.get(m))]
     for h in (10, 5, 1):
         key = f"pos_err/h{h}"
-        if study.models and all(_finite(study.stats.get(m, {}).get(key)) for m in study.models):
-            return key, f"block position error after {h} push{'es' * (h > 1)} (cm)"
-    return "loss/test", "test loss"
+        if measured and all(key in st and st[key].mean is not None for st in measured):
+            pushes = f"{h} push{'es' * (h > 1)}"
+            return (key, f"block position error after {pushes} (cm)",
+                    f"position error, {pushes} (cm)", f"error, {pushes} (cm)")
+    return "loss/test", "test loss", "test loss", "test loss"
 
 
 def _finite(s: Stat | None) -> bool:
@@ -113,7 +121,7 @@ def describe(spec: ModelSpec) -> tuple[str, str]:
 
 def overview(study: Study) -> Overview:
     """The first screen's rows, best first."""
-    key, label = _error_key(study)
+    key, *labels = _error_key(study)
     rows = []
     for spec in study.specs:
         m = spec.name
@@ -134,7 +142,7 @@ def overview(study: Study) -> Overview:
         return (r.coarse.n == 0, -r.strict.rate if r.strict.n else 0.0,
                 -r.coarse.rate if r.coarse.n else 0.0)
 
-    return Overview(tuple(sorted(rows, key=rank)), key, label)
+    return Overview(tuple(sorted(rows, key=rank)), key, *labels)
 
 
 def _terms(row: ModelRow, seeds: int) -> tuple[str, str]:
@@ -152,9 +160,7 @@ def _terms(row: ModelRow, seeds: int) -> tuple[str, str]:
 
 def overview_table(view: Overview, seeds: int) -> tuple[list[str], list[list[str]]]:
     """The short table: header and one row per model, numbered as in the overview figure."""
-    error = ("test loss" if view.error_key == "loss/test"
-             else f"error, {view.error_key.removeprefix('pos_err/h')} pushes (cm)")
-    header = ["#", "model", "dynamics", "input", "active terms", "sparsity", error,
+    header = ["#", "model", "dynamics", "input", "active terms", "sparsity", view.error_column,
               "success, 0.1 m", "success, 2 cm & 10°"]
     fmt = "num2" if view.error_key.startswith("pos_err") else "loss"
     rows = [[str(i), r.label, r.description, r.observes, *_terms(r, seeds),
