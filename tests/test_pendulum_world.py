@@ -5,6 +5,9 @@ a swing-up by MPPI on the true dynamics (the task is achievable)."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -179,3 +182,12 @@ def test_mppi_on_the_true_dynamics_swings_the_pendulum_up(one_torch_thread):
     assert all(r.success for r in results), [r.upright_fraction for r in results]
     assert all(r.states.shape == (101, 2) and r.actions.shape == (100, 1) for r in results)
     assert all(np.abs(r.actions).max() <= 2 for r in results)
+
+
+def test_the_pendulum_example_runs_end_to_end():
+    script = Path(__file__).resolve().parents[1] / "examples" / "pendulum.py"
+    out = subprocess.run([sys.executable, str(script), "--sequences", "12", "--epochs", "1",
+                          "--image-size", "16", "--steps", "3"], capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "torque" in out.stdout and "swing-up from θ" in out.stdout
