@@ -155,6 +155,10 @@ def test_the_data_round_trip_through_a_file_with_their_world(tmp_path):
     back = read_sequences(tmp_path / "pendulum.h5")
     assert back.world_config == PendulumConfig(image_size=16)
     np.testing.assert_array_equal(back.images, data.images)
+    wrong = data.replace(record={"pendulum": {"image_size": 24}})
+    write_sequences(tmp_path / "wrong.h5", wrong)
+    with pytest.raises(UserError, match=r"frames \(2, 24, 24\)"):
+        read_sequences(tmp_path / "wrong.h5")
 
 
 def test_sparse_regression_recovers_the_discretised_physics():

@@ -13,6 +13,8 @@ do not read it. Episodes never end by themselves (wrap in ``TimeLimit`` for a ho
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import gymnasium as gym
 import numpy as np
 
@@ -36,7 +38,7 @@ def sample_start(config: PendulumConfig, rng: np.random.Generator) -> np.ndarray
 class PendulumImageEnv(gym.Env):
     """A torque-driven pendulum to swing up and balance, seen as two stacked frames."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}  # noqa: RUF012
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(self, config: PendulumConfig | None = None) -> None:
         self.config = config or PendulumConfig()

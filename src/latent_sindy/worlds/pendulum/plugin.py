@@ -54,6 +54,16 @@ class PendulumWorld:
             raise UserError(f"{where}: the pendulum's record lacks its settings ('pendulum')")
         return from_json(PendulumConfig, record["pendulum"], f"{where}: pendulum")
 
+    @classmethod
+    def check_data(cls, data: SequenceData) -> None:
+        """UserError unless ``data`` has this world's frames (2, S, S) and one torque."""
+        cfg = cls.config_from_record(data.record, data.source)
+        s = cfg.image_size
+        if data.frame_shape != (2, s, s) or data.action_names != cls.action_names:
+            raise UserError(f"{data.source}: pendulum data need frames (2, {s}, {s}) and one "
+                            f"action 'torque', got frames {data.frame_shape} and actions "
+                            f"{data.action_names}")
+
     def collect(self, sequences: int, steps: int, seed: int = 0) -> SequenceData:
         """Random torques from the box, from starts of this world's tasks: images, actions,
         states (θ, θ̇) and the world's record."""
