@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from latent_sindy.control.world import World
+from latent_sindy.control.episodes import run_closed_loop, run_episode
+from latent_sindy.control.world import Task, World
 from latent_sindy.data import read_sequences, write_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.plugins import get_world
@@ -118,6 +119,24 @@ def test_the_world_interface_and_its_tasks():
     assert world.success(np.array([math.radians(9), 3.0]), task.goal) == {"upright": True}
     assert world.success(np.array([math.radians(11), 0.0]), task.goal) == {"upright": False}
     assert world.success(np.array([2 * math.pi - 0.1, 0.0]), task.goal) == {"upright": True}
+
+
+def test_the_generic_closed_loop_runs_in_the_pendulum():
+    """Without torque a hanging pendulum stays hanging; near upright it counts at once."""
+
+    class Still:
+        def reset(self, goal_image, seed=None):
+            assert goal_image.shape == (2, 48, 48)
+
+        def act(self, image):
+            return np.zeros(1, np.float32)
+
+    (episode,) = run_closed_loop(WORLD, Still(), episodes=1, max_steps=30, seed=0)
+    assert episode.steps == 30 and episode.reached == {"upright": None}
+    assert abs(physics.wrap_angle(episode.final_state[0] - math.pi)) < 0.3
+    env = WORLD.make_env()
+    near = run_episode(WORLD, env, Still(), Task(np.array([0.05, 0.0]), np.zeros(2)), 5, 0)
+    assert near.reached == {"upright": 0} and near.steps == 0
 
 
 def test_episode_criteria():
