@@ -19,6 +19,7 @@ import torch
 
 from latent_sindy.control.mppi import MPPI, MPPIConfig
 from latent_sindy.control.world import Task
+from latent_sindy.errors import UserError
 from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.criteria import swing_up_success, upright_fraction
 from latent_sindy.worlds.pendulum.plugin import PendulumWorld
@@ -88,20 +89,25 @@ def run_swing_up(world: PendulumWorld, policy: SwingUpPolicy, episodes: int = 10
                  steps: int = 100, seed: int = 0, last: int = 20) -> list[SwingUp]:
     """``episodes`` episodes of exactly ``steps`` actions on tasks the world samples with
     ``seed``; success: upright over each of the ``last`` steps."""
+    if not 1 <= last <= steps:
+        raise UserError(f"run_swing_up: last {last} must lie in 1..steps ({steps})")
     env = world.make_env()
     rng = np.random.default_rng(seed)
     results = []
-    for i in range(episodes):
-        task = world.sample_task(rng)
-        image = world.reset(env, task, seed * 1000 + i)
-        policy.reset(world.goal_image(env, task), seed * 1000 + i)
-        states, actions = [world.state(env)], []
-        for _ in range(steps):
-            u = np.asarray(policy.act(image, states[-1]), np.float32).reshape(1)
-            image = world.image(env.step(u)[0])
-            states.append(world.state(env))
-            actions.append(u)
-        xs = np.stack(states)
-        results.append(SwingUp(task, xs, np.stack(actions), upright_fraction(xs[1:]),
-                               swing_up_success(xs[1:], last)))
+    try:
+        for i in range(episodes):
+            task = world.sample_task(rng)
+            image = world.reset(env, task, seed * 1000 + i)
+            policy.reset(world.goal_image(env, task), seed * 1000 + i)
+            states, actions = [world.state(env)], []
+            for _ in range(steps):
+                u = np.asarray(policy.act(image, states[-1]), np.float32).reshape(1)
+                image = world.image(env.step(u)[0])
+                states.append(world.state(env))
+                actions.append(u)
+            xs = np.stack(states)
+            results.append(SwingUp(task, xs, np.stack(actions), upright_fraction(xs[1:]),
+                                   swing_up_success(xs[1:], last)))
+    finally:
+        env.close()
     return results
