@@ -8,6 +8,7 @@ no sideways scrolling, and the figure and the short table inside the first 800 p
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -111,6 +112,18 @@ def test_overview_pools_seeds_and_ranks_best_first(tmp_path):
         del study.per_seed[s]["mlp"]["pos_err/h1"]
     study.stats["mlp"] = aggregate([study.per_seed[s]["mlp"] for s in (0, 1)])
     assert overview(study).error_key == "loss/test"
+
+
+def test_a_diverged_or_failed_model_keeps_the_position_error(tmp_path):
+    study, _, _ = fake_study(tmp_path, models=("sindy2", "linear", "mlp"))
+    study.per_seed[0]["linear"]["pos_err/h10"] = math.inf  # its rollout diverged
+    study.stats["linear"] = aggregate([study.per_seed[0]["linear"]])
+    del study.per_seed[0]["mlp"], study.stats["mlp"]  # it failed to train
+    view = overview(study)
+    assert view.error_key == "pos_err/h10"
+    rows = {r[1]: r for r in overview_table(view, seeds=1)[1]}
+    assert rows["linear (E2C)"][6] == "diverged"
+    assert rows["MLP"][0] == "3" and rows["MLP"][4:] == ["n/a", "n/a", "n/a", "—", "—"]
 
 
 def test_overview_figure_replaces_its_file_only_when_drawn(tmp_path, monkeypatch):
