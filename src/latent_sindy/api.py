@@ -2,7 +2,9 @@
 
 :class:`LatentSINDy` follows pysindy's conventions: the constructor stores settings, ``fit``
 trains and returns the estimator, learned state ends in ``_``. The linear ("E2C") and MLP
-baselines are the same class with ``dynamics="linear"`` or ``"mlp"``.
+baselines are the same class with ``dynamics="linear"`` or ``"mlp"``; the SINDy autoencoder's
+continuous-time model (z'' = Θ(z, z') Ξ, trained on the images' time derivatives) is
+``time="continuous", derivative_order=2``.
 
     >>> from latent_sindy import LatentSINDy, SequenceData
     >>> model = LatentSINDy(latent_dim=2, order=2, seed=0).fit(data, epochs=300)
@@ -30,6 +32,7 @@ from latent_sindy.data.windows import Normalizer
 from latent_sindy.equations import name_actions
 from latent_sindy.errors import UserError
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
+from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
 from latent_sindy.training.core import FitResult, fit
@@ -46,10 +49,15 @@ class LatentSINDy:
     Args:
         latent_dim: size of the latent state z.
         dynamics: "sindy" (sparse, interpretable), "linear" (z' = A z + B u + c) or "mlp".
-        order: SINDy's polynomial order of the library in (z, u).
+        order: SINDy's polynomial order of the library in (z, u) (None: 2; continuous time 3).
         library: SINDy's library preset ("poly"; worlds register their own).
         include_sine: SINDy's library also holds sin(z).
-        encoder: "conv" (learned), or a kind a world registers; decoder: "conv" or "fc".
+        encoder: "conv" (learned), "mlp" (fully connected, 128-64-32 sigmoid), or a kind a
+            world registers; decoder: "conv", "fc" or "mlp".
+        time: "discrete" (z[t+1] = z + Θ(z, u) Ξ) or "continuous" (SINDy only: the
+            latent's time derivative is Θ(...) Ξ, trained on the images' derivatives, which
+            the data gives or its frames, dt apart, estimate).
+        derivative_order: continuous time: 1 (z' = Θ(z, u) Ξ) or 2 (z'' = Θ(z, z', u) Ξ).
         loss: weights of the loss terms (reconstruction, prediction, L1 of the coefficients).
         settings: the training settings (epochs, learning rate, pruning threshold, ...),
             a :class:`~latent_sindy.training.TrainConfig`; ``seed`` and ``device`` override it.
@@ -61,11 +69,21 @@ class LatentSINDy:
     """
 
     def __init__(self, latent_dim: int = 4, *, dynamics: Literal["sindy", "linear", "mlp"]
-                 = "sindy", order: int = 2, library: str = "poly", include_sine: bool = True,
-                 encoder: str = "conv", decoder: str = "conv",
+                 = "sindy", order: int | None = None, library: str = "poly",
+                 include_sine: bool = True, encoder: str = "conv", decoder: str = "conv",
                  loss: LossWeights | None = None, settings: TrainConfig | None = None,
                  model: ModelConfig | None = None, seed: int = 0,
-                 device: Literal["cpu", "cuda", "auto"] = "cpu") -> None:
+                 device: Literal["cpu", "cuda", "auto"] = "cpu",
+                 time: Literal["discrete", "continuous"] = "discrete",
+                 derivative_order: int = 1) -> None:
+        if time not in ("discrete", "continuous"):
+            raise UserError(f"time {time!r}: use discrete or continuous")
+        if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
+            time, derivative_order = "continuous", model.dynamics.derivative_order
+            order = model.dynamics.order
+        self.time, self.derivative_order = time, derivative_order
+        if order is None:
+            order = 3 if time == "continuous" else 2
         self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
         self.library, self.include_sine = library, include_sine
         self.encoder, self.decoder, self.seed, self.device = encoder, decoder, seed, device
@@ -84,10 +102,22 @@ class LatentSINDy:
             raise UserError(f"dynamics {self.dynamics!r} is unknown: use one of "
                             f"{', '.join(DYNAMICS_KINDS)}")
         extra: dict[str, Any] = {}
-        if self.dynamics == "sindy":
+        if self.time == "continuous" and (self.dynamics != "sindy" or self.library != "poly"):
+            raise UserError(f"time='continuous' is for SINDy on the poly library, got dynamics "
+                            f"{self.dynamics!r}, library {self.library!r}: use "
+                            "dynamics='sindy', library='poly'")
+        if self.time == "discrete" and self.derivative_order != 1:
+            raise UserError(f"derivative_order {self.derivative_order} is for "
+                            "time='continuous': add it, or drop derivative_order")
+        if self.time == "continuous":
+            dyn: Any = ContinuousSindyConfig(derivative_order=self.derivative_order,
+                                             order=self.order, include_sine=self.include_sine)
+        elif self.dynamics == "sindy":
             extra = {"order": self.order, "library": self.library,
                      "include_sine": self.include_sine}
-        return ModelConfig(dynamics=DYNAMICS_KINDS[self.dynamics](**extra),
+        if self.time == "discrete":
+            dyn = DYNAMICS_KINDS[self.dynamics](**extra)
+        return ModelConfig(dynamics=dyn,
                            encoder=AutoencoderConfig(latent_dim=self.latent_dim,
                                                      encoder_kind=self.encoder,
                                                      decoder_kind=self.decoder))
@@ -300,8 +330,10 @@ class LatentSINDy:
 
     def __repr__(self) -> str:
         state = "fitted" if hasattr(self, "model_") else "not fitted"
+        time = (f", time='continuous', derivative_order={self.derivative_order}"
+                if self.time == "continuous" else "")
         return (f"LatentSINDy(latent_dim={self.latent_dim}, dynamics={self.dynamics!r}, "
-                f"order={self.order}, library={self.library!r}; {state})")
+                f"order={self.order}, library={self.library!r}{time}; {state})")
 
 
 def _model_of(record: dict[str, Any]) -> ModelConfig:

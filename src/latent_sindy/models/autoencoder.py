@@ -1,7 +1,7 @@
 """The image autoencoder: its config and the module joining an encoder and a decoder.
 
-The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments") and
-:mod:`.decoders` ("fc", the course's; "conv"; "sprite"); :data:`ENCODERS` and
+The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments"; "mlp") and
+:mod:`.decoders` ("fc", the course's; "conv"; "sprite"; "mlp"); :data:`ENCODERS` and
 :data:`DECODERS` name them. Both work on normalised images (see
 :class:`latent_sindy.data.windows.Normalizer`) of any shape (C, H, W), so the decoder's output
 is unbounded. Dimensions: B batch, C channels, H × W image, nz latent size.
@@ -26,8 +26,15 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.costs import cost_weights
-from latent_sindy.models.decoders import Decoder, SpriteDecoder
-from latent_sindy.models.encoders import KERNEL, Encoder, KeypointEncoder, MomentEncoder
+from latent_sindy.models.decoders import Decoder, MlpDecoder, SpriteDecoder
+from latent_sindy.models.encoders import (
+    ACTIVATIONS,
+    KERNEL,
+    Encoder,
+    KeypointEncoder,
+    MlpEncoder,
+    MomentEncoder,
+)
 from latent_sindy.models.renamed import renamed
 
 __all__ = ["DECODERS", "ENCODERS", "Autoencoder", "AutoencoderConfig", "ImageSize"]
@@ -68,21 +75,24 @@ class AutoencoderConfig:
     """Feature maps of the two 5×5 convolution stages (the course used 4 and 4)."""
     encoder_hidden: int = 100
     """Width of the encoder's fully connected layer (the course: 100)."""
-    decoder_kind: Annotated[Literal["fc", "conv", "sprite"], tyro.conf.arg(name="decoder")] = "fc"
+    decoder_kind: Annotated[Literal["fc", "conv", "sprite", "mlp"],
+                            tyro.conf.arg(name="decoder")] = "fc"
     """Decoder kind: "fc" fully connected (the course's), "conv" upsampling convolutions,
     "sprite" (moments encoder only) a learned patch of the moving object drawn at the
-    latent's pose on the encoder's background."""
+    latent's pose on the encoder's background, "mlp" fully connected through the reversed
+    --mlp-widths with --mlp-activation (the SINDy autoencoder's)."""
     decoder_hidden: tuple[int, ...] = (500, 500)
     """fc decoder: widths of the hidden layers (the course: 500, 500)."""
     decoder_channels: int = 16
     """conv decoder: feature maps of its convolutions."""
-    encoder_kind: Annotated[Literal["conv", "keypoints", "moments"],
+    encoder_kind: Annotated[Literal["conv", "keypoints", "moments", "mlp"],
                             tyro.conf.arg(name="encoder")] = "conv"
     """Encoder kind: "conv" (the course's: conv + pool stages, then fully connected),
     "keypoints" (a spatial softmax: the latent is the expected image position of
     latent_dim / 2 learned feature maps, so it is a position by construction) or "moments"
     (nothing learned: the latent is the centroid and the orientation of what differs from the
-    background, (x, y, cos nφ, sin nφ); latent_dim 4)."""
+    background, (x, y, cos nφ, sin nφ); latent_dim 4) or "mlp" (fully connected through
+    --mlp-widths with --mlp-activation: the SINDy autoencoder's, any image size)."""
     keypoint_channels: int = 16
     """keypoints encoder: feature maps of its two hidden 5×5 convolutions."""
     sprite_size: int | None = None
@@ -95,6 +105,12 @@ class AutoencoderConfig:
     """moments encoder: n, the order of the angular moment that gives the orientation: the
     object's visible rotational symmetry (4 for a uniform square, which looks alike every
     quarter turn; 1 for an object with none)."""
+    mlp_widths: tuple[int, ...] = (128, 64, 32)
+    """mlp encoder: widths of its hidden layers (the mlp decoder: the same, reversed); the
+    SINDy autoencoder's pendulum: 128, 64, 32."""
+    mlp_activation: Literal["sigmoid", "relu", "elu", "tanh"] = "sigmoid"
+    """mlp encoder and decoder: the activation after every hidden layer (the SINDy
+    autoencoder's pendulum: sigmoid)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.image_size, tuple | list):
@@ -104,7 +120,8 @@ class AutoencoderConfig:
         if self.latent_dim < 1 or (self.channels is not None and self.channels < 1):
             raise UserError(f"latent_dim {self.latent_dim} and channels {self.channels}: use 1 "
                             "or more")
-        if self.image_size is not None and min(self.conv_shape()) < 1:
+        if self.image_size is not None and self.encoder_kind != "mlp" and (
+                min(self.conv_shape()) < 1):
             raise UserError(
                 f"image size {self._size_text()} is too small for two 5x5 conv + 2x2 pool "
                 "stages: use at least 16 pixels a side"
@@ -141,6 +158,11 @@ class AutoencoderConfig:
             raise UserError(f"sprite_size {self.sprite_size}: use an odd number of pixels "
                             f"(the template's centre is a pixel), at most the image's shorter "
                             f"side")
+        if not self.mlp_widths or min(self.mlp_widths) < 1 or (
+                self.mlp_activation not in ACTIVATIONS):
+            raise UserError(f"--mlp-widths {self.mlp_widths} and --mlp-activation "
+                            f"{self.mlp_activation!r}: use one or more positive widths and one "
+                            f"of {', '.join(ACTIVATIONS)}")
         if self.sprite_supersample < 1:
             raise UserError(f"sprite_supersample {self.sprite_supersample}: use 1 or more")
         if self.decoder_channels < 1:
@@ -284,8 +306,8 @@ class Autoencoder(nn.Module):
 
 #: The encoder kinds of ``AutoencoderConfig.encoder_kind``.
 ENCODERS: dict[str, type[nn.Module]] = {"conv": Encoder, "keypoints": KeypointEncoder,
-                                        "moments": MomentEncoder}
+                                        "moments": MomentEncoder, "mlp": MlpEncoder}
 
 #: The decoder kinds of ``AutoencoderConfig.decoder_kind``.
 DECODERS: dict[str, type[nn.Module]] = {"fc": Decoder, "conv": Decoder,
-                                        "sprite": SpriteDecoder}
+                                        "sprite": SpriteDecoder, "mlp": MlpDecoder}

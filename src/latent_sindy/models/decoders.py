@@ -1,6 +1,6 @@
 """Image decoders: latents z (..., nz) -> normalised images x̂ (..., C, H, W).
 
-Three kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DECODERS`):
+Four kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DECODERS`):
 
 * ``"fc"`` (:class:`Decoder`, the course's): fully connected, latent → 500 → 500 → C·H·W;
 * ``"conv"`` (:class:`Decoder`): latent → 256 → a c × H/4 × W/4 feature map, then two 4×4
@@ -9,7 +9,10 @@ Three kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.D
   position separately, so it generalises better from few images (measured in RESULTS.md);
 * ``"sprite"`` (:class:`SpriteDecoder`, with the moments encoder only): nothing but a
   learned C × P × P template of what the object adds to the background, drawn at the
-  latent's pose.
+  latent's pose;
+* ``"mlp"`` (:class:`MlpDecoder`): the fully connected encoder's mirror, latent → the
+  ``mlp_widths`` reversed (32, 64, 128) with ``mlp_activation`` → C·H·W (the SINDy
+  autoencoder's).
 
 The images are normalised, so the output is unbounded.
 
@@ -25,12 +28,12 @@ from typing import TYPE_CHECKING, ClassVar
 import torch
 from torch import nn
 
-from latent_sindy.models.encoders import median_background
+from latent_sindy.models.encoders import median_background, mlp
 
 if TYPE_CHECKING:
     from latent_sindy.models.autoencoder import AutoencoderConfig
 
-__all__ = ["Decoder", "SpriteDecoder"]
+__all__ = ["Decoder", "MlpDecoder", "SpriteDecoder"]
 
 
 class _NativeForwardConvTranspose(torch.autograd.Function):
@@ -105,6 +108,28 @@ class Decoder(nn.Module):
             h = h.reshape(-1, *self.map_shape).contiguous(memory_format=torch.channels_last)
             h = self.conv(h)
         return h.reshape(*z.shape[:-1], *self.shape)
+
+
+class MlpDecoder(nn.Module):
+    """The fully connected decoder: z (..., nz) -> x̂ (..., C, H, W) through the reversed
+    ``mlp_widths``."""
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        self.shape = (cfg.channels, cfg.height, cfg.width)
+        pixels = cfg.channels * cfg.height * cfg.width
+        self.net = mlp([cfg.latent_dim, *reversed(cfg.mlp_widths), pixels], cfg.mlp_activation)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.net(z).reshape(*z.shape[:-1], *self.shape)
+
+    def along(self, z: torch.Tensor, *rates: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """x̂ and its time derivatives from z (B, nz) and its ż[, z̈]: (B, C, H, W) each
+        (:func:`~latent_sindy.models.derivatives.along`)."""
+        from latent_sindy.models.derivatives import along_layers
+
+        out = along_layers(self.net, z, *rates)
+        return tuple(o.reshape(*z.shape[:-1], *self.shape) for o in out)
 
 
 class SpriteDecoder(nn.Module):

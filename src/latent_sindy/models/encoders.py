@@ -1,13 +1,16 @@
 """Image encoders: normalised images x (B, C, H, W) -> latents z (B, nz).
 
-Three kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
+Four kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
 
 * ``"conv"`` (:class:`Encoder`, the course's): two stages of 5×5 convolution + ReLU + 2×2
   max-pool, a fully connected layer and a linear map to the latent size;
 * ``"keypoints"`` (:class:`KeypointEncoder`): a spatial softmax, whose latent is the image
   positions of learned feature maps;
 * ``"moments"`` (:class:`MomentEncoder`): nothing learned, the image moments of what differs
-  from the background: the position and orientation of the one object that moves.
+  from the background: the position and orientation of the one object that moves;
+* ``"mlp"`` (:class:`MlpEncoder`): fully connected on the flattened image, hidden widths
+  ``mlp_widths`` (the SINDy autoencoder's 128, 64, 32) with ``mlp_activation`` (sigmoid), and a
+  linear map to the latent; smooth, so its time derivatives along the data are too.
 
 Every kind takes any image shape (C, H, W). Image coordinates, where a latent is a position,
 run from -1 to 1 across the image (x to the right, y down; pixel centres); the moments'
@@ -20,6 +23,7 @@ are isotropic (see :func:`image_coordinates`).
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING
 
 import torch
@@ -28,11 +32,44 @@ from torch import nn
 if TYPE_CHECKING:
     from latent_sindy.models.autoencoder import AutoencoderConfig
 
-__all__ = ["KERNEL", "Encoder", "KeypointEncoder", "MomentEncoder", "image_coordinates",
-           "median_background"]
+__all__ = ["ACTIVATIONS", "KERNEL", "Encoder", "KeypointEncoder", "MlpEncoder", "MomentEncoder",
+           "image_coordinates", "median_background", "mlp"]
 
 #: The side of every learned encoder's convolution kernels.
 KERNEL = 5
+
+#: The activations of the fully connected ("mlp") encoder and decoder, by name.
+ACTIVATIONS: dict[str, type[nn.Module]] = {"sigmoid": nn.Sigmoid, "relu": nn.ReLU,
+                                           "elu": nn.ELU, "tanh": nn.Tanh}
+
+
+def mlp(widths: list[int], activation: str) -> nn.Sequential:
+    """Linear layers through ``widths`` (in, hidden..., out), ``activation`` after every
+    hidden one, the last linear."""
+    layers: list[nn.Module] = []
+    for a, b in itertools.pairwise(widths[:-1]):
+        layers += [nn.Linear(a, b), ACTIVATIONS[activation]()]
+    layers.append(nn.Linear(widths[-2], widths[-1]))
+    return nn.Sequential(*layers)
+
+
+class MlpEncoder(nn.Module):
+    """The fully connected encoder: x (B, C, H, W) -> z (B, nz) through ``mlp_widths``."""
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        pixels = cfg.channels * cfg.height * cfg.width
+        self.net = mlp([pixels, *cfg.mlp_widths, cfg.latent_dim], cfg.mlp_activation)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x.flatten(1))
+
+    def along(self, x: torch.Tensor, *rates: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """z and its time derivatives from x (B, C, H, W) and its ẋ[, ẍ]: (B, nz) each
+        (:func:`~latent_sindy.models.derivatives.along`)."""
+        from latent_sindy.models.derivatives import along_layers
+
+        return along_layers(self.net, x.flatten(1), *(r.flatten(1) for r in rates))
 
 
 class Encoder(nn.Module):

@@ -32,6 +32,13 @@ actions in them while encoding and reconstructing each frame once (the trainer's
 and recon (and the pose term on encoded frames) weighs every frame once instead of once per
 window that holds it.
 
+A continuous-time model (:attr:`LatentDynamics.continuous`: z^(k) = Θ(z[, ż], u) Ξ, k = 1 or
+2) takes samples of one frame and its k time derivatives instead, x (B, 1+k, C, h, w) =
+(x, ẋ[, ẍ]) and u (B, nu), and the SINDy autoencoder's terms
+(:mod:`~latent_sindy.models.derivatives` takes ż, z̈ and the decoder's ones by the chain rule):
+recon as above; pred_x the error of x^(k) predicted through the decoder from z[, ż] and the
+library's z^(k); pred_z the error of the library's z^(k) against the encoder's.
+
 Dimensions: B batch, H horizon, C channels, h × w image, nz latent size, nu action size.
 
     >>> cfg = ModelConfig(dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
@@ -54,6 +61,7 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig, ImageSize
+from latent_sindy.models.derivatives import along
 from latent_sindy.models.dynamics import (
     DynamicsConfig,
     LatentDynamics,
@@ -109,9 +117,10 @@ class ModelConfig:
     unused), instead of being updated like the others: a turn of any size is one equation."""
 
     def __post_init__(self) -> None:
-        if self.action_dim is not None and self.action_dim < 1:
-            raise UserError(f"model action_dim {self.action_dim}: use 1 or more, or leave it "
-                            "unset to use the data's")
+        least = 0 if self.dynamics.kind == "continuous" else 1  # (continuous: autonomous too)
+        if self.action_dim is not None and self.action_dim < least:
+            raise UserError(f"model action_dim {self.action_dim}: use {least} or more, or leave "
+                            "it unset to use the data's")
         if self.pose_head not in ("none", *POSE_HEADS):
             raise UserError(f"--pose-head {self.pose_head!r}: use none, "
                             + ", ".join(POSE_HEADS))
@@ -127,6 +136,13 @@ class ModelConfig:
         if self.turn and not self.pose_latent:
             raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
                             "it with the state or moments encoder or --pose-head coordinates")
+        if self.dynamics.kind == "continuous" and (
+                self.observation.kind != "image" or self.has_pose_head
+                or self.observation.decoder_kind in ("conv", "sprite")):
+            raise UserError("continuous-time dynamics are trained on image derivatives through "
+                            "the encoder and decoder: use an image model without a pose head "
+                            "and with --decoder mlp or fc (the conv and sprite decoders have no "
+                            "forward-mode derivative here)")
         if self.pose_head == "coordinates" and self.observation.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "
@@ -292,6 +308,8 @@ class LatentModel(nn.Module):
         the sequences, for the pose head's term (0 without them or without a head).
         """
         weights = weights or _DEFAULT_WEIGHTS
+        if self.dynamics.continuous:
+            return self._continuous_loss(x, u, weights)
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
             raise ValueError(
                 f"loss expects x (B, T+1, ...) and u (B, T, nu), got {tuple(x.shape)} and "
@@ -354,3 +372,23 @@ class LatentModel(nn.Module):
         head = self.pose_head.standardized
         return ((head(z) - target).square().mean()
                 + (head(z_hat) - targets(target)).square().mean())
+
+    def _continuous_loss(self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights
+                         ) -> dict[str, torch.Tensor]:
+        """The terms on frames and their derivatives x (B, 1+k, C, h, w), u (B, nu)."""
+        k = self.dynamics.derivative_order
+        if x.ndim != 5 or x.shape[1] != k + 1 or u.shape != (x.shape[0], self.dynamics.nu):
+            raise ValueError(f"a continuous-time loss of order {k} expects x (B, {k + 1}, C, h, "
+                             f"w) and u (B, nu), got {tuple(x.shape)} and {tuple(u.shape)}")
+        frames = x.unbind(1)  # x, ẋ[, ẍ]: (B, C, h, w) each
+        ae = self.autoencoder
+        z = along(ae.encoder, *frames)  # z, ż[, z̈]: (B, nz) each
+        top = self.dynamics.derivative(torch.cat(z[:k], -1), u)  # the library's z^(k)
+        x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
+        recon = (x_hat[0] - frames[0]).square().mean()
+        pred_x = (x_hat[k] - frames[k]).square().mean()
+        pred_z = (top - z[k]).square().mean()
+        l1 = self.l1_penalty()
+        objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
+        return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,
+                "pred_z": pred_z, "l1": l1, "pose": recon.new_zeros(()), "objective": objective}

@@ -81,6 +81,16 @@ class TrainConfig:
     """SINDy: prune coefficients with |Ψ| below this (the paper: 1e-3)."""
     threshold_every: int = 30
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
+    refine_epochs: int = 0
+    """SINDy: the last this many of the epochs refine the coefficients: no pruning (the mask
+    stays as it is) and no L1 term (the SINDy autoencoder: 1001 after 5001, --epochs 6002)."""
+    derivatives: Literal["auto", "central", "smooth"] = "auto"
+    """Continuous-time models: where the frames' time derivatives come from. "auto": the
+    data's exact ones (images_dot, images_ddot) where it has them, else estimated as
+    "central" (central differences of the frames, dt apart); "smooth": a Savitzky-Golay
+    differentiator over --derivative-window frames (for noisy frames)."""
+    derivative_window: int = 9
+    """--derivatives smooth: frames in the differentiator's window (odd, at least 5)."""
     sindy_init: Literal["auto", "random", "regression"] = "auto"
     """SINDy: where the coefficients start. "random" (the paper: small normal values, seeded);
     "regression": least squares of the training split's encoded transitions on the library,
@@ -131,6 +141,13 @@ class TrainConfig:
              f"--sindy-init-threshold {self.sindy_init_threshold}: use a finite number >= 0"),
             (self.threshold_every >= 0,
              f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
+            (0 <= self.refine_epochs <= self.epochs,
+             f"--refine-epochs {self.refine_epochs}: use 0 to --epochs ({self.epochs}); the "
+             "refinement is the last of the epochs"),
+            (self.derivatives in ("auto", "central", "smooth"),
+             f"--derivatives {self.derivatives!r}: use auto, central or smooth"),
+            (self.derivative_window >= 5 and self.derivative_window % 2 == 1,
+             f"--derivative-window {self.derivative_window}: use an odd number, at least 5"),
             (self.checkpoint_every >= 1,
              f"--checkpoint-every {self.checkpoint_every}: use 1 or more"),
             (self.eval_every >= 1, f"--eval-every {self.eval_every}: use 1 or more"),
@@ -154,6 +171,13 @@ class TrainConfig:
             raise UserError(f"--foreground-weight {self.loss.foreground_weight} weights the "
                             f"object's pixels in the image terms; a {kind} model has no "
                             "images: leave it at 0 (image models only)")
+        continuous = self.model.dynamics.kind == "continuous"
+        if continuous and self.loss.foreground_weight > 0:
+            raise UserError(f"--foreground-weight {self.loss.foreground_weight} is for "
+                            "discrete-time models: leave it at 0 with continuous dynamics")
+        if not continuous and self.derivatives != "auto":
+            raise UserError(f"--derivatives {self.derivatives} is for continuous-time "
+                            "dynamics (latent-sindy train continuous ...): drop it")
         if self.loss.lambda_pose > 0 and not self.model.has_pose_head:
             raise UserError(f"--lambda-pose {self.loss.lambda_pose} weights a pose head the "
                             "model does not have: add --pose-head linear or coordinates "

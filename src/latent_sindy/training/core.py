@@ -2,7 +2,8 @@
 
 :func:`fit` is the loop, readable on one screen: every epoch one shuffled pass of AdamW over
 the training sequences, every ``threshold_every`` epochs the SINDy coefficients with
-|Ψ| < ``threshold`` pruned for good (the optimiser's moments of pruned entries cleared), the
+|Ψ| < ``threshold`` pruned for good (the optimiser's moments of pruned entries cleared), in
+the last ``refine_epochs`` neither pruning nor the L1 term (a refinement on the fixed mask), the
 validation loss every ``eval_every`` epochs, and the weights of the best validated epoch since
 the last pruning that removed a term kept (:class:`BestValidation`). It works in memory; the
 run folder (checkpoints, resume, metrics file, progress) wraps it through ``on_epoch``
@@ -16,6 +17,7 @@ calls it directly.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import math
 import time
@@ -75,6 +77,8 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
     x, u, s = train
     sparse = model.dynamics.sparse
     pruning = sparse and cfg.threshold_every > 0
+    refine_after = cfg.epochs - cfg.refine_epochs  # the epochs after this one refine
+    refining = dataclasses.replace(cfg.loss, lambda_l1=0.0)
     grads = Gradients(model, parts)
     model.train()
     try:
@@ -82,9 +86,11 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
             t0 = time.perf_counter()
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
-            terms = train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch, s)
+            refine = epoch > refine_after
+            terms = train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch, s,
+                                weights=refining if refine else None)
             row.update({f"train/{k}": v for k, v in terms.items()})
-            if pruning and epoch % cfg.threshold_every == 0:
+            if pruning and not refine and epoch % cfg.threshold_every == 0:
                 row["sindy/pruned"] = prune(model, opt, cfg.threshold)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
@@ -189,17 +195,20 @@ class Gradients:
 
 def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
                 u: torch.Tensor, cfg: TrainConfig, per_batch: int, gen: torch.Generator,
-                epoch: int, poses: torch.Tensor | None = None) -> dict[str, float]:
+                epoch: int, poses: torch.Tensor | None = None,
+                weights: LossWeights | None = None) -> dict[str, float]:
     """One shuffled pass over sequences x (N, T+1, ...), u (N, T, nu) (windows or whole
-    trajectories), ``per_batch`` of them per batch; mean loss terms per sequence (as seen
-    before each batch's update). ``poses`` (N, T+1, ns): the sequences' true state features,
-    for a pose head."""
+    trajectories; a continuous-time model's samples), ``per_batch`` of them per batch; mean
+    loss terms per sequence (as seen before each batch's update). ``poses`` (N, T+1, ns): the
+    sequences' true state features, for a pose head; ``weights``: the loss's (default
+    ``cfg.loss``)."""
+    weights = weights or cfg.loss
     # The generator lives on the CPU: the same mini-batches on every device.
     order = torch.randperm(len(x), generator=gen).to(x.device)
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
     for b in range(0, len(x), per_batch):
         idx = order[b : b + per_batch]
-        terms = grads(x[idx], u[idx], cfg.loss, None if poses is None else poses[idx],
+        terms = grads(x[idx], u[idx], weights, None if poses is None else poses[idx],
                       cfg.window)
         values = torch.stack([terms[k] for k in LOSS_TERMS])  # (7,)
         if not torch.isfinite(values).all():

@@ -1,5 +1,7 @@
 """The tensors a fit trains on, cut from the data as the settings ask, and the model's start:
 its data statistics and, for SINDy on fixed latents, the sparse-regression coefficients.
+A continuous-time model trains on single frames with their time derivatives instead
+(:func:`derivative_samples`).
 
     tensors = training_tensors(model, data, normalizer, cfg, torch.device("cpu"))
     fit(model, opt, gen, tensors.train, tensors.val, cfg, per_batch=tensors.per_batch)
@@ -9,17 +11,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.errors import UserError
+from latent_sindy.models.derivatives import estimate_derivatives
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, resolve_batching
 from latent_sindy.training.core import Sequences
 
-__all__ = ["TrainingTensors", "new_model", "regression_init", "training_tensors"]
+__all__ = ["TrainingTensors", "derivative_samples", "new_model", "regression_init",
+           "training_tensors"]
 
 
 def new_model(model_cfg, cfg: TrainConfig, device: torch.device
@@ -49,6 +54,9 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
     """Whether SINDy's coefficients start at the sparse-regression fit (``sindy_init``);
     UserError where a setting would be ignored."""
     sindy = model.dynamics.sparse
+    if cfg.sindy_init == "regression" and model.dynamics.continuous:
+        raise UserError("--sindy-init regression fits transitions; continuous-time dynamics "
+                        "are trained on derivatives: use --sindy-init random or auto")
     if cfg.sindy_init == "regression" and not sindy:
         raise UserError(f"--sindy-init regression fits SINDy coefficients, but the model's "
                         f"dynamics are {model.dynamics.kind}: drop --sindy-init")
@@ -57,7 +65,8 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
         raise UserError("--sindy-init regression fits the dynamics to fixed latents, but "
                         "this model's encoder learns: use --sindy-init random or auto, or "
                         "the state or moments encoder")
-    regression = sindy and cfg.sindy_init != "random" and fixed
+    regression = sindy and cfg.sindy_init != "random" and fixed and (
+        not model.dynamics.continuous)
     if cfg.sindy_init_threshold > 0 and not regression:
         raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
                         "model that starts from regression (a state or moments encoder, "
@@ -82,6 +91,15 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
                      regression: bool = False) -> TrainingTensors:
     """The training and validation tensors of ``data`` on ``device``; for a ``fresh`` model
     (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
+    if model.dynamics.continuous:
+        order = model.dynamics.derivative_order
+        x, u = derivative_samples(data.split("train"), norm, order, cfg)
+        val = data.split("val")
+        xv, uv = derivative_samples(val, norm, order, cfg) if val.n else (None, None)
+        if fresh:
+            model.fit_statistics(x[:, 0].to(device), None)
+        return TrainingTensors((x.to(device), u.to(device), None), None if xv is None else
+                               (xv.to(device), uv.to(device), None), cfg.batch_size)
     kind = model.config.observation.kind
     train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
     by_trajectory = resolve_batching(cfg) == "trajectories"
@@ -105,3 +123,27 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
         if regression:
             fit_dynamics(model, *train_windows.trajectories(), device, cfg.sindy_init_threshold)
     return TrainingTensors((x, u, s), None if xv is None else (xv, uv, sv), per_batch)
+
+
+def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: TrainConfig
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every frame of ``data`` with its ``order`` time derivatives, normalised as the frames
+    (derivatives divided by the pixel std), x (N (T+1), 1 + order, C, H, W), and the action
+    acting at it, u (N (T+1), nu) (the last frame keeps the last action). The derivatives are
+    the data's where it has them and ``cfg.derivatives`` is "auto", else estimated from the
+    frames (:func:`~latent_sindy.models.derivatives.estimate_derivatives`, ``data.dt`` apart).
+    """
+    given = [data.images_dot, data.images_ddot][:order] if cfg.derivatives == "auto" else []
+    if len(given) == order and all(g is not None for g in given):
+        rates = [np.asarray(g, np.float32) for g in given]
+    else:
+        method = "central" if cfg.derivatives == "auto" else cfg.derivatives
+        exact = given[0] if given and order == 2 else None  # ẍ then from the exact ẋ
+        rates = list(estimate_derivatives(data.images, data.dt, order, method,
+                                          cfg.derivative_window, dx=exact))
+    parts = [norm.normalize(data.images)]
+    parts += [torch.as_tensor(r) / norm.std for r in rates]
+    x = torch.stack(parts, 2).flatten(0, 1)  # (N (T+1), 1 + order, C, H, W)
+    a = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
+    u = torch.cat([a, a[:, -1:]], 1).flatten(0, 1)  # (N (T+1), nu)
+    return x, u

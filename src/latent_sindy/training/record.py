@@ -6,6 +6,7 @@ the normaliser, the data's identity and description, and the world it came from.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from datetime import UTC, datetime
 from pathlib import Path
@@ -14,11 +15,13 @@ from typing import Any
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import OBSERVATIONS
+from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import ModelConfig
 from latent_sindy.plugins import get_world
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
-__all__ = ["RUN_FORMAT", "RUN_FORMAT_VERSION", "data_identity", "resolve_model", "run_record"]
+__all__ = ["RUN_FORMAT", "RUN_FORMAT_VERSION", "check_derivatives", "data_identity",
+           "resolve_model", "run_record"]
 
 RUN_FORMAT = "latent-sindy-run"
 RUN_FORMAT_VERSION = 2
@@ -41,11 +44,35 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     (its ``prepare_model``); UserError where they contradict the data."""
     c, h, w = data.frame_shape
     cfg = model.resolve(c, h if h == w else (h, w), data.nu, source=where)
+    dyn = cfg.dynamics
+    if dyn.kind == "continuous" and dyn.dt is None and data.dt is not None:
+        cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(dyn, dt=data.dt))
     world = get_world(data.world) if data.world is not None else None
     prepare = getattr(world, "prepare_model", None)
     if prepare is not None:
         return prepare(cfg, data, where)
     return cfg
+
+
+def check_derivatives(cfg: TrainConfig, data: SequenceData) -> None:
+    """UserError where a continuous-time model would need to estimate the data's derivatives
+    and cannot: no time step, or too few frames."""
+    if cfg.model.dynamics.kind != "continuous":
+        return
+    order = cfg.model.dynamics.derivative_order
+    given = [data.images_dot, data.images_ddot][:order]
+    if cfg.derivatives == "auto" and all(g is not None for g in given):
+        return
+    if data.dt is None:
+        raise UserError(f"{data.source}: continuous-time dynamics need the frames' time "
+                        "derivatives: give the data's time step (SequenceData(dt=...)) to "
+                        "estimate them from the frames, or the exact ones (images_dot"
+                        + (", images_ddot)" if order == 2 else ")"))
+    need = 5 if cfg.derivatives == "smooth" else 4
+    if data.steps + 1 < max(need, cfg.derivative_window if need == 5 else 0):
+        raise UserError(f"{data.source}: sequences of {data.steps + 1} frames are too short "
+                        f"to estimate derivatives ({cfg.derivatives}): use longer sequences "
+                        "or give the exact derivatives")
 
 
 def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
@@ -57,6 +84,7 @@ def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
     from latent_sindy.version import __version__
 
     path = None if data.source.startswith("<") else Path(data.source)  # (held in memory)
+    check_derivatives(cfg, data)
     model_cfg = resolve_model(cfg.model, data, data.source)
     record = {
         "format": RUN_FORMAT,

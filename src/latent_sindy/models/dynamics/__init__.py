@@ -1,11 +1,12 @@
-"""Latent dynamics models behind one interface: SINDy, globally linear (E2C-like) and MLP.
+"""Latent dynamics models behind one interface: SINDy, globally linear (E2C-like) and MLP,
+and continuous-time SINDy.
 
 One file per kind holds its model class and its config dataclass (its settings, its ``kind``
-tag and ``build``): :mod:`.sindy`, :mod:`.linear`, :mod:`.mlp`; :mod:`.base` holds the
-interface (:class:`LatentDynamics`: ``step(z, u) -> z_next`` with z (K, nz), u (K, nu), and
-``rollout``) and :class:`SparseDynamics`, the kinds whose coefficients sit under a pruned
-mask. Each config is registered in :data:`DYNAMICS_CONFIGS`: a new kind is one model class,
-one config class and one entry there.
+tag and ``build``): :mod:`.sindy`, :mod:`.linear`, :mod:`.mlp`, :mod:`.continuous`;
+:mod:`.base` holds the interface (:class:`LatentDynamics`: ``step(z, u) -> z_next`` with
+z (K, nz), u (K, nu), and ``rollout``) and :class:`SparseDynamics`, the kinds whose
+coefficients sit under a pruned mask. Each config is registered in :data:`DYNAMICS_CONFIGS`:
+a new kind is one model class, one config class and one entry there.
 
     >>> model = make_dynamics("sindy", nz=16, nu=3, order=2)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
@@ -27,6 +28,10 @@ from latent_sindy.models.dynamics.base import (
     project_circle,
     turn_circle,
 )
+from latent_sindy.models.dynamics.continuous import (
+    ContinuousSindyConfig,
+    ContinuousSindyDynamics,
+)
 from latent_sindy.models.dynamics.linear import LinearConfig, LinearDynamics
 from latent_sindy.models.dynamics.mlp import MlpConfig, MlpDynamics
 from latent_sindy.models.dynamics.sindy import SindyConfig, SindyDynamics, SparseSindyDynamics
@@ -34,6 +39,8 @@ from latent_sindy.models.dynamics.sindy import SindyConfig, SindyDynamics, Spars
 __all__ = [
     "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
+    "ContinuousSindyConfig",
+    "ContinuousSindyDynamics",
     "DynamicsConfig",
     "LatentDynamics",
     "LinearConfig",
@@ -52,7 +59,8 @@ __all__ = [
 ]
 
 #: The registry: every latent dynamics kind's config class (its ``kind`` names it).
-DYNAMICS_CONFIGS: tuple[type, ...] = (SindyConfig, LinearConfig, MlpConfig)
+DYNAMICS_CONFIGS: tuple[type, ...] = (SindyConfig, LinearConfig, MlpConfig,
+                                      ContinuousSindyConfig)
 DYNAMICS_KINDS: dict[str, type] = {c.kind: c for c in DYNAMICS_CONFIGS}
 
 #: A tagged union of the registered configs; on the command line each is a subcommand
@@ -62,7 +70,8 @@ DynamicsConfig = Union[tuple(  # noqa: UP007  (built from the registry at import
 
 
 def make_dynamics(kind: str, nz: int, nu: int, **kwargs: Any) -> LatentDynamics:
-    """Build a latent dynamics model by kind name (``"sindy"``, ``"linear"``, ``"mlp"``).
+    """Build a latent dynamics model by kind name (``"sindy"``, ``"linear"``, ``"mlp"``,
+    ``"continuous"``).
 
     Extra keyword arguments go to the model's constructor (e.g. ``order=3``, ``seed=0``).
     """

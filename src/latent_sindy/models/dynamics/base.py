@@ -80,6 +80,9 @@ class LatentDynamics(nn.Module):
     #: ``isinstance(self, SparseDynamics)`` as a class variable, for code that does not
     #: import the models (True exactly for its subclasses).
     sparse: ClassVar[bool] = False
+    #: Whether the model is a continuous-time one (its equations give the latent's time
+    #: derivative, trained against the encoder's along the data; ``step`` integrates them).
+    continuous: ClassVar[bool] = False
     _circle_index: torch.Tensor  # (2,) long, or (0,) without a circle
 
     def __init__(self, nz: int, nu: int, circle: Sequence[int] | None = None,
@@ -234,11 +237,13 @@ class SparseDynamics(LatentDynamics):
         return self.mask.any(dim=1).nonzero().flatten()
 
 
-def format_equations(rows: list[Row], nz: int, precision: int, residual: bool) -> list[str]:
+def format_equations(rows: list[Row], nz: int, precision: int, residual: bool,
+                     left: str = "{state}[t+1]") -> list[str]:
     """``z0[t+1] = [z0 +] 0.512 u0 - 0.0312 z1 z2 ...`` per state from coefficient rows.
 
     ``residual`` writes the identity part of a residual model (``z_{t+1} = z_t + ...``);
-    coefficients are rounded to ``precision`` significant digits.
+    coefficients are rounded to ``precision`` significant digits; ``left`` is the left-hand
+    side, ``{state}`` standing for the state's name (``"{state}''"`` writes ``z0'' = ...``).
     """
     parts: dict[str, list[str]] = {f"z{j}": [] for j in range(nz)}
     for state, term, value in rows:
@@ -252,7 +257,7 @@ def format_equations(rows: list[Row], nz: int, precision: int, residual: bool) -
         else:
             rhs = " ".join(terms)
             rhs = rhs[2:] if rhs.startswith("+ ") else "-" + rhs[2:] if rhs else "0"
-        lines.append(f"{state}[t+1] = {rhs}")
+        lines.append(f"{left.format(state=state)} = {rhs}")
     return lines
 
 

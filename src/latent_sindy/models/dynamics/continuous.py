@@ -1,0 +1,234 @@
+"""Continuous-time SINDy latent dynamics, first or second order: the SINDy autoencoder's
+(Champion et al., PNAS 2019) ż = Θ(z, u) (M ⊙ Ψ), or z̈ = Θ(z, ż, u) (M ⊙ Ψ), and its config.
+
+The model gives the latent's derivative (:meth:`ContinuousSindyDynamics.derivative`); the
+latent model's loss compares it with the encoder's own ż or z̈ along the data
+(:mod:`latent_sindy.models.derivatives`). Behind the shared ``step(s, u)`` it integrates one
+time step ``dt`` by the classical Runge-Kutta scheme, on the phase state s = z (first order)
+or s = (z, ż) (second order, 2 nz coordinates). The library is over the phase state and the
+actions: for a second-order model its variables z{nz}..z{2nz-1} are ż, written z0', z1', ...
+in every name, so the equations read ``z0'' = -0.98 sin(z0)``.
+
+    >>> model = ContinuousSindyConfig(derivative_order=2, order=3).build(nz=1, nu=0)
+    >>> model.names[:4]
+    ['1', 'z0', "z0'", 'z0^2']
+    >>> model.derivative(torch.zeros(8, 2), torch.zeros(8, 0)).shape  # z̈ (8, 1)
+    torch.Size([8, 1])
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import torch
+from torch import nn
+
+from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics.base import (
+    LatentDynamics,
+    SparseDynamics,
+    check_init_scale,
+    format_equations,
+)
+from latent_sindy.models.dynamics.sindy import SindyDynamics
+from latent_sindy.sindy import VALID_ORDERS, SindyLibrary, poly_library
+
+__all__ = ["DERIVATIVE_ORDERS", "ContinuousSindyConfig", "ContinuousSindyDynamics"]
+
+#: The derivative orders a continuous-time model may have.
+DERIVATIVE_ORDERS = (1, 2)
+
+
+def check_derivative_order(order: Any) -> int:
+    if isinstance(order, bool) or order not in DERIVATIVE_ORDERS:
+        raise UserError(f"derivative_order {order!r}: use 1 (z' = Θ(z) Ξ) or 2 "
+                        "(z'' = Θ(z, z') Ξ)")
+    return int(order)
+
+
+class ContinuousSindyDynamics(SparseDynamics):
+    """``z^(k) = Θ(z, .., z^(k-1), u) (M ⊙ Ψ)`` for k = ``derivative_order``; Ψ (p, nz) a
+    parameter, M (p, nz) a boolean buffer that pruning only turns off, as for the
+    discrete-time :class:`~latent_sindy.models.dynamics.sindy.SindyDynamics`.
+
+    Args:
+        nz, nu: latent and action sizes.
+        derivative_order: 1 or 2.
+        order: polynomial order of the library over the phase state and actions (1-4).
+        include_sine: add sin of every phase variable (z and, at second order, ż).
+        init_scale: the initial coefficients: normal with this standard deviation
+            (``init`` "normal"), or all equal to it (``init`` "constant"; the SINDy
+            autoencoder's: 1).
+        seed: seed of a normal start; None draws from the global torch generator.
+        dt: the time step of :meth:`step` (time units of the data's derivatives); the
+            config passes the data's.
+        circle: see :class:`LatentDynamics` (the circle's pair of z is projected after a step).
+    """
+
+    kind = "continuous"
+    continuous: ClassVar[bool] = True
+    mask: torch.Tensor  # (p, nz) bool
+
+    def __init__(self, nz: int, nu: int, derivative_order: int = 1, order: int = 3,
+                 include_sine: bool = True, init_scale: float = 1e-3,
+                 init: Literal["normal", "constant"] = "normal", seed: int | None = None,
+                 dt: float = 0.1, circle: Sequence[int] | None = None,
+                 turn: bool = False) -> None:
+        super().__init__(nz, nu, circle)
+        if turn:
+            raise ValueError("turn is for discrete-time models: a continuous-time model's "
+                             "equation for z_a is its derivative")
+        self.derivative_order = check_derivative_order(derivative_order)
+        if not (math.isfinite(dt) and dt > 0):
+            raise UserError(f"dt {dt}: the time step must be a positive number")
+        if init not in ("normal", "constant"):
+            raise UserError(f"init {init!r}: use normal or constant")
+        self.dt = float(dt)
+        self.library = SindyLibrary(poly_library(order, include_sine), nz * derivative_order, nu)
+        p = self.library.n_terms
+        if init == "constant":
+            psi = torch.full((p, nz), float(init_scale))
+        else:
+            gen = None if seed is None else torch.Generator().manual_seed(seed)
+            psi = torch.randn(p, nz, generator=gen) * init_scale
+        self.psi = nn.Parameter(psi)  # (p, nz)
+        self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
+        self._init = {"derivative_order": self.derivative_order, "order": order,
+                      "include_sine": include_sine, "init_scale": init_scale, "init": init,
+                      "seed": seed, "dt": self.dt}
+        rename = {f"z{nz * k + j}": f"z{j}" + "'" * k
+                  for k in range(derivative_order) for j in range(nz)}
+        self._names = [re.sub(r"\bz(\d+)\b", lambda m: rename[m[0]], name)
+                       for name in self.library.names]
+
+    # The mask, the pruning and the coefficient rows are the discrete model's, read from
+    # the same Ψ, M and names: one implementation for both.
+    coefficients = SindyDynamics.coefficients
+    threshold = SindyDynamics.threshold
+    set_coefficients = SindyDynamics.set_coefficients
+    coefficient_rows = SindyDynamics.coefficient_rows
+    n_candidates = SindyDynamics.n_candidates
+
+    def _free_turned_column(self) -> None:  # (set_coefficients' hook: never turned here)
+        pass
+
+    @property
+    def names(self) -> list[str]:
+        """Library term names, one per row of Ψ (ż written z0', z1', ...)."""
+        return self._names
+
+    def hparams(self) -> dict[str, Any]:
+        return {**super().hparams(), **self._init}
+
+    def derivative(self, phase: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """The model's z^(k): phase (K, k nz) = (z[, ż]), u (K, nu) -> (K, nz)."""
+        return self.library(phase, u) @ self.coefficients()
+
+    def field(self, phase: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """d/dt of the phase state: (K, k nz) -> (K, k nz)."""
+        top = self.derivative(phase, u)
+        if self.derivative_order == 1:
+            return top
+        return torch.cat([phase[..., self.nz:], top], dim=-1)
+
+    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        size = self.nz * self.derivative_order
+        if z.shape[-1] != size:
+            raise UserError(f"a continuous-time model of order {self.derivative_order} steps "
+                            f"its phase state of {size} coordinates (z{', ż' * (size > self.nz)}"
+                            f"), got {z.shape[-1]}")
+        h, f = self.dt, self.field
+        k1 = f(z, u)
+        k2 = f(z + 0.5 * h * k1, u)
+        k3 = f(z + 0.5 * h * k2, u)
+        k4 = f(z + h * k3, u)
+        return z + (h / 6) * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    def fit_state_data(self, Z, U, Znext, optimizer=None, restrict_to_mask=False):
+        raise UserError("a continuous-time model is fitted to derivatives, not to transitions: "
+                        "train it with the latent model's loss")
+
+    # ---------------------------------------------------------------- self-description
+    def _left(self) -> str:
+        return "{state}" + "'" * self.derivative_order
+
+    def equations(self, precision: int = 3) -> list[str]:
+        """One equation per latent state, active terms only: ``z0'' = -0.98 sin(z0)``."""
+        return format_equations(self.coefficient_rows(), self.nz, precision, residual=False,
+                                left=self._left())
+
+    def summary(self) -> list[str]:
+        p, nz = self.mask.shape
+        lhs = "z" + "'" * self.derivative_order
+        args = "z, z'" if self.derivative_order == 2 else "z"
+        return [f"continuous-time SINDy latent dynamics, library {self.library.spec} over "
+                f"({args}{', u' if self.nu else ''}) ({p} candidate terms x {nz} states), "
+                f"{lhs} = Θ({args}{', u' if self.nu else ''}) (M ⊙ Ψ)",
+                f"active coefficients: {self.n_active()} of {self.n_candidates()} (sparsity "
+                f"{100 * self.sparsity():.1f}%); terms used by some state: "
+                f"{int(self.mask.any(dim=1).sum())} of {p}", *self._circle_note()]
+
+    def export_info(self) -> dict[str, Any]:
+        return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
+                "n_coefficients": self.n_candidates(), "sparsity": self.sparsity(),
+                "terms": self.names, "derivative_order": self.derivative_order,
+                "dt": self.dt, **super().export_info()}
+
+    def stats(self) -> dict[str, float | None]:
+        return {**super().stats(), "sindy/active": self.n_active(),
+                "sindy/coefficients": self.n_candidates(),
+                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
+                "sindy/sparsity": self.sparsity()}
+
+    def extra_repr(self) -> str:
+        return (f"nz={self.nz}, nu={self.nu}, derivative_order={self.derivative_order}, "
+                f"active={self.n_active()}/{self.n_candidates()}")
+
+
+@dataclass(frozen=True)
+class ContinuousSindyConfig:
+    """Continuous-time SINDy (the SINDy autoencoder's): z' = Θ(z, u) Ξ or z'' = Θ(z, z', u) Ξ,
+    trained on the time derivatives of the data (given with it, or estimated from the frames:
+    --derivatives)."""
+
+    kind: ClassVar[str] = "continuous"
+    model_class: ClassVar[type[LatentDynamics]] = ContinuousSindyDynamics
+    derivative_order: int = 1
+    """1: z' = Θ(z, u) Ξ; 2: z'' = Θ(z, z', u) Ξ (the SINDy autoencoder's pendulum)."""
+    order: int = 3
+    """Polynomial order of the library over (z[, z'], u) (1-4; the pendulum's: 3)."""
+    include_sine: bool = True
+    """Add sin of every variable of the phase state (z and z')."""
+    init: Literal["normal", "constant"] = "constant"
+    """The coefficients' start: "constant" (all equal to --init-scale; the SINDy
+    autoencoder's, at 1, so that every term starts active and the L1 term and the pruning
+    remove what is not needed) or "normal" (standard deviation --init-scale, seeded)."""
+    init_scale: float = 1.0
+    """The standard deviation or the value of the initial coefficients (see --init)."""
+    dt: float | None = None
+    """Time step of the model's step (RK4) and of the estimated derivatives' units; None: the
+    data's dt (1 where the data has none)."""
+
+    def __post_init__(self) -> None:
+        check_derivative_order(self.derivative_order)
+        if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
+            raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
+        if self.init not in ("normal", "constant"):
+            raise UserError(f"--init {self.init!r}: use normal or constant")
+        check_init_scale("continuous SINDy", self.init_scale)
+        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
+            raise UserError(f"--dt {self.dt}: use a positive time step, or leave it unset to "
+                            "take the data's")
+
+    def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
+              turn: bool = False) -> ContinuousSindyDynamics:
+        """The model for latent size nz and action size nu (``turn`` is refused)."""
+        if turn:
+            raise UserError("--turn is for discrete-time dynamics: drop it")
+        return ContinuousSindyDynamics(nz, nu, self.derivative_order, self.order,
+                                       self.include_sine, self.init_scale, self.init,
+                                       dt=1.0 if self.dt is None else self.dt, circle=circle)
