@@ -30,10 +30,13 @@ JOINT_FORCE = [87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0]  # Panda torque limits 
 
 APPROACH_GAPS = (0.005, 0.015, 0.03, 0.05)  # free space before contact at the push's start (m)
 IK_EVERY = 4  # simulation steps between IK solutions (joint targets interpolated between)
-HAND_TILTS = (0.0, 0.15)  # rad the hand may lean outwards to reach far push starts (more
-#                           lean lets the fingers pass over the block or throw it)
+HAND_TILTS = (0.0, 0.15, -0.15, 0.3, -0.3)  # rad the hand may lean away from the base (far
+#   starts) or towards it (starts close to the base, where IK otherwise folds the elbow past
+#   its limit), tried in this order; at 0.45 some pushes threw the block sideways
 JOINT_MARGIN = 0.1  # rad a push's start must keep from every joint limit
 START_TOLERANCE = 0.005  # m: IK error beyond which a push start counts as out of reach
+MAX_START_DISTANCE = 0.88  # m from the base's axis: no posture reached a push start beyond
+#   0.86 m (benchmarks/reach.py), so a posture whose starts are all further is not tried
 
 
 class Arm:
@@ -56,16 +59,18 @@ class Arm:
         self.hold(HOME)
 
     # ------------------------------------------------------------------ where a push starts
-    def start_candidates(self, contact: np.ndarray, psi: float):
-        """(approach gap, hand orientation, IK seed or None) to try in turn for a push along
-        `psi`.
+    def start_postures(self, contact: np.ndarray, psi: float):
+        """(hand orientation, IK seed or None) to try in turn for a push along `psi`; each
+        is tried at every approach gap (APPROACH_GAPS), the first gap from the seed, the next
+        from the last one's solution.
 
         First the hand pointing straight down with the fingers across the push, backing off
         along the push line (at steep angles a finger's side would be inside the block just
         behind the contact point); then the hand turned round (the closed fingers are
-        symmetric, and the wrist's joint range may only allow one of the two); then, for
-        starts beyond the straight-down reach (about 0.8 m from the base), the hand leaning
-        away from the base, which reaches further. The first candidate is the only one the
+        symmetric, and the wrist's joint range may only allow one of the two); then the hand
+        leaning away from the base, which reaches further than the straight-down reach
+        (about 0.8 m from the base), or towards it, which reaches closer to the base
+        (HAND_TILTS, the smaller lean first). The first candidate is the only one the
         world had before, so a push it could start is made exactly as before; IK for the
         others starts from a posture that already points the hand their way, because IK
         from the last attempt keeps winding the wrist past its limit.
@@ -80,11 +85,8 @@ class Arm:
                 down = self.sim.getQuaternionFromEuler([math.pi, 0.0, yaw])  # fingers across
                 orn = (down if tilt == 0.0  # as before to the last bit
                        else self.sim.multiplyTransforms([0, 0, 0], lean, [0, 0, 0], down)[1])
-                seed = None if first else self.posture_towards(radial, yaw)
+                yield orn, None if first else self.posture_towards(radial, yaw)
                 first = False
-                for gap in APPROACH_GAPS:
-                    yield gap, orn, seed
-                    seed = None  # the next gap starts from this one's solution
 
     def posture_towards(self, radial: np.ndarray, yaw: float) -> list[float]:
         """HOME turned to face `radial` with the wrist giving the hand about `yaw`.

@@ -30,7 +30,7 @@ import numpy as np
 
 from latent_sindy.worlds.push._bullet import BulletClient, pybullet_data, quiet_c_output
 from latent_sindy.worlds.push._bullet import pybullet as pb
-from latent_sindy.worlds.push.arm import HOME, Arm
+from latent_sindy.worlds.push.arm import APPROACH_GAPS, HOME, MAX_START_DISTANCE, Arm
 from latent_sindy.worlds.push.config import BLOCK_SIZE, CONTACT_SPAN, MAX_PUSH, PushEnvConfig
 from latent_sindy.worlds.push.criteria import wrap_angle
 from latent_sindy.worlds.push.scene import (
@@ -190,11 +190,16 @@ class PushWorld:
 
     def can_push(self, p: float, angle: float, pose=None) -> bool:
         """Could the arm start push u = [p, angle, *] with the block at `pose` (default:
-        where it is)?
+        where it is)? See :meth:`push_start`."""
+        return self.push_start(p, angle, pose) is not None
+
+    def push_start(self, p: float, angle: float, pose=None) -> np.ndarray | None:
+        """Where the pusher would start push u = [p, angle, *] (x, y), or None when the arm
+        reaches no start, with the block at `pose` (default: where it is).
 
         The same search for a start as :meth:`push` makes, from the same arm posture (HOME),
-        without moving the block: it answers exactly what a push would do (a few ms; about
-        20 ms for a push no posture reaches). Given a `pose`, the block is put there first.
+        without moving the block: it answers exactly what a push would do. Given a `pose`,
+        the block is put there first.
         """
         if pose is not None:
             self._turned = 0.0
@@ -203,7 +208,7 @@ class PushWorld:
         self.arm.teleport_joints(HOME)
         found = self._find_start(contact, psi)
         self.arm.teleport_joints(HOME)
-        return found is not None
+        return None if found is None else found[0]
 
     def _push_line(self, p: float, angle: float) -> tuple[np.ndarray, float]:
         """The contact point (2,) in the world and the push direction psi of u = [p, angle]."""
@@ -220,13 +225,16 @@ class PushWorld:
         """(start (2,), approach gap, hand orientation) of the first posture the arm reaches
         behind `contact` for a push along `psi`, the arm left there; None if none."""
         d = np.array([math.cos(psi), math.sin(psi)])
-        for gap, orn, seed in self.arm.start_candidates(contact, psi):
-            start = contact - d * (PUSHER_RADIUS + gap)
+        starts = [contact - d * (PUSHER_RADIUS + gap) for gap in APPROACH_GAPS]
+        if min(np.hypot(*start) for start in starts) > MAX_START_DISTANCE:
+            return None  # beyond every posture's reach: no IK needed to say so
+        for orn, seed in self.arm.start_postures(contact, psi):
             if seed is not None:
                 self.arm.teleport_joints(seed)
-            self.arm.teleport([*start, PUSH_HEIGHT], orn)
-            if self.arm.can_start_at(start, self.block):
-                return start, gap, orn
+            for gap, start in zip(APPROACH_GAPS, starts, strict=True):
+                self.arm.teleport([*start, PUSH_HEIGHT], orn)
+                if self.arm.can_start_at(start, self.block):
+                    return start, gap, orn
         return None
 
     def _turn_to_canonical(self, th: float) -> float:
