@@ -35,7 +35,7 @@ from latent_sindy.models.dynamics.base import (
     format_equations,
 )
 from latent_sindy.models.dynamics.sindy import SindyDynamics
-from latent_sindy.sindy import VALID_ORDERS, SindyLibrary, poly_library
+from latent_sindy.sindy import VALID_ORDERS, Polynomial, SindyLibrary, Sine
 
 __all__ = ["DERIVATIVE_ORDERS", "ContinuousSindyConfig", "ContinuousSindyDynamics"]
 
@@ -60,6 +60,8 @@ class ContinuousSindyDynamics(SparseDynamics):
         derivative_order: 1 or 2.
         order: polynomial order of the library over the phase state and actions (1-4).
         include_sine: add sin of every phase variable (z and, at second order, ż).
+        include_constant: the library's constant term 1 (without it the equations cannot
+            hold an offset, so the encoder's free offset of z goes).
         init_scale: the initial coefficients: normal with this standard deviation
             (``init`` "normal"), or all equal to it (``init`` "constant"; the SINDy
             autoencoder's: 1).
@@ -74,7 +76,8 @@ class ContinuousSindyDynamics(SparseDynamics):
     mask: torch.Tensor  # (p, nz) bool
 
     def __init__(self, nz: int, nu: int, derivative_order: int = 1, order: int = 3,
-                 include_sine: bool = True, init_scale: float = 1e-3,
+                 include_sine: bool = True, include_constant: bool = True,
+                 init_scale: float = 1e-3,
                  init: Literal["normal", "constant"] = "normal", seed: int | None = None,
                  dt: float = 0.1, circle: Sequence[int] | None = None,
                  turn: bool = False) -> None:
@@ -88,7 +91,10 @@ class ContinuousSindyDynamics(SparseDynamics):
         if init not in ("normal", "constant"):
             raise UserError(f"init {init!r}: use normal or constant")
         self.dt = float(dt)
-        self.library = SindyLibrary(poly_library(order, include_sine), nz * derivative_order, nu)
+        spec = Polynomial(("z", "u"), order, bias=include_constant)
+        if include_sine:
+            spec = spec + Sine("z")
+        self.library = SindyLibrary(spec, nz * derivative_order, nu)
         p = self.library.n_terms
         if init == "constant":
             psi = torch.full((p, nz), float(init_scale))
@@ -98,7 +104,8 @@ class ContinuousSindyDynamics(SparseDynamics):
         self.psi = nn.Parameter(psi)  # (p, nz)
         self.register_buffer("mask", torch.ones(p, nz, dtype=torch.bool))  # (p, nz)
         self._init = {"derivative_order": self.derivative_order, "order": order,
-                      "include_sine": include_sine, "init_scale": init_scale, "init": init,
+                      "include_sine": include_sine, "include_constant": include_constant,
+                      "init_scale": init_scale, "init": init,
                       "seed": seed, "dt": self.dt}
         rename = {f"z{nz * k + j}": f"z{j}" + "'" * k
                   for k in range(derivative_order) for j in range(nz)}
@@ -203,6 +210,9 @@ class ContinuousSindyConfig:
     """Polynomial order of the library over (z[, z'], u) (1-4; the pendulum's: 3)."""
     include_sine: bool = True
     """Add sin of every variable of the phase state (z and z')."""
+    include_constant: bool = True
+    """The library's constant term 1 (the SINDy autoencoder's had it). Without it the
+    equations hold no offset, which pins the encoder's otherwise free offset of z."""
     init: Literal["normal", "constant"] = "constant"
     """The coefficients' start: "constant" (all equal to --init-scale; the SINDy
     autoencoder's, at 1, so that every term starts active and the L1 term and the pruning
@@ -230,5 +240,6 @@ class ContinuousSindyConfig:
         if turn:
             raise UserError("--turn is for discrete-time dynamics: drop it")
         return ContinuousSindyDynamics(nz, nu, self.derivative_order, self.order,
-                                       self.include_sine, self.init_scale, self.init,
+                                       self.include_sine, self.include_constant,
+                                       self.init_scale, self.init,
                                        dt=1.0 if self.dt is None else self.dt, circle=circle)
