@@ -165,6 +165,8 @@ def noisy_table(args: argparse.Namespace) -> None:
         f"ours EnsembleSTLSQ(n_models={k})": (
             "pairs", lambda th, tg, s: ours_ens(seed=s).fit(th, tg).coef_.numpy()),
         "ours STLSQ(), windows": ("windows", lambda th, tg, s: STLSQ().fit(th, tg).coef_.numpy()),
+        f"ours EnsembleSTLSQ(n_models={k}, z_min=0), windows": (  # inclusion rule alone
+            "windows", lambda th, tg, s: ours_ens(seed=s, z_min=0).fit(th, tg).coef_.numpy()),
         f"ours EnsembleSTLSQ(n_models={k}), windows": (
             "windows", lambda th, tg, s: ours_ens(seed=s).fit(th, tg).coef_.numpy()),
     }  # fmt: skip
@@ -181,7 +183,7 @@ def noisy_table(args: argparse.Namespace) -> None:
         f"\nnoisy: {args.noise:g} x each state's std on every measurement, "
         f"{args.seeds} seeds, windows of {w} steps"
     )
-    print(f"{'system':8} {'method':48} {'exact':>5} {'worst err':>9} {'terms':>5} {'ms':>7}")
+    print(f"{'system':8} {'method':50} {'exact':>5} {'worst err':>9} {'terms':>5} {'ms':>7}")
     for name, make in SYSTEMS.items():
         results: dict[str, list[tuple[bool, float, int, float]]] = {m: [] for m in methods}
         for seed in range(args.seeds):
@@ -205,7 +207,7 @@ def noisy_table(args: argparse.Namespace) -> None:
                 results[method].append((exact, err, int((coef != 0).sum()), ms))
         for method, rows in results.items():
             print(
-                f"{name:8} {method:48} {sum(r[0] for r in rows):>3}/{len(rows)} "
+                f"{name:8} {method:50} {sum(r[0] for r in rows):>3}/{len(rows)} "
                 f"{max(r[1] for r in rows):>9.3f} {statistics.median(r[2] for r in rows):>5.0f} "
                 f"{statistics.median(r[3] for r in rows):>7.1f}"
             )

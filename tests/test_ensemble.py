@@ -100,7 +100,7 @@ def test_ensemble_on_windows_recovers_noisy_lorenz_where_stlsq_fails():
 
 def test_noise_free_data_stay_exact():
     system = lorenz_control(seed=2, n_traj=3, steps=200)
-    ens = EnsembleSTLSQ(n_models=5, seed=0).fit(*_rows(system))
+    ens = EnsembleSTLSQ(n_models=3, seed=0).fit(*_rows(system))
     true = system.true_coefficients()
     assert torch.equal(ens.mask_, true != 0)
     assert torch.allclose(ens.coef_, true, rtol=1e-8, atol=1e-12)
@@ -153,15 +153,15 @@ def test_mask_and_selection_rules(noisy_rows):
     p, m = theta.shape[1], target.shape[1]
     allowed = torch.ones(p, m, dtype=torch.bool)
     allowed[1] = False  # term 1 (z0) is in the true model of z0 and z1
-    masked = EnsembleSTLSQ(n_models=5, seed=0).fit(theta, target, allowed)
+    masked = EnsembleSTLSQ(n_models=3, seed=0).fit(theta, target, allowed)
     assert not masked.mask_[1].any() and (masked.coef_[1] == 0).all()
-    default = EnsembleSTLSQ(n_models=5, seed=0).fit(theta, target)
-    loose = EnsembleSTLSQ(n_models=5, seed=0, z_min=0.0, inclusion=0.0).fit(theta, target)
-    strict = EnsembleSTLSQ(n_models=5, seed=0, z_min=1e6).fit(theta, target)
+    default = EnsembleSTLSQ(n_models=3, seed=0).fit(theta, target)
+    loose = EnsembleSTLSQ(n_models=3, seed=0, z_min=0.0, inclusion=0.0).fit(theta, target)
+    strict = EnsembleSTLSQ(n_models=3, seed=0, z_min=1e6).fit(theta, target)
     assert loose.mask_.sum() > default.mask_.sum() and not strict.mask_.any()
-    plain = EnsembleSTLSQ(n_models=5, seed=0, refit=False).fit(theta, target)
+    plain = EnsembleSTLSQ(n_models=3, seed=0, refit=False).fit(theta, target)
     assert torch.equal(plain.coef_[plain.mask_], plain.centre_[plain.mask_])
-    mean = EnsembleSTLSQ(n_models=5, seed=0, aggregate="mean", refit=False).fit(theta, target)
+    mean = EnsembleSTLSQ(n_models=3, seed=0, aggregate="mean", refit=False).fit(theta, target)
     assert torch.allclose(mean.centre_, mean.coef_models_.mean(dim=0))
 
 

@@ -14,8 +14,15 @@ nearly collinear libraries such terms are kept by most resamples, so inclusion a
 remove them; ``z_min=0`` gives the inclusion rule alone). The kept terms are then refitted on
 all rows by the base sparsifier restricted to them (``refit``), or take the centre.
 
-    >>> opt = EnsembleSTLSQ(STLSQ(), n_models=20, seed=0).fit(theta, target)  # (N, p), (N, m)
-    >>> opt.coef_.shape, opt.mask_.shape, opt.inclusion_.shape  # (p, m) each
+    >>> from latent_sindy.sindy.systems import lorenz_control
+    >>> s = lorenz_control(seed=0)  # 5000 transitions, 35 terms, 8 of them true
+    >>> theta, target = s.library(s.Z, s.U), s.Znext - s.Z  # (N, p), (N, m)
+    >>> opt = EnsembleSTLSQ(STLSQ(), n_models=10, seed=0).fit(theta, target)
+    >>> opt.coef_.shape, int(opt.mask_.sum()), opt.inclusion_.shape
+    (torch.Size([35, 3]), 8, torch.Size([35, 3]))
+
+On noisy trajectories, fit their windowed form (:func:`latent_sindy.sindy.fit_trajectory_data`)
+with it: ``BENCHMARKS.md`` (``benchmarks/fit_state.py``) has the measurements.
 """
 
 from __future__ import annotations
