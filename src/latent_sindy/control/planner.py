@@ -75,14 +75,14 @@ class ImagePlanner:
 
 
 def feasible_action(action: np.ndarray, mppi: MPPI, feasible: Callable[[np.ndarray], np.ndarray],
-                    tries: int = 64, chunk: int = 8) -> tuple[np.ndarray, bool]:
+                    tries: int | None = None, chunk: int = 8) -> tuple[np.ndarray, bool]:
     """The action to execute after ``mppi.command``: ``action`` (nu,) if ``feasible`` says so,
     else the first action of the lowest-cost sample of that update that is feasible.
 
     ``feasible(actions (k, nu)) -> (k,) bool`` answers for the world's true state now (a
-    world's ``feasible`` with the state bound). At most ``tries`` samples are asked, in order
-    of cost, ``chunk`` at a time; when none is feasible ``action`` is kept. Returns the
-    action and whether it was replaced.
+    world's ``feasible`` with the state bound). Samples are asked in order of cost, ``chunk``
+    at a time, until one is feasible (at most ``tries``; None: every sample with a finite
+    cost); when none is, ``action`` is kept. Returns the action and whether it was replaced.
     """
     if feasible(np.asarray(action)[None])[0]:
         return action, False
