@@ -144,6 +144,9 @@ def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: Tr
     parts = [norm.normalize(data.images)]
     parts += [torch.as_tensor(r) / norm.std for r in rates]
     x = torch.stack(parts, 2).flatten(0, 1)  # (N (T+1), 1 + order, C, H, W)
+    # Subnormal values (a rendered blob's tails, ~1e-40) make every product with them 10x
+    # slower on CPUs: on the pendulum video, 5.0 s against 0.41 s a step at batch 1000.
+    x = x.masked_fill(x.abs() < torch.finfo(x.dtype).tiny, 0.0)
     a = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
     u = torch.cat([a, a[:, -1:]], 1).flatten(0, 1)  # (N (T+1), nu)
     return x, u
