@@ -222,6 +222,16 @@ def test_the_same_seed_gives_the_same_model_from_estimated_derivatives() -> None
     assert not np.array_equal(a.coefficients(), c.coefficients())
 
 
+def test_two_threads_train_it_with_torch_threads(monkeypatch) -> None:
+    """Forward-mode derivatives cannot run in several Python threads at once: with two
+    threads the batch is not split ("ops"), and a split is refused."""
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
+    est = estimator(refine=0).fit(oscillator(n=4, frames=10), epochs=1)
+    assert np.isfinite(est.metrics_[-1]["val/objective"])
+    with pytest.raises(UserError, match="--parallel batch splits a batch"):
+        estimator(refine=0).fit(oscillator(n=4, frames=10), epochs=1, parallel="batch")
+
+
 def test_save_and_load_give_the_same_model(fitted: LatentSINDy, tmp_path) -> None:
     assert fitted.equations()[0].startswith("z0'' = ")
     fitted.save(tmp_path / "run")

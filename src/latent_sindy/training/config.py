@@ -69,8 +69,8 @@ class TrainConfig:
     each layer; "batch", each mini-batch split into T parts whose gradients T threads compute
     at once (one torch thread each) and add (1.3x faster epochs than "ops" on 2 cores at the
     paper's sizes: these layers are too small to split well; BENCHMARKS.md); "auto": batch on
-    the CPU with T > 1, else ops. The same settings give the same model; ops and batch differ
-    in the last bits."""
+    the CPU with T > 1, else ops (always ops for continuous-time dynamics). The same settings
+    give the same model; ops and batch differ in the last bits."""
     lr: float = 1e-3
     """AdamW learning rate (the paper: 1e-3)."""
     betas: tuple[float, float] = (0.9, 0.999)
@@ -175,6 +175,10 @@ class TrainConfig:
         if continuous and self.loss.foreground_weight > 0:
             raise UserError(f"--foreground-weight {self.loss.foreground_weight} is for "
                             "discrete-time models: leave it at 0 with continuous dynamics")
+        if continuous and self.parallel == "batch":
+            raise UserError("--parallel batch splits a batch over threads, which the "
+                            "forward-mode derivatives of continuous-time dynamics cannot run "
+                            "in: use --parallel auto or ops")
         if not continuous and self.derivatives != "auto":
             raise UserError(f"--derivatives {self.derivatives} is for continuous-time "
                             "dynamics (latent-sindy train continuous ...): drop it")
@@ -193,9 +197,10 @@ def resolve_batching(cfg: TrainConfig) -> str:
 
 def resolve_parallel(cfg: TrainConfig, device: str, threads: int) -> str:
     """What :attr:`TrainConfig.parallel` does on ``device`` with ``threads`` torch threads:
-    "batch" or "ops" (always "ops" off the CPU or on one thread)."""
-    if device != "cpu" or threads < 2:
-        return "ops"
+    "batch" or "ops" (always "ops" off the CPU, on one thread, or for continuous-time
+    dynamics)."""
+    if device != "cpu" or threads < 2 or cfg.model.dynamics.kind == "continuous":
+        return "ops"  # (forward-mode derivatives cannot run in several threads at once)
     return "batch" if cfg.parallel == "auto" else cfg.parallel
 
 
