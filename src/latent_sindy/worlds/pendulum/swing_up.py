@@ -11,6 +11,7 @@ the state and plans with the true dynamics, to show what the task asks is achiev
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -69,12 +70,15 @@ def upright_cost(x: torch.Tensor, rate_weight: float = 0.1) -> torch.Tensor:
 
 
 class StateMPPI:
-    """The oracle: MPPI on the true dynamics of the features (cos θ, sin θ, θ̇), with
-    Pendulum-v1's cost θ² + 0.1 θ̇² (:func:`upright_cost`)."""
+    """The oracle: MPPI on the true state's features (cos θ, sin θ, θ̇), with Pendulum-v1's
+    cost θ² + 0.1 θ̇² (:func:`upright_cost`), through the true dynamics or through
+    ``dynamics(x (K, 3), u (K, 1)) -> (K, 3)`` (a state SINDy's step)."""
 
-    def __init__(self, mppi: MPPIConfig | None = None) -> None:
+    def __init__(self, mppi: MPPIConfig | None = None,
+                 dynamics: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                 ) -> None:
         self.config = mppi or PendulumWorld().planner()
-        self.mppi = MPPI(physics.feature_step, upright_cost, self.config,
+        self.mppi = MPPI(dynamics or physics.feature_step, upright_cost, self.config,
                          (-physics.MAX_TORQUE,), (physics.MAX_TORQUE,))
 
     def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:

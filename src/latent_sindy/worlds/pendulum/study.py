@@ -1,0 +1,267 @@
+"""The controlled pendulum from images: fit latent SINDy, MLP and linear models on the same
+camera data, swing up with latent MPPI from random starts, and tabulate with intervals.
+
+One run: random torques from random starts give the images; three image models (the latent
+dynamics "sindy", "mlp", "linear", same autoencoder and training) are fitted, and a state
+SINDy on the true features (cos θ, sin θ, θ̇) shows what the data say about the physics.
+Each image model then plans with MPPI in its own latent space, from the image alone, with
+the distance to the goal image's code along the data (:mod:`.graph_cost`), on ``episodes``
+seeded tasks of 100 steps. The table holds, per model, the swing-up success (upright within
+10° over the last 20 steps) with its 95 % Wilson interval, the mean fraction of steps
+upright (E2C's measure) with a 95 % normal interval, the one-step R², sparsity and times;
+every model's equations are printed.
+
+    python -m latent_sindy.worlds.pendulum.study --help
+    python -m latent_sindy.worlds.pendulum.study --episodes 50        # the default run
+    >>> result = run_study(StudyConfig(episodes=5)); print(result.table())
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import torch
+
+from latent_sindy.api import LatentSINDy
+from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+from latent_sindy.models import LossWeights
+from latent_sindy.training import TrainConfig
+from latent_sindy.worlds.pendulum import physics
+from latent_sindy.worlds.pendulum.config import PendulumConfig
+from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost
+from latent_sindy.worlds.pendulum.plugin import PendulumWorld
+from latent_sindy.worlds.pendulum.state_sindy import StateSindy
+from latent_sindy.worlds.pendulum.swing_up import StateMPPI, SwingUp, run_swing_up
+
+__all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study",
+           "wilson_interval"]
+
+MODELS = ("sindy", "mlp", "linear")
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """Settings of one pendulum study (the defaults: the measured run of RESULTS.md)."""
+
+    image_size: int = 32
+    """Camera side in pixels."""
+    sequences: int = 400
+    """Random-torque sequences from random starts (θ uniform, θ̇ in [−1, 1])."""
+    steps: int = 12
+    """Steps per sequence."""
+    latent_dim: int = 3
+    """Latent size of every image model."""
+    order: int = 2
+    """SINDy's polynomial order (the library also holds sin z)."""
+    epochs: int = 40
+    """Training epochs of each image model."""
+    window: int = 5
+    """Steps of the multi-step prediction loss."""
+    lambda_l1: float = 1e-2
+    """SINDy's L1 weight."""
+    models: tuple[str, ...] = MODELS
+    """Image models to fit: any of sindy, mlp, linear."""
+    state_control: bool = True
+    """Also swing up with the state SINDy on the true state (a reference, not from images)."""
+    episodes: int = 50
+    """Swing-up tasks per model (the same tasks for every model)."""
+    start: Literal["hanging", "random"] = "hanging"
+    """Where the swing-up tasks start: hanging (π ± 0.1) or anywhere."""
+    episode_steps: int = 100
+    """Actions per episode."""
+    last: int = 20
+    """Success: upright within 10° over each of the last this many steps."""
+    samples: int = 300
+    """MPPI's K."""
+    horizon: int = 30
+    """MPPI's H."""
+    sigma: float = 1.0
+    """MPPI's noise variance Σ."""
+    lambda_: float = 1.0
+    """MPPI's temperature λ."""
+    nodes: int = 600
+    """Nodes of the latent graph of the distance cost."""
+    neighbours: int = 8
+    """Edges per node of that graph."""
+    seed: int = 0
+    """Seeds the data, the models, the tasks and the planners."""
+
+    def __post_init__(self) -> None:
+        unknown = set(self.models) - set(MODELS)
+        if unknown or not self.models:
+            raise UserError(f"pendulum study models {self.models!r}: choose from "
+                            f"{', '.join(MODELS)}")
+        for name in ("sequences", "steps", "epochs", "window", "episodes", "episode_steps"):
+            if getattr(self, name) < 1:
+                raise UserError(f"pendulum study {name} {getattr(self, name)!r} must be >= 1")
+        if self.window > self.steps:
+            raise UserError(f"pendulum study window {self.window} exceeds steps {self.steps}")
+
+    def mppi(self) -> MPPIConfig:
+        return MPPIConfig(samples=self.samples, horizon=self.horizon, sigma=self.sigma,
+                          lambda_=self.lambda_)
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """The 95 % Wilson score interval of ``successes`` in ``n`` (well behaved at 0 and n)."""
+    if n < 1 or not 0 <= successes <= n:
+        raise UserError(f"wilson_interval: {successes} successes in {n} trials")
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+class LatentSwingUp:
+    """A swing-up policy from images only: encode the image, plan with MPPI through the
+    model's latent dynamics, cost the distance to the goal's code along the data's codes."""
+
+    def __init__(self, model: LatentSINDy, codes: np.ndarray, config: StudyConfig) -> None:
+        self.model, self.codes, self.config = model, codes, config
+        self.step = latent_step(model.model_.dynamics)
+        self.mppi: MPPI | None = None
+
+    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
+        cfg = self.config
+        cost = GraphDistanceCost(self.codes, self.model.encode(goal_image), cfg.neighbours,
+                                 cfg.nodes, seed=cfg.seed)
+        # scaled so that hanging costs about π², as Pendulum-v1's θ² (λ then reads alike)
+        far = float(cost.node_distance.max())
+        cost.weight = (math.pi / max(far, 1e-9)) ** 2
+        self.mppi = MPPI(self.step, cost, cfg.mppi(), (-physics.MAX_TORQUE,),
+                         (physics.MAX_TORQUE,), seed=cfg.seed if seed is None else seed)
+
+    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
+        z = torch.as_tensor(self.model.encode(image))  # the image only: the state is unread
+        return self.mppi.command(z)[0].numpy()
+
+
+@dataclass
+class ModelRow:
+    """One model's line of the table."""
+
+    name: str
+    episodes: list[SwingUp]
+    equations: list[str]
+    r2: float | None = None
+    sparsity: float | None = None
+    fit_seconds: float = 0.0
+    control_seconds: float = 0.0
+
+    @property
+    def successes(self) -> int:
+        return sum(e.success for e in self.episodes)
+
+    @property
+    def success_interval(self) -> tuple[float, float]:
+        return wilson_interval(self.successes, len(self.episodes))
+
+    @property
+    def upright(self) -> tuple[float, float, float]:
+        """Mean fraction of steps upright and its 95 % normal interval."""
+        f = np.array([e.upright_fraction for e in self.episodes])
+        half = 1.959964 * f.std(ddof=1) / math.sqrt(len(f)) if len(f) > 1 else math.inf
+        return float(f.mean()), max(0.0, f.mean() - half), min(1.0, f.mean() + half)
+
+
+@dataclass
+class StudyResult:
+    config: StudyConfig
+    rows: list[ModelRow] = field(default_factory=list)
+    data_seconds: float = 0.0
+
+    def table(self) -> str:
+        """The results as a markdown table."""
+        n = self.config.episodes
+        lines = [f"| model | swing-ups of {n} (95 % Wilson) | time upright (95 %) | one-step "
+                 "R² | sparsity | fit s | control s |", "|---|---|---|---|---|---|---|"]
+        for r in self.rows:
+            lo, hi = r.success_interval
+            f, flo, fhi = r.upright
+            r2 = "" if r.r2 is None else f"{r.r2:.3f}"
+            sp = "" if r.sparsity is None else f"{100 * r.sparsity:.1f} %"
+            lines.append(f"| {r.name} | {r.successes} ({100 * lo:.0f}–{100 * hi:.0f} %) | "
+                         f"{100 * f:.0f} % ({100 * flo:.0f}–{100 * fhi:.0f}) | {r2} | {sp} | "
+                         f"{r.fit_seconds:.0f} | {r.control_seconds:.0f} |")
+        return "\n".join(lines)
+
+    def equations(self) -> str:
+        return "\n".join(f"{r.name}:\n  " + "\n  ".join(r.equations) for r in self.rows)
+
+
+def fit_image_model(data: SequenceData, kind: str, config: StudyConfig) -> LatentSINDy:
+    """One image model of the study (``kind``: sindy, mlp or linear)."""
+    model = LatentSINDy(latent_dim=config.latent_dim, dynamics=kind, order=config.order,
+                        seed=config.seed, settings=TrainConfig(lr=3e-3),
+                        loss=LossWeights(lambda_l1=config.lambda_l1))
+    return model.fit(data, epochs=config.epochs, batch_size=64, window=config.window)
+
+
+def run_study(config: StudyConfig | None = None,
+              report: Callable[[str], None] = print) -> StudyResult:
+    """Collect, fit, swing up and tabulate (``report`` hears progress and equations)."""
+    cfg = config or StudyConfig()
+    t0 = time.perf_counter()
+    world = PendulumWorld(PendulumConfig(start="random", image_size=cfg.image_size))
+    data = world.collect(cfg.sequences, cfg.steps, seed=cfg.seed)
+    result = StudyResult(cfg, data_seconds=time.perf_counter() - t0)
+    report(f"data: {data.n} sequences of {data.steps} steps, frames {data.frame_shape} "
+           f"({result.data_seconds:.0f} s)")
+    tasks = PendulumWorld(PendulumConfig(start=cfg.start, image_size=cfg.image_size))
+    train = data.split("train")
+    frames = train.images.reshape(-1, *data.frame_shape)
+
+    t0 = time.perf_counter()
+    state = StateSindy().fit(data)
+    row = ModelRow("state SINDy (true state)", [], state.equations(),
+                   sparsity=state.sparsity(), fit_seconds=time.perf_counter() - t0)
+    report("state SINDy on (cos θ, sin θ, θ̇):\n  " + "\n  ".join(row.equations))
+    if cfg.state_control:
+        t0 = time.perf_counter()
+        policy = StateMPPI(cfg.mppi(), dynamics=state.step)
+        row.episodes = run_swing_up(tasks, policy, cfg.episodes, cfg.episode_steps,
+                                    cfg.seed, cfg.last)
+        row.control_seconds = time.perf_counter() - t0
+        result.rows.append(row)
+    for kind in cfg.models:
+        t0 = time.perf_counter()
+        model = fit_image_model(data, kind, cfg)
+        fit_s = time.perf_counter() - t0
+        eq = model.equations() if kind != "mlp" else ["(an MLP: no equations)"]
+        dyn = model.model_.dynamics
+        row = ModelRow(f"{kind} (images)", [], eq, r2=model.score(data),
+                       sparsity=dyn.sparsity() if kind == "sindy" else None, fit_seconds=fit_s)
+        report(f"{kind}: fitted in {fit_s:.0f} s, one-step R² {row.r2:.3f}\n  "
+               + "\n  ".join(eq))
+        t0 = time.perf_counter()
+        policy = LatentSwingUp(model, model.encode(frames), cfg)
+        row.episodes = run_swing_up(tasks, policy, cfg.episodes, cfg.episode_steps,
+                                    cfg.seed, cfg.last)
+        row.control_seconds = time.perf_counter() - t0
+        result.rows.append(row)
+        report(f"{kind}: {row.successes} of {cfg.episodes} swing-ups "
+               f"({row.control_seconds:.0f} s)")
+    return result
+
+
+def main(argv: list[str] | None = None) -> StudyResult:
+    import tyro
+
+    torch.set_num_threads(1)
+    cfg = tyro.cli(StudyConfig, args=argv, description=__doc__.split("\n\n")[0])
+    t0 = time.perf_counter()
+    result = run_study(cfg)
+    print("\n" + result.table())
+    print(f"\n(the whole run: {time.perf_counter() - t0:.0f} s)")
+    return result
+
+
+if __name__ == "__main__":
+    main()
