@@ -61,8 +61,9 @@ def along_layers(layers: nn.Sequential, x: torch.Tensor, *rates: torch.Tensor
                  ) -> tuple[torch.Tensor, ...]:
     """:func:`along` through ``layers`` one at a time, the same values: a linear layer's
     derivatives are its weight times its input's, any other layer's come from :func:`along`
-    (forward mode). For the fully connected autoencoder a training step takes 2.4x less time
-    than forward mode through the whole network, which pays for every op it passes."""
+    (forward mode). For the 128-64-32 sigmoid encoder (121 pixels, batch 50, both
+    derivatives, forward and backward) it took 2.4x less time than forward mode through the
+    whole network, which pays for every op it passes."""
     for layer in layers:
         if isinstance(layer, nn.Linear):
             x, rates = layer(x), tuple(r @ layer.weight.T for r in rates)
