@@ -1,5 +1,6 @@
 """What the latent knows: the camera geometry, reading the block's position from images, the
-linear probe and the position error of predictions, on rendered images with known poses."""
+linear and kernel probes and the position error of predictions, on rendered images with known
+poses."""
 
 from __future__ import annotations
 
@@ -11,8 +12,11 @@ from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.probe import (
+    KernelProbe,
     block_position,
+    kernel_probe,
     latent_probe,
+    latent_probes,
     position_errors,
     state_position_errors,
 )
@@ -114,22 +118,24 @@ def test_block_position_refuses_images_of_another_size(world):
 
 # ------------------------------------------------------------------ probe and predictions
 class LookupModel(torch.nn.Module):
-    """A stand-in latent model: frame k of the data (its pixel (0, 0) holds k) encodes to
-    ``latents[k]``."""
+    """A stand-in latent model: frame k of the data (its pixels (0, 0) and (0, 2) hold k mod
+    256 and k // 256) encodes to ``latents[k]``."""
 
     def __init__(self, latents: np.ndarray) -> None:
         super().__init__()
         self.latents = torch.as_tensor(latents, dtype=torch.float32)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
-        return self.latents[x[..., 0, 0, 0].round().long()]
+        return self.latents[(x[..., 0, 0, 0] + 256 * x[..., 0, 0, 2]).round().long()]
 
 
 def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> SequenceData:
-    """Frames numbered in pixel (0, 0), random poses; splits train / val / test in turn."""
+    """Frames numbered in pixels (0, 0) and (0, 2), random poses; splits train / val / test
+    in turn."""
     rng = np.random.default_rng(seed)
     images = np.zeros((n, steps + 1, 1, 32, 32), np.uint8)
-    images[..., 0, 0, 0] = np.arange(n * (steps + 1)).reshape(n, steps + 1) % 256
+    frame = np.arange(n * (steps + 1)).reshape(n, steps + 1)
+    images[..., 0, 0, 0], images[..., 0, 0, 2] = frame % 256, frame // 256
     images[..., 0, 1, 1] = 1  # a non-constant image for the pixel statistics
     poses = rng.uniform((0.35, -0.35, -np.pi), (0.7, 0.35, np.pi), (n, steps + 1, 3))
     actions = np.zeros((n, steps, 3), np.float32)
@@ -159,6 +165,100 @@ def test_probe_gives_no_credit_to_a_latent_without_the_angle():
     r2 = latent_probe(LookupModel(z), data, Normalizer(0.0, 1.0))
     assert r2["x"] > 0.99 and r2["y"] > 0.99
     assert r2["cos"] < 0.2 and r2["sin"] < 0.2
+
+
+def corner_latents(data: SequenceData, mixed: bool, seed: int = 3) -> np.ndarray:
+    """The block's x, y and its four corners about its centre: the angle features
+    cos 4θ, sin 4θ are no linear function of these (they are of cos θ, sin θ), but a smooth
+    one. ``mixed``: the 10 coordinates mixed into 16 by a random matrix, plus noise."""
+    poses = data.poses.reshape(-1, 3)
+    turn = poses[:, 2:] + np.pi / 4 + np.arange(4) * np.pi / 2  # (M, 4) corner directions
+    z = np.column_stack([poses[:, :2], HALF_DIAGONAL * np.cos(turn),
+                         HALF_DIAGONAL * np.sin(turn)])  # (M, 10)
+    if mixed:
+        rng = np.random.default_rng(seed)
+        z = z / z.std(0) @ rng.normal(size=(10, 16)) + 0.05 * rng.normal(size=(len(z), 16))
+    return z
+
+
+@pytest.fixture(scope="module")
+def many() -> SequenceData:
+    return indexed_trajectories(n=300)  # 500 training and 500 test frames
+
+
+@pytest.mark.parametrize("mixed", [False, True])
+def test_kernel_probe_reads_an_angle_the_latent_holds_nonlinearly(many, mixed):
+    """Corner positions hold the orientation: the linear probe reads x and y but not the
+    angle features, the kernel probe reads all four."""
+    model = LookupModel(corner_latents(many, mixed))
+    linear = latent_probe(model, many, Normalizer(0.0, 1.0))
+    kernel = kernel_probe(model, many, Normalizer(0.0, 1.0))
+    assert min(linear["x"], linear["y"], kernel["x"], kernel["y"]) > 0.95
+    assert max(linear["cos"], linear["sin"]) < 0.1
+    assert min(kernel["cos"], kernel["sin"]) >= 0.9, kernel
+
+
+def test_kernel_probe_gives_no_credit_to_noise(many):
+    """A latent that carries nothing: held-out choice of the ridge keeps the kernel probe
+    from fitting the noise (R² about 0 on the test images)."""
+    z = np.random.default_rng(4).normal(size=(many.n * (many.steps + 1), 16))
+    r2 = kernel_probe(LookupModel(z), many, Normalizer(0.0, 1.0))
+    assert max(r2.values()) <= 0.1, r2
+    assert min(r2.values()) > -0.2, r2  # measured -0.10 to 0.00: no wild fit to the noise
+
+
+def test_kernel_probe_same_seed_same_result(many):
+    model = LookupModel(corner_latents(many, mixed=True))
+    a, b = (kernel_probe(model, many, Normalizer(0.0, 1.0), seed=7) for _ in range(2))
+    assert a == b
+
+
+def test_latent_probes_keep_the_linear_figures_and_add_the_kernel_ones(many):
+    model, norm = LookupModel(corner_latents(many, mixed=True)), Normalizer(0.0, 1.0)
+    both = latent_probes(model, many, norm, seed=1)
+    kernel = kernel_probe(model, many, norm, seed=1)
+    assert {k: both[k] for k in ("x", "y", "cos", "sin")} == latent_probe(model, many, norm)
+    assert {k: both[f"kernel/{k}"] for k in kernel} == kernel
+    assert both["kernel/angle"] == pytest.approx((kernel["cos"] + kernel["sin"]) / 2)
+    assert len(both) == 9
+
+
+def test_kernel_probe_is_kernel_ridge_regression():
+    """With one width and one ridge, the prediction is the closed form
+    K(z', z) (K(z, z) + λ M I)⁻¹ y on standardised latents and targets."""
+    rng = np.random.default_rng(5)
+    z, y, zt = rng.normal(size=(40, 3)), rng.normal(size=(40, 2)), rng.normal(size=(7, 3))
+    got = KernelProbe(gammas=(0.5,), ridges=(1e-2,)).fit(z, y).predict(zt)
+    mu, sd, ym, ys = z.mean(0), z.std(0), y.mean(0), y.std(0)
+    a, b = (z - mu) / sd, (zt - mu) / sd
+
+    def k(p, q):
+        return np.exp(-0.5 / 3 * ((p[:, None] - q[None]) ** 2).sum(-1))
+
+    want = k(b, a) @ np.linalg.solve(k(a, a) + 1e-2 * 40 * np.eye(40), (y - ym) / ys) * ys + ym
+    np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10)
+
+
+def test_kernel_probe_of_a_diverged_latent_is_nan(many):
+    z = corner_latents(many, mixed=False)
+    z[3, 0] = np.nan
+    r2 = latent_probes(LookupModel(z), many, Normalizer(0.0, 1.0))
+    assert all(np.isnan(r2[f"kernel/{k}"]) for k in ("x", "y", "cos", "sin"))
+
+
+@pytest.mark.parametrize(("settings", "match"), [
+    ({"gammas": ()}, "must be non-empty and positive"),
+    ({"ridges": (0.0,)}, "must be non-empty and positive"),
+    ({"held_out": 1.0}, "must be a fraction in"),
+])
+def test_kernel_probe_refuses_bad_settings(settings, match):
+    with pytest.raises(UserError, match=match):
+        KernelProbe(**settings)
+
+
+def test_kernel_probe_refuses_mismatched_data():
+    with pytest.raises(UserError, match=r"latents \(5, 2\) and targets \(4, 1\)"):
+        KernelProbe().fit(np.zeros((5, 2)), np.zeros((4, 1)))
 
 
 class ReplayModel(torch.nn.Module):

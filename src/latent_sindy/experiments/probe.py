@@ -1,10 +1,13 @@
-"""What the latent knows: a linear probe to the block's pose, and where predicted images put
-the block.
+"""What the latent knows: a linear and a nonlinear probe to the block's pose, and where
+predicted images put the block.
 
 * :func:`latent_probe`: R² of a ridge regression from the latent z = enc(x) to the block's
   pose features (x, y and the symmetry-respecting angle features cos(2πθ/P), sin(2πθ/P) of
   :func:`~latent_sindy.data.windows.pose_features`), fitted on the training split's images
   and scored on the held-out ones;
+* :func:`kernel_probe`: the same with :class:`KernelProbe` (kernel ridge regression with an
+  RBF kernel), so that a latent holding the pose nonlinearly (corner positions, say) is seen
+  to hold it; :func:`latent_probes` gives both, as the study records them;
 * :func:`block_position`: the block's (x, y) in metres read from images: the centroid of the
   pixels darker than the table, back-projected through the camera of the world's config
   (:class:`~latent_sindy.worlds.push.camera.Camera`) onto the plane of the block's centre;
@@ -17,6 +20,7 @@ the block.
     run = load_run("results/runs/seed0/sindy2")
     data = read_sequences("results/data.h5")
     latent_probe(run.model, data, run.normalizer)   # {"x": 0.97, "y": 0.98, ...}
+    kernel_probe(run.model, data, run.normalizer)   # {"x": 0.98, ..., "cos": -0.02, ...}
     position_errors(run.model, data, run.normalizer)["model"][0]  # cm, 1 push ahead
 """
 
@@ -35,8 +39,8 @@ from latent_sindy.worlds.push.camera import Camera
 from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
 from latent_sindy.worlds.push.scene import CameraView
 
-__all__ = ["FEATURES", "GRAY", "block_levels", "block_position", "latent_probe",
-           "position_errors", "state_position_errors"]
+__all__ = ["FEATURES", "GRAY", "KernelProbe", "block_levels", "block_position", "kernel_probe",
+           "latent_probe", "latent_probes", "position_errors", "state_position_errors"]
 
 #: The probe's targets, in :func:`pose_features` order.
 FEATURES = ("x", "y", "cos", "sin")
@@ -124,14 +128,10 @@ def _latents(model: LatentModel, data: SequenceData, normalizer: Normalizer) -> 
     return model.encode(x).double().numpy()
 
 
-def latent_probe(model: LatentModel, data: SequenceData, normalizer: Normalizer,
-                 held_out: str = "test") -> dict[str, float]:
-    """R² per pose feature (:data:`FEATURES`) of a ridge regression from the latent, fitted
-    on every image of the training split, scored on every image of ``held_out``.
-
-    R² = 1 − SSE / SST on the held-out images (SST about their own mean): 1 is perfect, 0
-    no better than a constant, negative worse.
-    """
+def _probe_data(model: LatentModel, data: SequenceData, normalizer: Normalizer,
+                held_out: str) -> tuple[np.ndarray, ...]:
+    """Latents and pose features of every image: z_tr (M, nz), y_tr (M, 4), z_te, y_te, and
+    each training image's trajectory (M,)."""
     train, test = data.split("train"), data.split(held_out)
     if train.n == 0 or test.n == 0:
         raise UserError(f"{data.source}: the probe needs training and {held_out} trajectories "
@@ -141,16 +141,150 @@ def latent_probe(model: LatentModel, data: SequenceData, normalizer: Normalizer,
     z_tr, z_te = _latents(model, train, normalizer), _latents(model, test, normalizer)
     y_tr = pose_features(train.poses, period).double().numpy().reshape(len(z_tr), -1)
     y_te = pose_features(test.poses, period).double().numpy().reshape(len(z_te), -1)
+    return z_tr, y_tr, z_te, y_te, np.repeat(np.arange(train.n), train.steps + 1)
+
+
+def _r2(pred: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """R² per feature, SST about the held-out targets' own mean (NaN for a constant one)."""
+    sse = ((pred - y) ** 2).sum(0)
+    sst = ((y - y.mean(0)) ** 2).sum(0)
+    r2 = np.where(sst > 0, 1 - sse / np.maximum(sst, 1e-300), np.nan)
+    return {f: float(v) for f, v in zip(FEATURES, r2, strict=True)}
+
+
+def latent_probe(model: LatentModel, data: SequenceData, normalizer: Normalizer,
+                 held_out: str = "test") -> dict[str, float]:
+    """R² per pose feature (:data:`FEATURES`) of a ridge regression from the latent, fitted
+    on every image of the training split, scored on every image of ``held_out``.
+
+    R² = 1 − SSE / SST on the held-out images (SST about their own mean): 1 is perfect, 0
+    no better than a constant, negative worse.
+    """
+    z_tr, y_tr, z_te, y_te, _ = _probe_data(model, data, normalizer, held_out)
+    return _ridge_r2(z_tr, y_tr, z_te, y_te)
+
+
+def _ridge_r2(z_tr: np.ndarray, y_tr: np.ndarray, z_te: np.ndarray, y_te: np.ndarray
+              ) -> dict[str, float]:
     mu, sd = z_tr.mean(0), z_tr.std(0) + 1e-12
     a_tr = np.column_stack([(z_tr - mu) / sd, np.ones(len(z_tr))])
     a_te = np.column_stack([(z_te - mu) / sd, np.ones(len(z_te))])
     reg = RIDGE * len(a_tr) * np.eye(a_tr.shape[1])
     reg[-1, -1] = 0.0  # the intercept is not shrunk
     beta = np.linalg.solve(a_tr.T @ a_tr + reg, a_tr.T @ y_tr)
-    sse = ((a_te @ beta - y_te) ** 2).sum(0)
-    sst = ((y_te - y_te.mean(0)) ** 2).sum(0)
-    r2 = np.where(sst > 0, 1 - sse / np.maximum(sst, 1e-300), np.nan)
-    return {f: float(v) for f, v in zip(FEATURES, r2, strict=True)}
+    return _r2(a_te @ beta, y_te)
+
+
+def kernel_probe(model: LatentModel, data: SequenceData, normalizer: Normalizer,
+                 held_out: str = "test", seed: int = 0) -> dict[str, float]:
+    """R² per pose feature of a :class:`KernelProbe` from the latent, fitted on the training
+    split's images (its settings chosen on a fifth of its trajectories, drawn with
+    ``seed``), scored on every image of ``held_out`` as :func:`latent_probe` scores."""
+    return _kernel_r2(*_probe_data(model, data, normalizer, held_out), seed)
+
+
+def latent_probes(model: LatentModel, data: SequenceData, normalizer: Normalizer,
+                  held_out: str = "test", seed: int = 0) -> dict[str, float]:
+    """Both probes from one encoding of the images: :func:`latent_probe`'s R² under
+    :data:`FEATURES`, :func:`kernel_probe`'s under ``kernel/<feature>``, and
+    ``kernel/angle`` the mean of its cos and sin (the study's evaluation record)."""
+    z_tr, y_tr, z_te, y_te, groups = _probe_data(model, data, normalizer, held_out)
+    kernel = _kernel_r2(z_tr, y_tr, z_te, y_te, groups, seed)
+    return {**_ridge_r2(z_tr, y_tr, z_te, y_te),
+            **{f"kernel/{k}": v for k, v in kernel.items()},
+            "kernel/angle": (kernel["cos"] + kernel["sin"]) / 2}
+
+
+def _kernel_r2(z_tr: np.ndarray, y_tr: np.ndarray, z_te: np.ndarray, y_te: np.ndarray,
+               groups: np.ndarray, seed: int) -> dict[str, float]:
+    if not (np.isfinite(z_tr).all() and np.isfinite(z_te).all()):  # a diverged encoder
+        return dict.fromkeys(FEATURES, float("nan"))
+    return _r2(KernelProbe(seed=seed).fit(z_tr, y_tr, groups).predict(z_te), y_te)
+
+
+def _rbf(a: torch.Tensor, b: torch.Tensor, gamma: float) -> torch.Tensor:
+    """exp(−γ |a_i − b_j|²): (M, nz), (M', nz) -> (M, M')."""
+    return torch.exp(-gamma * torch.cdist(a, b).square())
+
+
+class KernelProbe:
+    """Kernel ridge regression with an RBF kernel on standardised latents and targets.
+
+    For each target its own kernel width γ = ``gamma`` / nz (nz: the latent's size) and
+    ridge λ (on the kernel, times the number of frames) are chosen from the grids by the
+    error on ``held_out`` of the trajectories (drawn with ``seed``), then refitted on all.
+    Over ``max_frames`` training frames, a random subset of whole trajectories of at most
+    that many is used (the cost grows with their cube). Float64 torch: deterministic on one
+    thread.
+
+        KernelProbe(seed=0).fit(z, y, groups).predict(z_test)   # (M', ny)
+    """
+
+    def __init__(self, gammas: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0),
+                 ridges: tuple[float, ...] = (1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0),
+                 held_out: float = 0.2, max_frames: int = 2000, seed: int = 0) -> None:
+        if not (gammas and ridges and min(gammas) > 0 and min(ridges) > 0):
+            raise UserError(f"KernelProbe: gammas {gammas} and ridges {ridges} must be "
+                            "non-empty and positive")
+        if not 0 < held_out < 1:
+            raise UserError(f"KernelProbe: held_out={held_out} must be a fraction in (0, 1)")
+        self.gammas, self.ridges, self.held_out = gammas, ridges, held_out
+        self.max_frames, self.seed = max_frames, seed
+
+    def fit(self, z: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None
+            ) -> KernelProbe:
+        """z (M, nz) latents, y (M, ny) targets, groups (M,) each frame's trajectory (None or
+        a single one: frames are held out one by one)."""
+        z, y = np.asarray(z, np.float64), np.asarray(y, np.float64)
+        if z.ndim != 2 or y.ndim != 2 or len(z) != len(y) or len(z) < 4:
+            raise UserError(f"KernelProbe: latents {z.shape} and targets {y.shape} must be "
+                            "(M, nz) and (M, ny) with the same M >= 4")
+        rng = np.random.default_rng(self.seed)
+        groups = np.arange(len(z)) if groups is None else np.asarray(groups)
+        ids = np.unique(groups)
+        if len(ids) < 2:
+            groups, ids = np.arange(len(z)), np.arange(len(z))
+        if len(z) > self.max_frames:  # whole trajectories, as many as fit
+            keep = rng.permutation(ids)[: max(2, len(ids) * self.max_frames // len(z))]
+            z, y, groups = z[np.isin(groups, keep)], y[np.isin(groups, keep)], groups[
+                np.isin(groups, keep)]
+            ids = np.unique(groups)
+        val = np.isin(groups, rng.permutation(ids)[: max(1, round(self.held_out * len(ids)))])
+        self.mean_, self.scale_ = z.mean(0), z.std(0) + 1e-12
+        self.y_mean_, self.y_scale_ = y.mean(0), y.std(0) + 1e-12
+        x = torch.as_tensor((z - self.mean_) / self.scale_)
+        t = torch.as_tensor((y - self.y_mean_) / self.y_scale_)
+        fit, v = torch.as_tensor(~val), torch.as_tensor(val)
+        best = np.full(t.shape[1], np.inf)
+        self.gamma_, self.ridge_ = np.zeros(t.shape[1]), np.zeros(t.shape[1])
+        for g in self.gammas:
+            k_fit = _rbf(x[fit], x[fit], g / x.shape[1])
+            k_val = _rbf(x[v], x[fit], g / x.shape[1])
+            for lam in self.ridges:
+                err = ((k_val @ self._solve(k_fit, t[fit], lam) - t[v]) ** 2).mean(0).numpy()
+                better = err < best
+                best[better], self.gamma_[better], self.ridge_[better] = err[better], g, lam
+        self.centres_ = x
+        self.coef_ = torch.zeros_like(t)  # (M, ny): one column per target, its own kernel
+        for g, lam in sorted(set(zip(self.gamma_, self.ridge_, strict=True))):
+            cols = torch.as_tensor((self.gamma_ == g) & (self.ridge_ == lam))
+            self.coef_[:, cols] = self._solve(_rbf(x, x, g / x.shape[1]), t[:, cols], lam)
+        return self
+
+    @staticmethod
+    def _solve(k: torch.Tensor, t: torch.Tensor, lam: float) -> torch.Tensor:
+        """(K + λ M I)⁻¹ t by Cholesky (cheaper than an eigendecomposition per width)."""
+        eye = torch.eye(len(k), dtype=k.dtype)
+        return torch.cholesky_solve(t, torch.linalg.cholesky(k + lam * len(k) * eye))
+
+    def predict(self, z: np.ndarray) -> np.ndarray:
+        """(M', nz) latents -> (M', ny) predicted targets."""
+        x = torch.as_tensor((np.asarray(z, np.float64) - self.mean_) / self.scale_)
+        out = torch.zeros(len(x), self.coef_.shape[1], dtype=torch.float64)
+        for g in sorted(set(self.gamma_)):
+            cols = torch.as_tensor(self.gamma_ == g)
+            out[:, cols] = _rbf(x, self.centres_, g / x.shape[1]) @ self.coef_[:, cols]
+        return out.numpy() * self.y_scale_ + self.y_mean_
 
 
 @torch.no_grad()
