@@ -41,8 +41,8 @@ __all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "hel
            "train_job"]
 
 #: Version of evaluation.json's contents: 2 added the latent probe and position errors, 3
-#: the state models' position errors.
-EVAL_VERSION = 3
+#: the state models' position errors, 4 the kernel probe (probe["kernel/..."]).
+EVAL_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -119,8 +119,8 @@ def _what_the_latent_knows(loaded: Any, data: SequenceData,
                 "position": probe.state_position_errors(held_out(data), predictions)}
     if loaded.model.config.observation.kind != "image":
         return {"probe": None, "position": None}
-    return {"probe": probe.latent_probe(loaded.model, data, loaded.normalizer,
-                                        held_out_split(data)),
+    return {"probe": probe.latent_probes(loaded.model, data, loaded.normalizer,
+                                         held_out_split(data)),
             "position": probe.position_errors(loaded.model, held_out(data), loaded.normalizer,
                                               predictions=predictions)}
 
@@ -159,7 +159,8 @@ def _whole_evaluation(record: Any, key: dict[str, Any]) -> bool:
         return False
     if not all(v is None or _number(v) for v in stats.values()):
         return False
-    if probe is not None and not (isinstance(probe, dict) and {"cos", "sin"} <= probe.keys()
+    if probe is not None and not (isinstance(probe, dict)
+                                  and {"cos", "sin", "kernel/angle"} <= probe.keys()
                                   and all(map(_number, probe.values()))):
         return False
     return position is None or (isinstance(position, dict) and _number(position.get("recon"))

@@ -197,7 +197,8 @@ def latent_probes(model: LatentModel, data: SequenceData, normalizer: Normalizer
 
 def _kernel_r2(z_tr: np.ndarray, y_tr: np.ndarray, z_te: np.ndarray, y_te: np.ndarray,
                groups: np.ndarray, seed: int) -> dict[str, float]:
-    if not (np.isfinite(z_tr).all() and np.isfinite(z_te).all()):  # a diverged encoder
+    # Too few frames to choose its settings on, or a diverged encoder: no figure.
+    if len(z_tr) < 4 or not (np.isfinite(z_tr).all() and np.isfinite(z_te).all()):
         return dict.fromkeys(FEATURES, float("nan"))
     return _r2(KernelProbe(seed=seed).fit(z_tr, y_tr, groups).predict(z_te), y_te)
 
