@@ -21,8 +21,10 @@ def _contract_ini() -> str:
     cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
     lines = ["[importlinter]", f"root_package = {cfg['root_package']}"]
     for i, c in enumerate(cfg["contracts"]):
-        lines += [f"[importlinter:contract:{i}]", f"name = {c['name']}", f"type = {c['type']}",
-                  "layers ="] + [f"    {layer}" for layer in c["layers"]]
+        lines += [f"[importlinter:contract:{i}]", f"name = {c['name']}", f"type = {c['type']}"]
+        for key in ("layers", "modules"):  # a layers or an independence contract
+            if key in c:
+                lines += [f"{key} ="] + [f"    {m}" for m in c[key]]
         if c.get("ignore_imports"):
             lines += ["ignore_imports ="] + [f"    {i}" for i in c["ignore_imports"]]
     return "\n".join(lines) + "\n"
@@ -46,6 +48,13 @@ def test_the_contract_holds_and_fails_on_a_back_import(tmp_path: Path) -> None:
     broken = _lint(copy, tmp_path)
     assert broken.returncode != 0
     assert "latent_sindy.data is not allowed to import latent_sindy.training" in broken.stdout
+    store.write_text(store.read_text().replace("\nimport latent_sindy.training  # noqa\n", ""))
+    world = copy / "worlds" / "pendulum" / "physics.py"  # one world importing another
+    world.write_text(world.read_text() + "\nimport latent_sindy.worlds.push.criteria  # noqa\n")
+    crossed = _lint(copy, tmp_path)
+    assert crossed.returncode != 0
+    assert "latent_sindy.worlds.pendulum is not allowed to import latent_sindy.worlds.push" \
+        in crossed.stdout.replace("\n", " ")
 
 
 def _imports(path: Path):
