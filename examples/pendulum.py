@@ -3,8 +3,10 @@
 The world is gymnasium's Pendulum-v1 drawn as a rod, two consecutive frames stacked so the
 rate is visible (latent_sindy.worlds.pendulum). Random torques from random starts give the
 data; a latent SINDy model is fitted to the images; MPPI in its latent space then tries to
-swing the pendulum up from hanging toward the goal image, upright at rest. At this small
-size the model is rough, and the swing-up is shown, not promised.
+swing the pendulum up from hanging toward the goal image, upright at rest, with a cost that
+is not flat at the bottom: the distance to the goal's code along the data's codes
+(latent_sindy.worlds.pendulum.graph_cost). At this small size the model is rough, and the
+swing-up is shown, not promised; the measured study is latent_sindy.worlds.pendulum.study.
 
     python examples/pendulum.py                        # about a minute on 2 CPU cores
     python examples/pendulum.py --epochs 1 --steps 20  # a smoke run
@@ -17,10 +19,10 @@ import argparse
 import numpy as np
 
 from latent_sindy import LatentSINDy
-from latent_sindy.control import MPPIConfig
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum import PendulumConfig, PendulumWorld
-from latent_sindy.worlds.pendulum.swing_up import ImagePolicy, run_swing_up
+from latent_sindy.worlds.pendulum.study import LatentSwingUp, StudyConfig
+from latent_sindy.worlds.pendulum.swing_up import run_swing_up
 
 
 def main() -> None:
@@ -46,8 +48,11 @@ def main() -> None:
 
     # ------------------------------------------------------------- 3. swing up from hanging
     hanging = PendulumWorld(PendulumConfig(start="hanging", image_size=args.image_size))
-    planner = model.planner(MPPIConfig(samples=200, horizon=10, sigma=1.0, lambda_=0.01))
-    (episode,) = run_swing_up(hanging, ImagePolicy(planner), episodes=1, steps=args.steps,
+    codes = model.encode(data.split("train").images.reshape(-1, *data.frame_shape))
+    settings = StudyConfig(samples=300, horizon=30, sigma=1.0, lambda_=1.0,
+                           nodes=min(600, len(codes) - 1), neighbours=min(8, len(codes) - 2))
+    policy = LatentSwingUp(model, codes, settings)  # reads the image only
+    (episode,) = run_swing_up(hanging, policy, episodes=1, steps=args.steps,
                               last=min(20, args.steps))
     print(f"\nswing-up from θ = {episode.task.start[0]:.2f}: upright (within 10°) "
           f"{100 * episode.upright_fraction:.0f}% of {args.steps} steps, highest point "

@@ -112,3 +112,18 @@ def test_the_latent_policy_reads_the_image_only(one_torch_thread):
     policy.reset(observe(0.0, 0.0, 16), seed=0)
     u = policy.act(observe(math.pi, 0.0, 16), state=None)  # no state to read
     assert u.shape == (1,) and abs(float(u[0])) <= 2
+
+
+def test_the_tabulated_graph_cost_reads_like_the_exact_one():
+    rng = np.random.default_rng(1)
+    phi = rng.uniform(-math.pi, math.pi, 400)
+    codes = np.c_[circle(phi), 0.1 * rng.standard_normal(400)]  # (400, 3)
+    goal = np.array([1.0, 0.0, 0.0])
+    exact = GraphDistanceCost(codes, goal, neighbours=10, nodes=400, seed=0)
+    table = GraphDistanceCost(codes, goal, neighbours=10, nodes=400, seed=0, grid=40)
+    probe = torch.tensor(codes[:50], dtype=torch.float32)
+    np.testing.assert_allclose(table.distance(probe), exact.distance(probe), atol=0.1)
+    far = torch.tensor([[5.0, 0.0, 0.0]])  # outside the table: grows with the way out
+    assert float(table.distance(far)) > float(table.distance(torch.tensor([[1.2, 0, 0]])))
+    bad = torch.tensor([[float("nan"), 0.0, 0.0], [float("inf"), 0.0, 0.0]])
+    assert torch.isinf(table.distance(bad)).all()  # diverged rollouts cost inf

@@ -10,11 +10,15 @@ hanging lowers it to first order, as Pendulum-v1's own θ² does. No true state 
 graph's nodes are the codes of the training images, its edges join each code to its
 ``neighbours`` nearest (and a spanning tree keeps it connected), and Dijkstra's shortest
 paths from the goal's code give every node's distance. A latent z costs
-``weight · (d(n) + ‖z − n‖)²``, n its nearest node.
+``weight · (d(n) + ‖z − n‖)²``, n its nearest node. With ``grid`` > 0 that distance is
+tabulated once on a grid of ``grid`` points per latent axis over the nodes' box and read by
+multilinear interpolation (plus the distance to the box outside it): MPPI asks for H·K
+latents per command, and comparing each with every node costs more than the rollout.
 
     >>> cost = GraphDistanceCost(codes, z_goal, neighbours=8, nodes=600, seed=0)
     >>> cost(z)                 # z (..., nz) -> (...)
     >>> cost.distance(z)        # the distance itself, in latent units
+    >>> GraphDistanceCost(codes, z_goal, grid=32)  # the same, read from a table
 """
 
 from __future__ import annotations
@@ -75,11 +79,12 @@ class GraphDistanceCost:
         nodes: at most this many codes are kept (drawn with ``seed``): the cost compares
             every predicted latent with every node.
         weight: scale of the squared distance.
+        grid: points per latent axis of the distance's table (0: no table, exact).
     """
 
     def __init__(self, codes: np.ndarray | Tensor, z_goal: np.ndarray | Tensor,
                  neighbours: int = 8, nodes: int = 600, weight: float = 1.0,
-                 seed: int = 0) -> None:
+                 seed: int = 0, grid: int = 0) -> None:
         codes = np.asarray(codes, np.float64)
         goal = np.asarray(z_goal, np.float64).reshape(-1)
         if codes.ndim != 2 or codes.shape[1] != goal.size or len(codes) <= neighbours:
@@ -97,12 +102,56 @@ class GraphDistanceCost:
         self.node_distance = torch.tensor(graph_distances(points, 0, neighbours),
                                           dtype=torch.float32)  # (N + 1,)
         self.weight = float(weight)
+        self.table: Tensor | None = None
+        if grid:
+            if grid < 2 or grid ** goal.size > 2 ** 22:
+                raise UserError(f"GraphDistanceCost grid {grid}: use 2 or more points per "
+                                f"axis, at most 2^22 in all ({goal.size} latent axes)")
+            self._tabulate(grid)
+
+    def exact_distance(self, z: Tensor) -> Tensor:
+        """The distance (...) of latents z (..., nz) from the nodes themselves."""
+        flat = z.reshape(-1, z.shape[-1]).to(self.nodes.dtype)  # (M, nz)
+        out = torch.empty(len(flat))
+        for k in range(0, len(flat), 8192):  # chunks: (8192, N + 1) at most
+            gap, nearest = torch.cdist(flat[k:k + 8192], self.nodes).min(1)
+            out[k:k + 8192] = self.node_distance[nearest] + gap
+        return out.reshape(z.shape[:-1])
+
+    def _tabulate(self, grid: int) -> None:
+        lo, hi = self.nodes.min(0).values, self.nodes.max(0).values  # (nz,)
+        pad = 0.05 * (hi - lo) + 1e-6
+        self.low, self.high = lo - pad, hi + pad
+        self.cell = (self.high - self.low) / (grid - 1)  # (nz,)
+        axes = [self.low[i] + self.cell[i] * torch.arange(grid) for i in range(len(lo))]
+        points = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1)  # (g, ..., g, nz)
+        self.table = self.exact_distance(points)  # (g, ..., g)
+        nz = len(lo)
+        self._corners = torch.tensor([[(c >> i) & 1 for i in range(nz)]
+                                      for c in range(2 ** nz)])  # (2^nz, nz) of 0/1
+        self._strides = torch.tensor([grid ** (nz - 1 - i) for i in range(nz)])  # (nz,)
 
     def distance(self, z: Tensor) -> Tensor:
         """The distance (...) to the goal along the graph of latents z (..., nz)."""
+        if self.table is None:
+            return self.exact_distance(z)
         flat = z.reshape(-1, z.shape[-1]).to(self.nodes.dtype)  # (M, nz)
-        gap, nearest = torch.cdist(flat, self.nodes).min(1)  # (M,), (M,)
-        return (self.node_distance[nearest] + gap).reshape(z.shape[:-1])
+        finite = torch.isfinite(flat).all(-1)  # (M,): a diverged rollout costs inf
+        flat = torch.where(finite[:, None], flat, self.low)
+        inside = torch.maximum(torch.minimum(flat, self.high), self.low)  # (M, nz)
+        outside = (flat - inside).norm(dim=-1)  # (M,): 0 within the table's box
+        pos = (inside - self.low) / self.cell  # (M, nz) in cells
+        g = self.table.shape[0]
+        base = pos.floor().clamp(0, g - 2)  # (M, nz)
+        frac = pos - base  # (M, nz) in [0, 1]
+        idx = base.long() @ self._strides  # (M,)
+        out = torch.zeros(len(flat))
+        table = self.table.reshape(-1)
+        for corner in self._corners:  # 2^nz corners of each point's cell
+            w = torch.where(corner.bool(), frac, 1 - frac).prod(-1)  # (M,)
+            out += w * table[idx + corner @ self._strides]
+        out = torch.where(finite, out + outside, torch.inf)
+        return out.reshape(z.shape[:-1])
 
     def __call__(self, z: Tensor) -> Tensor:
         return self.weight * self.distance(z).square()
