@@ -121,7 +121,8 @@ def test_every_figure_equation_and_summary_is_written(study):
     report = (out / "report.html").read_text()
     assert "nothing moves scores" in report and "What the latent knows" in report
     record = json.loads((out / "runs/seed0/sindy2/evaluation.json").read_text())
-    assert set(record["probe"]) == {"x", "y", "cos", "sin"}
+    assert set(record["probe"]) == {"x", "y", "cos", "sin", *(f"kernel/{k}" for k in (
+        "x", "y", "cos", "sin", "angle"))}
     assert len(record["position"]["model"]) == SCALES["tiny"].steps
     assert json.loads((out / "runs/seed0/state_mlp/evaluation.json").read_text())["probe"] is None
 

@@ -44,7 +44,8 @@ class RunResult:
     observation: str = "image"
     """What the model saw; the prediction error is in that space ("state_err/*" for states)."""
     probe: dict[str, float] | None = None
-    """R² of the linear probe from the latent to each pose feature (image models)."""
+    """R² of the probes from the latent to each pose feature (image models): the linear one
+    (x, y, cos, sin) and the kernel ridge one (``kernel/...``)."""
     position: dict[str, Any] | None = None
     """Block position errors in cm (:func:`.probe.position_errors`; state models:
     :func:`.probe.state_position_errors`)."""

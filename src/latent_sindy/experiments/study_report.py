@@ -110,7 +110,11 @@ def _latent_knows(study: Study) -> str | None:
         return None
 
     def probe(m: str) -> str:
-        return "/".join(_fmt(study, m, f"probe/{k}", "r2") for k in ("x", "y", "angle"))
+        linear = "/".join(_fmt(study, m, f"probe/{k}", "r2") for k in ("x", "y", "angle"))
+        if _get(study, m, "probe/kernel/angle") is None:
+            return linear
+        kernel = "/".join(_fmt(study, m, f"probe/kernel/{k}", "r2") for k in ("x", "y", "angle"))
+        return f"{linear} (kernel ridge {kernel})"
 
     def cm(m: str, key: str) -> str:
         return _fmt(study, m, key, "num2")
@@ -130,7 +134,8 @@ def _latent_knows(study: Study) -> str | None:
                       cm(m, f"pos_err/h{h}") for h in horizons) for m in states)
                   + " cm off: the bound for the image models.")
     return ("What the latent knows (image models, test images): a linear probe from the latent "
-            "to the block's pose reaches R² (x / y / angle features) "
+            "to the block's pose reaches R² (x / y / angle features; in brackets a kernel ridge "
+            "probe, which also sees what the latent holds nonlinearly) "
             + ", ".join(f"{study.labels[m]} {probe(m)}" for m in models)
             + ". Block position read from the decoded open-loop predictions after "
             + " / ".join(map(str, horizons)) + " pushes, error in cm: " + "; ".join(parts)
