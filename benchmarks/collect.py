@@ -5,7 +5,8 @@ Prints, for this machine:
     attempts included) with 1 and 2 workers;
   * ms per observation render in the camera-only world (what `observe` does) against the
     same image rendered in the full simulated scene (arm included), in one process;
-  * ms per simulated push and per episode reset.
+  * ms per simulated push and per episode reset, and a reset (world rebuilt) with the arm's
+    visual meshes loaded (as before) against without them (as now), interleaved.
 
     .venv/bin/python benchmarks/collect.py --trajectories 12 --steps 10
 """
@@ -22,6 +23,7 @@ import numpy as np
 
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 from latent_sindy.worlds.push.panda_push import PandaPushEnv
+from latent_sindy.worlds.push.world import PushWorld
 
 
 def time_collection(trajectories: int, steps: int, workers: int) -> tuple[float, float]:
@@ -30,17 +32,15 @@ def time_collection(trajectories: int, steps: int, workers: int) -> tuple[float,
         t0 = time.perf_counter()
         path = collect(Path(d) / "bench.h5", plan, workers=workers)
         wall = time.perf_counter() - t0
-        import h5py, json  # noqa: E401, I001
+        from latent_sindy.data import read_sequences
 
-        with h5py.File(path) as f:
-            attempts = sum(json.loads(f.attrs["collection"])["attempts"])
+        attempts = sum(read_sequences(path).record["collection"]["attempts"])
     return trajectories * steps / wall, attempts / trajectories
 
 
 def time_renders(repeats: int) -> tuple[float, float]:
-    env = PandaPushEnv()
-    env.reset(seed=0)
-    w = env.world
+    w = PushWorld(arm_visuals=True)  # the full scene with the arm drawn
+    w.reset((0.5, 0.0, 0.0), (0.7, 0.0, 0.0))
     w.observe()
     t0 = time.perf_counter()
     for _ in range(repeats):
@@ -50,8 +50,22 @@ def time_renders(repeats: int) -> tuple[float, float]:
     for _ in range(max(1, repeats // 20)):
         w.observe_full_scene()
     full = (time.perf_counter() - t0) / max(1, repeats // 20) * 1e3
-    env.close()
+    w.close()
     return fast, full
+
+
+def time_rebuilds(n: int) -> tuple[float, float]:
+    """ms per world rebuild with and without the arm's visual meshes (interleaved)."""
+    worlds = {v: PushWorld(arm_visuals=v) for v in (True, False)}
+    times: dict[bool, list[float]] = {True: [], False: []}
+    for _ in range(n):
+        for v, w in worlds.items():
+            t0 = time.perf_counter()
+            w.reset((0.5, 0.0, 0.0), (0.7, 0.0, 0.0))
+            times[v].append(time.perf_counter() - t0)
+    for w in worlds.values():
+        w.close()
+    return 1e3 * float(np.median(times[True])), 1e3 * float(np.median(times[False]))
 
 
 def time_pushes(n: int) -> tuple[float, float, float]:
@@ -83,6 +97,9 @@ def main() -> None:
     push_ms, reset_ms, sim_steps = time_pushes(20)
     print(f"one push: {push_ms:.1f} ms ({sim_steps:.0f} simulation steps at 240 Hz); "
           f"one episode reset (world rebuilt): {reset_ms:.1f} ms")
+    with_meshes, without = time_rebuilds(20)
+    print(f"world rebuild: {with_meshes:.1f} ms with the arm's visual meshes, {without:.1f} ms "
+          f"without (x{with_meshes / without:.1f} faster; median of 20, interleaved)")
     fast, full = time_renders(args.render_repeats)
     print(f"observation render: {fast:.2f} ms camera world vs {full:.2f} ms full scene "
           f"(x{full / fast:.0f} faster)")

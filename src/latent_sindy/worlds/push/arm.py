@@ -40,11 +40,17 @@ MAX_START_DISTANCE = 0.88  # m from the base's axis: no posture reached a push s
 
 
 class Arm:
-    """The Panda in simulation client `sim`: loaded at HOME with the fingers closed."""
+    """The Panda in simulation client `sim`: loaded at HOME with the fingers closed.
 
-    def __init__(self, sim: BulletClient) -> None:
+    Without ``visuals`` its visual meshes are not loaded: loading them was about four fifths
+    of a world's rebuild (BENCHMARKS.md), and no picture shows the arm, which is parked out
+    of the camera's view before every frame. The physics is the same bit for bit.
+    """
+
+    def __init__(self, sim: BulletClient, visuals: bool = False) -> None:
         self.sim = sim
-        self.body = sim.loadURDF("franka_panda/panda.urdf", useFixedBase=True)
+        flags = 0 if visuals else pb.URDF_IGNORE_VISUAL_SHAPES
+        self.body = sim.loadURDF("franka_panda/panda.urdf", useFixedBase=True, flags=flags)
         info = [sim.getJointInfo(self.body, j) for j in ARM_JOINTS]
         self.lower = [i[8] for i in info]
         self.upper = [i[9] for i in info]

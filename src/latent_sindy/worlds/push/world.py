@@ -100,8 +100,11 @@ def contact_frame(style: str, theta: float, angle: float
 class PushWorld:
     """Panda, table, block and goal marker, simulated and rendered headless."""
 
-    def __init__(self, cfg: PushEnvConfig | None = None) -> None:
+    def __init__(self, cfg: PushEnvConfig | None = None, arm_visuals: bool = False) -> None:
+        """``arm_visuals``: load the arm's visual meshes (only :meth:`observe_full_scene`
+        needs them, to check that no picture would show the arm)."""
         self.cfg = cfg or PushEnvConfig()
+        self._arm_visuals = arm_visuals
         with quiet_c_output():
             self.sim = BulletClient(connection_mode=pb.DIRECT)
         self.sim.setAdditionalSearchPath(pybullet_data.getDataPath())
@@ -133,7 +136,7 @@ class PushWorld:
             0, -1, c.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=GOAL_RGBA),
             basePosition=PARKED,
         )
-        self.arm = Arm(c)
+        self.arm = Arm(c, self._arm_visuals)
 
     # ------------------------------------------------------------------ state
     def reset(self, start: tuple[float, float, float], goal: tuple[float, float, float]) -> None:
@@ -277,7 +280,8 @@ class PushWorld:
     def observe_full_scene(self) -> np.ndarray:
         """The same image rendered in the simulation (arm included, goal marker hidden).
 
-        Slow; exists to check that :meth:`observe` shows exactly what the camera would.
+        Slow; exists to check that :meth:`observe` shows exactly what the camera would
+        (build the world with ``arm_visuals=True`` for that, or the arm is invisible here).
         """
         self.sim.resetBasePositionAndOrientation(self.goal, PARKED, [0, 0, 0, 1])
         try:
