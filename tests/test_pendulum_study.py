@@ -86,7 +86,7 @@ def test_state_sindy_finds_the_discretised_physics_and_steps_like_it():
 def test_the_study_runs_end_to_end_and_tabulates_every_model(one_torch_thread):
     cfg = StudyConfig(image_size=16, sequences=12, steps=3, epochs=1, window=2, episodes=2,
                       episode_steps=4, last=2, samples=16, horizon=3, nodes=20,
-                      neighbours=4)
+                      neighbours=4, cost_check=1)
     result = run_study(cfg, report=lambda _: None)
     names = [r.name for r in result.rows]
     assert names == ["state SINDy (true state)", "sindy (images)", "mlp (images)",
@@ -100,6 +100,7 @@ def test_the_study_runs_end_to_end_and_tabulates_every_model(one_torch_thread):
         assert flo <= f <= fhi
         assert row.name in table
     assert table.count("–") >= 8  # two intervals per row
+    assert all(len(r.cost_check) == 1 for r in result.rows[1:])  # the diagnostic ran
     assert "torque" in result.equations()  # the sparse models' equations name the action
 
 

@@ -35,8 +35,10 @@ from latent_sindy.models import LossWeights
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.config import PendulumConfig
+from latent_sindy.worlds.pendulum.diagnostics import TrueDynamicsImageCost
 from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost
-from latent_sindy.worlds.pendulum.plugin import PendulumWorld
+from latent_sindy.worlds.pendulum.plugin import UPRIGHT, PendulumWorld
+from latent_sindy.worlds.pendulum.render import observe
 from latent_sindy.worlds.pendulum.state_sindy import StateSindy
 from latent_sindy.worlds.pendulum.swing_up import StateMPPI, SwingUp, run_swing_up
 
@@ -92,6 +94,9 @@ class StudyConfig:
     """Edges per node of that graph."""
     grid: int = 32
     """Points per latent axis of the cost's table (0: exact, slower)."""
+    cost_check: int = 10
+    """Episodes of the diagnostic per image model: MPPI on the true dynamics with the
+    model's latent cost of each state's image (does the cost suffice?); 0: none."""
     seed: int = 0
     """Seeds the data, the models, the tasks and the planners."""
 
@@ -165,6 +170,8 @@ class ModelRow:
     sparsity: float | None = None
     fit_seconds: float = 0.0
     control_seconds: float = 0.0
+    cost_check: list[SwingUp] = field(default_factory=list)
+    """The diagnostic's episodes (true dynamics, this model's cost from images)."""
 
     @property
     def successes(self) -> int:
@@ -192,15 +199,18 @@ class StudyResult:
         """The results as a markdown table."""
         n = self.config.episodes
         lines = [f"| model | swing-ups of {n} (95 % Wilson) | time upright (95 %) | one-step "
-                 "R² | sparsity | fit s | control s |", "|---|---|---|---|---|---|---|"]
+                 "R² | sparsity | fit s | control s | its cost, true dynamics |",
+                 "|---|---|---|---|---|---|---|---|"]
         for r in self.rows:
             lo, hi = r.success_interval
             f, flo, fhi = r.upright
             r2 = "" if r.r2 is None else f"{r.r2:.3f}"
             sp = "" if r.sparsity is None else f"{100 * r.sparsity:.1f} %"
+            check = (f"{sum(e.success for e in r.cost_check)} of {len(r.cost_check)}"
+                     if r.cost_check else "")
             lines.append(f"| {r.name} | {r.successes} ({100 * lo:.0f}–{100 * hi:.0f} %) | "
                          f"{100 * f:.0f} % ({100 * flo:.0f}–{100 * fhi:.0f}) | {r2} | {sp} | "
-                         f"{r.fit_seconds:.0f} | {r.control_seconds:.0f} |")
+                         f"{r.fit_seconds:.0f} | {r.control_seconds:.0f} | {check} |")
         return "\n".join(lines)
 
     def equations(self) -> str:
@@ -241,6 +251,8 @@ def run_study(config: StudyConfig | None = None,
                                     cfg.seed, cfg.last)
         row.control_seconds = time.perf_counter() - t0
         result.rows.append(row)
+        report(f"state SINDy: {row.successes} of {cfg.episodes} swing-ups "
+               f"({row.control_seconds:.0f} s)")
     for kind in cfg.models:
         t0 = time.perf_counter()
         model = fit_image_model(data, kind, cfg)
@@ -256,9 +268,15 @@ def run_study(config: StudyConfig | None = None,
         row.episodes = run_swing_up(tasks, policy, cfg.episodes, cfg.episode_steps,
                                     cfg.seed, cfg.last)
         row.control_seconds = time.perf_counter() - t0
+        if cfg.cost_check:
+            check = TrueDynamicsImageCost(model, policy.cost(observe(*UPRIGHT, cfg.image_size)),
+                                          cfg.image_size, cfg.mppi())
+            row.cost_check = run_swing_up(tasks, check, cfg.cost_check, cfg.episode_steps,
+                                          cfg.seed, cfg.last)
         result.rows.append(row)
         report(f"{kind}: {row.successes} of {cfg.episodes} swing-ups "
-               f"({row.control_seconds:.0f} s)")
+               f"({row.control_seconds:.0f} s); with the true dynamics and this cost "
+               f"{sum(e.success for e in row.cost_check)} of {len(row.cost_check)}")
     return result
 
 
