@@ -49,7 +49,7 @@ def main() -> None:
     # ------------------------------------------------------------- 3. swing up from hanging
     hanging = PendulumWorld(PendulumConfig(start="hanging", image_size=args.image_size))
     codes = model.encode(data.split("train").images.reshape(-1, *data.frame_shape))
-    settings = StudyConfig(samples=300, horizon=30, sigma=1.0, lambda_=1.0,
+    settings = StudyConfig(samples=500, horizon=30, sigma=1.0, lambda_=0.3,
                            nodes=min(600, len(codes) - 1), neighbours=min(8, len(codes) - 2))
     policy = LatentSwingUp(model, codes, settings)  # reads the image only
     (episode,) = run_swing_up(hanging, policy, episodes=1, steps=args.steps,
