@@ -13,8 +13,11 @@ are those of the frames (``--derivatives central``, taken at the video's own dt 
 keeping every ``frames_every``-th frame). The FVUs are measured in pixel space, the truncation
 included.
 
-    .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..3 --schedule fast
+    .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..2 --schedule lite
     .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..9 --derivatives central
+
+The data is cached in /tmp (pendulum_pca_K_EVERY_DERIVATIVES.npz) after its first making.
+Results and what each schedule gave: RESULTS.md, "The pendulum video (issue 22)".
 """
 
 from __future__ import annotations
@@ -68,6 +71,12 @@ SCHEDULES = {
     "warm": Schedule(150, 3e-3, 500, 5, 15, 30, warmup=100),
     "long0": Schedule(300, 3e-3, 100, 5, 25, 60, warmup=100, init="normal", init_scale=1e-3),
     "small0": Schedule(120, 1e-3, 100, 5, 30, 20, init="normal", init_scale=1e-3),
+    # 60-epoch probes of one change each against small0 at lr 3e-3
+    "probe_warm10": Schedule(60, 3e-3, 100, 5, 20, 10, warmup=10, init="normal",
+                             init_scale=1e-3),
+    "probe_px": Schedule(60, 3e-3, 100, 5, 20, 10, pred_x=5e-6, init="normal", init_scale=1e-3),
+    "probe_pz": Schedule(60, 3e-3, 100, 5, 20, 10, pred_z=5e-9, l1=1e-9, init="normal",
+                         init_scale=1e-3),
     # The z̈ and L1 weights 1e4 times smaller: the encoder's z̈ on normalised coordinates starts
     # ~1000 (its pred_z term then flattens z within one epoch); this one learns the frames.
     "lite": Schedule(250, 3e-3, 100, 5, 25, 50, pred_z=5e-9, l1=1e-9, init="normal",
@@ -248,7 +257,7 @@ def seeds_of(text: str) -> list[int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0..9", help="model seeds: 0..9 or 0,3,5")
-    ap.add_argument("--schedule", default="fast", choices=sorted(SCHEDULES))
+    ap.add_argument("--schedule", default="lite", choices=sorted(SCHEDULES))
     ap.add_argument("--derivatives", default="exact", choices=["exact", "central"])
     ap.add_argument("--components", type=int, default=48, help="principal components kept")
     ap.add_argument("--epochs", type=int, default=None, help="override the schedule's epochs")
