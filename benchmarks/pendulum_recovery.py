@@ -81,6 +81,8 @@ SCHEDULES = {
     # ~1000 (its pred_z term then flattens z within one epoch); this one learns the frames.
     "lite": Schedule(250, 3e-3, 100, 5, 25, 50, pred_z=5e-9, l1=1e-9, init="normal",
                      init_scale=1e-3),
+    "lite100": Schedule(250, 3e-3, 100, 5, 25, 50, pred_z=5e-7, l1=1e-9, init="normal",
+                        init_scale=1e-3),
 }
 
 
