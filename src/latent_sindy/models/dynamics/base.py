@@ -236,6 +236,12 @@ class SparseDynamics(LatentDynamics):
         """Indices of library terms active in at least one state: (p_active,) long."""
         return self.mask.any(dim=1).nonzero().flatten()
 
+    def stats(self) -> dict[str, float | None]:
+        return {**super().stats(), "sindy/active": self.n_active(),
+                "sindy/coefficients": self.n_candidates(),
+                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
+                "sindy/sparsity": self.sparsity()}
+
 
 def format_equations(rows: list[Row], nz: int, precision: int, residual: bool,
                      left: str = "{state}[t+1]") -> list[str]:

@@ -185,12 +185,6 @@ class ContinuousSindyDynamics(SparseDynamics):
                 "terms": self.names, "derivative_order": self.derivative_order,
                 "dt": self.dt, **super().export_info()}
 
-    def stats(self) -> dict[str, float | None]:
-        return {**super().stats(), "sindy/active": self.n_active(),
-                "sindy/coefficients": self.n_candidates(),
-                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
-                "sindy/sparsity": self.sparsity()}
-
     def extra_repr(self) -> str:
         return (f"nz={self.nz}, nu={self.nu}, derivative_order={self.derivative_order}, "
                 f"active={self.n_active()}/{self.n_candidates()}")

@@ -246,12 +246,6 @@ class SindyDynamics(SparseDynamics):
             self.mask[:, self.circle[1]] = False
             self.psi[:, self.circle[1]] = 0.0
 
-    def stats(self) -> dict[str, float | None]:
-        return {**super().stats(), "sindy/active": self.n_active(),
-                "sindy/coefficients": self.n_candidates(),
-                "sindy/terms_used": int(self.mask.any(dim=1).sum()),
-                "sindy/sparsity": self.sparsity()}
-
     def compile_sparse(self) -> SparseSindyDynamics:
         """A frozen copy of the current model that evaluates only the active library terms.
 
