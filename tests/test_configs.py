@@ -15,7 +15,7 @@ from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
 from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.scales import SCALES, Scale
+from latent_sindy.experiments.scales import ROUND_ONE, SCALES, Scale
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
 from latent_sindy.training import RunDir, TrainConfig, load_run
 from latent_sindy.worlds.push.collect import CollectionPlan
@@ -79,8 +79,9 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
                      "random_episodes", "other_random_episodes", "image_paper_episodes",
                      "image_random_episodes", "batching"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)
-    # the large scale: ten times the paper's trajectories, nothing else changed
-    assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == base
+    # the large scale: ten times the paper's trajectories on the round-one demo's schedule
+    assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == ROUND_ONE
+    assert ROUND_ONE.epochs == 2 * base.epochs and ROUND_ONE.threshold_every == 2 * base.threshold_every
     assert SCALES["large"].trajectories == 10 * SCALES["paper"].trajectories
 
 

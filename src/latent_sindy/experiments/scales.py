@@ -4,7 +4,7 @@ A scale is the base :class:`Scale` (the demo) with the few settings that differ,
 config files list only what they change; :data:`SCALES` names them for ``--scale``.
 
     >>> SCALES["paper"].epochs, SCALES["demo"].epochs
-    (3000, 60)
+    (3000, 30)
     >>> [c.name for c in SCALES["demo"].all_conditions()]
     ['paper/latent', 'random/latent', 'paper/image', 'random/image']
 """
@@ -23,7 +23,7 @@ from latent_sindy.worlds.push.planner import world_planner
 if TYPE_CHECKING:
     from latent_sindy.experiments.catalogue import ModelSpec
 
-__all__ = ["SCALES", "Condition", "Scale"]
+__all__ = ["ROUND_ONE", "SCALES", "Condition", "Scale"]
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image"]
@@ -69,14 +69,15 @@ class Scale:
     """Trajectories in all splits (1/2 train, 1/4 validation, 1/4 test)."""
     steps: int = 10
     """Pushes per trajectory."""
-    # 60 epochs of batch 64 are 960 updates, pruning every 6 epochs (10 times, as the paper's
-    # 3000/300). Fewer training trajectories than the paper's 100 overfitted every model
+    # 30 epochs of batch 64 are 480 updates, pruning every 3 epochs (10 times, as the paper's
+    # 3000/300): sized for the demo's 10 minutes on 2 cores (BENCHMARKS.md, "Where the demo's
+    # time goes"). Fewer training trajectories than the paper's 100 overfitted every model
     # (RESULTS.md, "What changed since the first demo run"), hence its data even in the demo.
-    epochs: int = 60
+    epochs: int = 30
     batch_size: int = 64
     threshold: float = 1e-3
     """SINDy: prune |Ψ| below this ..."""
-    threshold_every: int = 6
+    threshold_every: int = 3
     """... every this many epochs."""
     eval_every: int = 1
     """Validation loss every this many epochs (and at the last); it does not change the model."""
@@ -91,14 +92,14 @@ class Scale:
     """Training window H of the multi-step SINDy model."""
     paper_episodes: int = 5
     """Latent MPPI episodes on the paper's task (each with its own controller seed)."""
-    random_episodes: int = 50
+    random_episodes: int = 30
     """Latent MPPI episodes on random tasks of the headline rows (SINDy-2, linear, the
     state-space references): one fixed task list, the same for every model."""
-    other_random_episodes: int = 20
+    other_random_episodes: int = 12
     """... and of the other rows."""
-    image_paper_episodes: int = 5
+    image_paper_episodes: int = 3
     """Image-space MPPI episodes on the paper's task (models with ``image_space``)."""
-    image_random_episodes: int = 20
+    image_random_episodes: int = 12
     """Image-space MPPI episodes on random tasks (the first of the same task list)."""
     max_steps: int = 20
     """Pushes per latent MPPI episode (the course: 20)."""
@@ -152,10 +153,16 @@ PAPER = dataclasses.replace(
     paper_episodes=10, random_episodes=100, other_random_episodes=50, image_paper_episodes=10,
     image_random_episodes=50)
 
-#: Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the demo's
-#: schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five times
-#: the data buys" and "Large scale".
-LARGE = dataclasses.replace(DEMO, trajectories=2000)
+#: The demo's first schedule (60 epochs, 50 / 20 random tasks, 5 / 20 image-space episodes),
+#: the one every round-one figure used.
+ROUND_ONE = dataclasses.replace(
+    DEMO, epochs=60, threshold_every=6, random_episodes=50, other_random_episodes=20,
+    image_paper_episodes=5, image_random_episodes=20)
+
+#: Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the round-one
+#: demo's schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five
+#: times the data buys" and "Large scale".
+LARGE = dataclasses.replace(ROUND_ONE, trajectories=2000)
 
 #: Seconds: only checks that the pipeline runs end to end (tests).
 TINY = dataclasses.replace(
@@ -165,4 +172,5 @@ TINY = dataclasses.replace(
     mppi=MPPIConfig(samples=8, horizon=2))
 
 #: The scales ``--scale`` names.
-SCALES: dict[str, Scale] = {"demo": DEMO, "paper": PAPER, "large": LARGE, "tiny": TINY}
+SCALES: dict[str, Scale] = {"demo": DEMO, "paper": PAPER, "large": LARGE, "tiny": TINY,
+                            "round-one": ROUND_ONE}
