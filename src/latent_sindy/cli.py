@@ -255,10 +255,18 @@ class Reproduce:
     error against horizon, sparsity and closed-loop control (latent and image-space MPPI);
     writes table1.md/csv, figures/, equations, summary.json and a self-contained report.html.
     A re-run reuses finished pieces.
+
+    --world pendulum-video runs the SINDy autoencoder's pendulum-video recovery study over
+    seeds (per-seed equation, FVU of x, ẍ, z̈ beside the published and replicated figures;
+    finished seeds are reused); --world pendulum runs the controlled pendulum's swing-up study
+    (SINDy, MLP and linear image models, a state SINDy; success with Wilson intervals). Both
+    take --scale tiny|demo|published and --device, and write summary.json, table.md,
+    equations_*.txt and report.html.
     """
 
-    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=ReproduceConfig)
+    # No default instance: its fields' own defaults show (--seeds: the scale's, not the push
+    # study's 0 that a constructed default would hold).
+    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), Flat]
 
     def run(self) -> None:
         from latent_sindy.experiments.reproduce import reproduce

@@ -4,6 +4,11 @@
 ``--help``); :class:`StudyPlan` is what a config resolves to before anything runs: the
 models (:func:`.catalogue.study_specs`) and each (seed, model)'s run folder.
 
+``--world`` names a pushing world (``ENV_PRESETS``: the push study) or a world plug-in
+(entry points ``latent_sindy.worlds``) that has a study of its own: an object with ``about``,
+``scales`` (name -> what it runs) and ``reproduce(scale, out, seeds, device, threads, say)``.
+This module knows those plug-ins only through that interface.
+
     latent-sindy reproduce --scale demo --out results --seeds 0..2
 
     from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
@@ -16,7 +21,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import tyro
 
@@ -24,32 +29,71 @@ from latent_sindy.errors import UserError
 from latent_sindy.experiments.catalogue import SINGLE_STEP, ModelSpec, study_specs
 from latent_sindy.experiments.scales import SCALES, Scale
 from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
-from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.plugins import get_world, world_names
+from latent_sindy.worlds.push.config import ENV_PRESETS, PushEnvConfig
 
-__all__ = ["ReproduceConfig", "StudyPlan"]
+__all__ = ["ReproduceConfig", "StudyPlan", "study_worlds"]
+
+
+def study_worlds() -> dict[str, Any]:
+    """The installed world plug-ins that have a study of their own (``reproduce``)."""
+    found = {}
+    for name in world_names():
+        try:
+            world = get_world(name)
+        except Exception:  # a broken plug-in must not break the other commands (asked for
+            continue       # by name, get_world raises its error)
+        if callable(getattr(world, "reproduce", None)) and hasattr(world, "scales"):
+            found[name] = world
+    return found
+
+
+def _world_help() -> str:
+    studies = "; ".join(f"{name}: {getattr(w, 'about', 'its own study')}"
+                        for name, w in study_worlds().items())
+    return ("The world. A pushing world (the push study of models, control and Table I): "
+            f"{', '.join(ENV_PRESETS)} - symmetric (pushes in any direction, the default), "
+            "paper (the course's world: Table I as the paper defined it), marked (the "
+            "paper's push on a block with a visible mark). Or a world with a study of its "
+            f"own, written into the same report format: {studies or '(none installed)'}.")
+
+
+def _scale_help() -> str:
+    push = ("Push worlds: demo (the whole study in under 10 minutes on 2 cores); round-one "
+            "(the demo's first, twice longer schedule: 60 epochs, 50 random tasks per "
+            "headline row); large (ten times the paper's data on the round-one schedule); "
+            "paper (the paper's sizes, many hours on a CPU); tiny (seconds, for tests).")
+    others = " ".join(f"{name}: " + "; ".join(f"{s} ({what})" for s, what in w.scales.items())
+                      + "." for name, w in study_worlds().items())
+    return f"The study's size. {push} {others}".strip()
+
+
+#: Settings only the push study reads: refused with a world of another study.
+PUSH_ONLY = {"data": "--data", "data_seed": "--data-seed", "decoder": "--decoder",
+             "image_size": "--image-size", "workers": "--workers", "models": "--models",
+             "sweep": "--sweep", "executor": "--executor", "ray_address": "--ray-address",
+             "gpus": "--gpus"}
 
 
 @dataclass(frozen=True)
 class ReproduceConfig:
     """Settings of `latent-sindy reproduce`."""
 
-    scale: Literal["demo", "large", "paper", "tiny", "round-one"] = "demo"
-    """demo: the whole study in under 10 minutes on 2 cores; round-one: the demo's first,
-    twice longer schedule (60 epochs, 50 random tasks per headline row); large: ten times the
-    paper's data on the round-one schedule; paper: the paper's sizes (many hours on a CPU);
-    tiny: seconds, for tests."""
+    scale: Annotated[str, tyro.conf.arg(help=_scale_help(), metavar="SCALE")] = "demo"
     out: Path = Path("results")
     """Folder for everything (data, runs, tables, figures, report.html); re-runs reuse it."""
-    seeds: Seeds = (0,)
-    """Training and control seeds; several give mean ± std: 0 1 2, 0,1,2 or a range 0..9."""
+    seeds: Seeds | None = None
+    """Training and control seeds; several give mean ± std: 0 1 2, 0,1,2 or a range 0..9.
+    Default: the scale's (push worlds and pendulum: 0; pendulum-video: 0 at tiny, 0..2 at
+    demo, 0..9 at published)."""
     data: Path | None = None
     """Trajectory file to use (default OUT/data.h5, collected for the scale if missing)."""
     data_seed: int = 0
     """Seed of the data collection (the same data serve every training seed)."""
-    world: Literal["symmetric", "paper", "marked"] = "symmetric"
-    """The pushing world (envs.config.ENV_PRESETS): "symmetric" (pushes in any direction, the
-    default), "paper" (the course's world: reproduces Table I as the paper defined it) or
-    "marked" (the paper's push on a block with a visible mark)."""
+    world: Annotated[str, tyro.conf.arg(help=_world_help(), metavar="WORLD")] = "symmetric"
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Where a world study's models train (pendulum, pendulum-video): cuda when torch sees
+    one (auto), or as named. The push study trains on the CPU (on Ray, see --gpus)."""
     decoder: Literal["conv", "fc"] = "conv"
     """Decoder of every model: "conv" (transposed convolutions; generalises better) or "fc"
     (the course's fully connected one)."""
@@ -80,10 +124,21 @@ class ReproduceConfig:
     """Print stage lines and training milestones to stderr."""
 
     def __post_init__(self) -> None:
-        if self.scale not in SCALES:
-            raise UserError(f"--scale {self.scale}: use one of {', '.join(SCALES)}")
-        if not self.seeds or len(set(self.seeds)) != len(self.seeds) or min(self.seeds) < 0:
+        if self.seeds is not None and (not self.seeds or len(set(self.seeds)) != len(self.seeds)
+                                       or min(self.seeds) < 0):
             raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
+        if self.world not in ENV_PRESETS:
+            self._check_world_study()
+            return
+        if self.seeds is None:  # the push study's default; resolved here, once, at construction
+            object.__setattr__(self, "seeds", (0,))
+        if self.scale not in SCALES:
+            raise UserError(f"--scale {self.scale}: the push worlds' scales are "
+                            f"{', '.join(SCALES)}")
+        if self.device == "cuda":
+            raise UserError(f"--device cuda is for a world with a study of its own (--world "
+                            f"{' or '.join(study_worlds()) or '...'}); the push study trains "
+                            "on the CPU (on Ray: --executor ray --gpus N): drop --device")
         if len(self.seeds) > MAX_SEEDS:
             raise UserError(f"--seeds: {len(self.seeds)} seeds; a study takes at most "
                             f"{MAX_SEEDS} (each trains and evaluates every model)")
@@ -107,6 +162,32 @@ class ReproduceConfig:
         if self.data is None or not self.data.exists():  # collected for the scale
             check_windows(self.sweep, self.preset.steps,
                           f"the trajectories --scale {self.scale} collects")
+
+    def _check_world_study(self) -> None:
+        """UserError unless ``world`` names a plug-in with a study that has ``scale``, and
+        no setting of the push study alone is given."""
+        studies = study_worlds()
+        if self.world not in studies:
+            raise UserError(f"--world {self.world}: use a pushing world ({', '.join(ENV_PRESETS)})"
+                            f" or a world with a study of its own ({', '.join(studies)})")
+        scales = studies[self.world].scales
+        if self.scale not in scales:
+            raise UserError(f"--scale {self.scale}: the {self.world} world's scales are "
+                            f"{', '.join(scales)}")
+        default = ReproduceConfig.__dataclass_fields__
+        given = [flag for name, flag in PUSH_ONLY.items()
+                 if getattr(self, name) != default[name].default]
+        if given:
+            raise UserError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for the "
+                            f"push study; --world {self.world} runs its own study: drop "
+                            f"{'it' if len(given) == 1 else 'them'}")
+        if not 1 <= self.threads <= 1024:
+            raise UserError(f"--threads {self.threads}: use 1 to 1024 threads")
+
+    @property
+    def study_world(self) -> Any | None:
+        """The plug-in whose study ``world`` names; None for a pushing world."""
+        return None if self.world in ENV_PRESETS else study_worlds()[self.world]
 
     @property
     def preset(self) -> Scale:

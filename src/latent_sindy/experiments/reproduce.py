@@ -12,6 +12,8 @@ an interrupted training run resumes from its checkpoint.
     latent-sindy reproduce --scale paper --out results-paper --seeds 0..2
     latent-sindy reproduce --scale paper --out /shared/paper --executor ray --ray-address auto
     latent-sindy reproduce --scale demo --out results/l1 --models sindy2 --sweep lambda_l1=1e-3,1e-2
+    latent-sindy reproduce --world pendulum-video --scale demo --out results/pendulum-video
+    latent-sindy reproduce --world pendulum --scale tiny --out /tmp/pendulum
 
     from latent_sindy.experiments.config import ReproduceConfig
     from latent_sindy.experiments.reproduce import reproduce
@@ -30,7 +32,12 @@ OUT holds::
     report.html                  all of it in one self-contained page
     sweep.md                     with --sweep: a row per variant (mean ± std, Wilson intervals)
 
-The pipeline reads as stages, each a function of what the earlier ones returned
+A world plug-in with a study of its own (``--world pendulum``, ``--world pendulum-video``;
+see :func:`.config.study_worlds`) runs that study instead, and OUT holds what it returns in
+the same format: summary.json, table.md, report.html, equations_<name>.txt, figures/ and
+whatever the study keeps to resume (:func:`world_study`).
+
+The push pipeline reads as stages, each a function of what the earlier ones returned
 (:mod:`.stages`, :mod:`.outputs`): data (collect) -> train + evaluate + control (the
 evaluations) -> baselines -> the :class:`~.results.Study` they make -> outputs (figures,
 equations, tables) -> summary.json and report.html. Collection shards and the
@@ -61,6 +68,7 @@ from latent_sindy.executors import ExecutorOptions, make_executor
 from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
 from latent_sindy.experiments.evaluation import BASELINES, Stat
 from latent_sindy.experiments.outputs import output_stage
+from latent_sindy.experiments.report import Report
 from latent_sindy.experiments.results import Study
 from latent_sindy.experiments.stages import (
     baseline_stage,
@@ -72,7 +80,7 @@ from latent_sindy.experiments.study_report import write_report
 from latent_sindy.locks import exclusive
 from latent_sindy.progress import say_stderr
 
-__all__ = ["reproduce", "summary_record", "versions"]
+__all__ = ["reproduce", "summary_record", "versions", "world_study"]
 
 Say = Callable[[str], None]
 
@@ -163,6 +171,8 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     with exclusive(out, "study folder"):
         created = not out.exists()
         try:
+            if config.study_world is not None:
+                return world_study(config, say, t_start)[0]
             return _study(config, out, say, t_start)
         except BaseException:
             if created and out.is_dir() and not any(out.iterdir()):
@@ -208,3 +218,75 @@ def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path
         torch.set_num_threads(threads)
     say(f"[4/4] report: {report} (this run took {time.perf_counter() - t_start:.0f} s)")
     return report
+
+
+# ----------------------------------------------------------------------------- a world's study
+def _markdown(header: list[str], rows: list[list[str]]) -> list[str]:
+    def cell(v: object) -> str:
+        return str(v).replace("|", "\\|")
+
+    return ["| " + " | ".join(map(cell, header)) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(map(cell, r)) + " |" for r in rows)]
+
+
+def _device() -> dict[str, Any]:
+    cuda = torch.cuda.is_available()
+    return {"cuda_available": cuda, "cuda_device": torch.cuda.get_device_name(0) if cuda
+            else None, "torch_threads": torch.get_num_threads()}
+
+
+def world_study(config: ReproduceConfig, say: Say, t_start: float | None = None
+                ) -> tuple[Path, Any, dict[str, Any]]:
+    """The study of the world plug-in ``config.world`` in ``config.out`` (the caller holds
+    the folder): it runs there and returns what it found (an object with ``title``,
+    ``settings``, ``seeds``, ``numbers``, ``findings``, ``tables`` of (``heading``,
+    ``header``, ``rows``, ``note``), ``figures`` of (PNG, caption) and ``equations``, name ->
+    text), which is written as summary.json, table.md, equations_<name>.txt and
+    report.html. Returns (report.html, that study, the summary written)."""
+    t_start = time.perf_counter() if t_start is None else t_start
+    out = config.out
+    out.mkdir(parents=True, exist_ok=True)
+    world = config.study_world
+    study = world.reproduce(config.scale, out, config.seeds, config.device,
+                            config.threads, say)
+    t_study = time.perf_counter() - t_start
+    files = []
+    for name, text in study.equations.items():
+        path = out / f"equations_{name}.txt"
+        write_atomic(path, lambda f, t=text: f.write(t if t.endswith("\n") else t + "\n"),
+                     binary=False)
+        files.append(path.name)
+    md = [f"# {study.title}", "", *study.findings]
+    for t in study.tables:
+        md += ["", f"## {t.heading}", "", *_markdown(t.header, t.rows)]
+        md += ["", t.note] if t.note else []
+    write_atomic(out / "table.md", lambda f: f.write("\n".join(md) + "\n"), binary=False)
+    summary = _json_safe({
+        "world": config.world, "scale": config.scale, "config": to_json(config),
+        "study": study.settings, "seeds": list(study.seeds), "results": study.numbers,
+        "findings": study.findings, "versions": versions(),
+        "machine": {"cpus": os.cpu_count(), "load_average": list(os.getloadavg()),
+                    "platform": platform.platform(), **_device()},
+        "files": ["table.md", "report.html", *files,
+                  *(str(p.relative_to(out)) for p, _ in study.figures)],
+        "timings_s": {"study": t_study, "total": time.perf_counter() - t_start}})
+    text = json.dumps(summary, indent=1, allow_nan=False)
+    write_atomic(out / "summary.json", lambda f: f.write(text), binary=False)
+    r = Report(study.title)
+    for line in study.findings:
+        r.paragraph(line)
+    for t in study.tables:
+        r.heading(t.heading).table(t.header, t.rows)
+        if t.note:
+            r.paragraph(t.note, cls="note")
+    for path, caption in study.figures:
+        r.image(path, caption)
+    r.heading("Equations")
+    for name, eqs in study.equations.items():
+        r.paragraph(f"{name} (equations_{name}.txt)").preformatted(eqs)
+    r.heading("Settings, versions, timings")
+    r.preformatted(json.dumps({k: summary[k] for k in ("config", "study", "versions",
+                                                       "machine", "timings_s")}, indent=1))
+    report = r.write(out / "report.html")
+    say(f"report: {report} (this run took {time.perf_counter() - t_start:.0f} s)")
+    return report, study, summary

@@ -15,6 +15,8 @@ until an environment is made.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -75,6 +77,26 @@ class PendulumWorld:
                                                    "seed": seed, "actions": "uniform"}},
                             source=f"<random torques in the pendulum, seed {seed}>")
 
+    # ------------------------------------------------------ latent-sindy reproduce
+    about = ("the controlled pendulum (Pendulum-v1's physics) from images: SINDy, MLP and "
+             "linear image models and a state SINDy swing it up with latent MPPI")
+
+    @property
+    def scales(self) -> dict[str, str]:
+        """``reproduce --scale`` names of this world's study, with what each runs."""
+        from latent_sindy.worlds.pendulum.reproduce import PENDULUM_SCALES
+
+        return PENDULUM_SCALES
+
+    def reproduce(self, scale: str, out: Path, seeds: tuple[int, ...] | None = None,
+                  device: str = "auto", threads: int = 1,
+                  say: Callable[[str], None] = print) -> Any:
+        """The swing-up study at ``scale`` in ``out``: a
+        :class:`~latent_sindy.worlds.pendulum.reproduce.WorldStudy` for the report."""
+        from latent_sindy.worlds.pendulum.reproduce import reproduce_pendulum
+
+        return reproduce_pendulum(scale, out, seeds, device, threads, say)
+
     # ------------------------------------------------------ the world interface
     def planner(self) -> MPPIConfig:
         """Settings of MPPI for the swing-up (measured with the true dynamics)."""
@@ -113,6 +135,24 @@ class PendulumVideo:
     """The pendulum video's plug-in: reads the settings its data record."""
 
     name = "pendulum-video"
+    about = ("the SINDy autoencoder's pendulum video (PNAS 2019): does z'' = -sin z come "
+             "back from the frames, over seeds, beside the published and replicated figures")
+
+    @property
+    def scales(self) -> dict[str, str]:
+        """``reproduce --scale`` names of the recovery study, with what each runs."""
+        from latent_sindy.worlds.pendulum.reproduce import VIDEO_SCALES
+
+        return VIDEO_SCALES
+
+    def reproduce(self, scale: str, out: Path, seeds: tuple[int, ...] | None = None,
+                  device: str = "auto", threads: int = 1,
+                  say: Callable[[str], None] = print) -> Any:
+        """The recovery study at ``scale`` in ``out`` (finished seeds reused): a
+        :class:`~latent_sindy.worlds.pendulum.reproduce.WorldStudy` for the report."""
+        from latent_sindy.worlds.pendulum.reproduce import reproduce_video
+
+        return reproduce_video(scale, out, seeds, device, threads, say)
 
     @staticmethod
     def config_from_record(record: dict[str, Any], where: str) -> dict[str, Any]:

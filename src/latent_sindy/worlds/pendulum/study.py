@@ -99,6 +99,9 @@ class StudyConfig:
     model's latent cost of each state's image (does the cost suffice?); 0: none."""
     seed: int = 0
     """Seeds the data, the models, the tasks and the planners."""
+    device: Literal["auto", "cpu", "cuda"] = "cpu"
+    """Where the image models train (cpu, cuda, or auto: cuda when torch sees one); they
+    plan on the CPU."""
 
     def __post_init__(self) -> None:
         unknown = set(self.models) - set(MODELS)
@@ -220,7 +223,7 @@ class StudyResult:
 def fit_image_model(data: SequenceData, kind: str, config: StudyConfig) -> LatentSINDy:
     """One image model of the study (``kind``: sindy, mlp or linear)."""
     model = LatentSINDy(latent_dim=config.latent_dim, dynamics=kind, order=config.order,
-                        seed=config.seed, settings=TrainConfig(lr=3e-3),
+                        seed=config.seed, settings=TrainConfig(lr=3e-3), device=config.device,
                         loss=LossWeights(lambda_l1=config.lambda_l1))
     return model.fit(data, epochs=config.epochs, batch_size=64, window=config.window)
 
