@@ -233,3 +233,11 @@ def test_each_scale_names_its_seeds_and_schedule():
     assert video_config("demo", (4, 7), "cpu", 1).seeds == (4, 7)
     assert pendulum_config("published", 3, "cpu").image_size == 48
     assert ReproduceConfig(scale="tiny").seeds == (0,)  # the push study's default, as before
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="a CUDA device is here")
+def test_cuda_asked_for_on_a_machine_without_one_is_refused_up_front(tmp_path, capsys):
+    out = tmp_path / "study"
+    line = _error(capsys, "reproduce", "--world", "pendulum-video", "--scale", "tiny", "--out",
+                  str(out), "--device", "cuda")
+    assert "--device cuda" in line and "sees no CUDA device" in line and not out.exists()

@@ -30,6 +30,7 @@ from latent_sindy.experiments.catalogue import SINGLE_STEP, ModelSpec, study_spe
 from latent_sindy.experiments.scales import SCALES, Scale
 from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
 from latent_sindy.plugins import get_world, world_names
+from latent_sindy.training.config import resolve_device
 from latent_sindy.worlds.push.config import ENV_PRESETS, PushEnvConfig
 
 __all__ = ["ReproduceConfig", "StudyPlan", "study_worlds"]
@@ -183,6 +184,7 @@ class ReproduceConfig:
                             f"{'it' if len(given) == 1 else 'them'}")
         if not 1 <= self.threads <= 1024:
             raise UserError(f"--threads {self.threads}: use 1 to 1024 threads")
+        resolve_device(self.device)  # --device cuda without one: refused before anything runs
 
     @property
     def study_world(self) -> Any | None:
