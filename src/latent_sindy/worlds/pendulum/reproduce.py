@@ -25,6 +25,7 @@ import numpy as np
 from latent_sindy.atomic import atomic_path
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
+from latent_sindy.training.config import resolve_device
 
 __all__ = ["PENDULUM_SCALES", "VIDEO_SCALES", "Table", "WorldStudy", "pendulum_config",
            "reproduce_pendulum", "reproduce_video", "video_config"]
@@ -151,7 +152,7 @@ def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
     cfg = video_config(scale, seeds, device, threads)
     say(f"pendulum video, {scale} scale: schedule {cfg.schedule}, seeds "
         f"{', '.join(map(str, cfg.seeds))}, {cfg.components} components, derivatives "
-        f"{cfg.derivatives}, device {cfg.device}")
+        f"{cfg.derivatives}, device {resolve_device(cfg.device)}")
     result = run_video_study(cfg, out, say)
     record = to_record(result)
     s, med = record["summary"], record["summary"]["median"]
@@ -259,7 +260,7 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
         for seed, cfg in configs.items():
             say(f"pendulum, {scale} scale, seed {seed}: {cfg.sequences} sequences at "
                 f"{cfg.image_size}x{cfg.image_size}, {cfg.epochs} epochs, {cfg.episodes} "
-                f"swing-ups, device {device}")
+                f"swing-ups, device {resolve_device(device)}")
             result = run_study(cfg, report=say)
             per_seed[seed] = [_row_record(r) for r in result.rows]
             data_s[seed] = result.data_seconds
