@@ -11,6 +11,8 @@ they are assembled into ``OUT`` (again through a temporary file) and the folder 
 Killed at any moment, the command can be re-run as it was and completes what is missing.
 
     latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
+    latent-sindy collect --out data/textured.h5 --table-look textured --lighting varied \
+        --distractor                            # the textured world (ENV_PRESETS)
 """
 
 from __future__ import annotations
@@ -138,6 +140,21 @@ def collect_shard(plan: CollectionPlan, indices: tuple[int, ...]) -> list[tuple[
 
 
 # --------------------------------------------------------------------------- the journal
+def same_plan(recorded, plan: CollectionPlan) -> bool:
+    """Whether ``recorded`` (a file's or journal's plan, JSON) is ``plan``. Settings the
+    record lacks predate it and take their defaults (then: the old behaviour), except a
+    world without ``push``, which is the paper's."""
+    if recorded == json.loads(json.dumps(to_json(plan))):
+        return True
+    if not isinstance(recorded, dict) or not isinstance(recorded.get("env", {}), dict):
+        return False
+    try:
+        env = {"push": "paper", **recorded.get("env", {})}
+        return from_json(CollectionPlan, {**recorded, "env": env}, "plan") == plan
+    except UserError:
+        return False
+
+
 def _partial_dir(out: Path) -> Path:
     return out.with_name(out.name + ".partial")
 
@@ -176,7 +193,7 @@ def _open_journal(out: Path, plan: CollectionPlan) -> Path:
             previous = json.loads(manifest.read_text())
         except (OSError, ValueError):
             previous = None
-        if previous is not None and previous != json.loads(json.dumps(to_json(plan))):
+        if previous is not None and not same_plan(previous, plan):
             raise UserError(
                 f"{partial} holds an interrupted collection with other settings; re-run it "
                 f"with the same settings to finish it, or delete {partial} to start over")
@@ -213,7 +230,7 @@ def _collect(out: Path, plan: CollectionPlan, workers: int,
             raise UserError(f"--out {out} exists and is not a usable trajectory file ({e}); "
                             "delete it or choose another --out") from e
         recorded = existing.record.get("collection", {}).get("plan")
-        if recorded == json.loads(json.dumps(to_json(plan))):
+        if same_plan(recorded, plan):
             return out  # already complete
         raise UserError(f"{out} already exists with other collection settings; choose another "
                         "--out or delete the file")

@@ -9,6 +9,7 @@ block's visible symmetry (``config.angle_period``).
     import gymnasium as gym, latent_sindy
     env = gym.make("latent_sindy/PandaPush-v0")              # the default (symmetric) world
     env = gym.make("latent_sindy/PandaPush-v0", push="paper")  # the paper's world
+    env = PandaPushEnv(PushEnvConfig.named("textured"))  # each reset's seed draws its look
     obs, info = env.reset(seed=0, options={"task": "paper"})
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 """
@@ -24,6 +25,7 @@ from latent_sindy.configs import from_json, to_json
 from latent_sindy.worlds.push import register_env
 from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, PushEnvConfig
 from latent_sindy.worlds.push.criteria import goal_criteria
+from latent_sindy.worlds.push.scene import draw_look
 from latent_sindy.worlds.push.world import PushWorld
 
 _ACTION_SLACK = 1e-4  # float32 round-off at the box's edges is not an error
@@ -78,7 +80,10 @@ class PandaPushEnv(gym.Env):
             raise ValueError(f"unknown reset options {sorted(unknown)}: use task, start, goal")
         start = self._pose(options.get("start"), "start")
         goal = self._pose(options.get("goal"), "goal")
-        self._world.reset(start, goal)
+        look = None
+        if self.config.varies_by_episode:  # drawn after the poses, which stay as elsewhere
+            look = draw_look(self.config, int(self.np_random.integers(2**63)))
+        self._world.reset(start, goal, look)
         return self._world.observe(), self._info()
 
     def step(self, action):

@@ -5,10 +5,13 @@ Two physics clients, both headless (DIRECT):
 
 * the *simulation*: Panda arm (``pybullet_data``), table, block and goal marker; every push is
   simulated here;
-* the *camera world*: table and block only. Observations are rendered here with the block
-  copied to its simulated pose. The arm has retreated out of view before every observation,
-  so the picture is the same (a test checks it pixel for pixel) while TinyRenderer no longer
-  rasterises the arm's meshes, which cost about 65x the rest of the frame.
+* the *camera world*: table and block only (and the textured world's distractor).
+  Observations are rendered here with the block copied to its simulated pose, in the
+  episode's look (:class:`~latent_sindy.worlds.push.scene.Look`: its light and where the
+  distractor stands, drawn from the episode's seed by the environment). The arm has
+  retreated out of view before every observation, so the picture is the same (a test checks
+  it pixel for pixel) while TinyRenderer no longer rasterises the arm's meshes, which cost
+  about 65x the rest of the frame.
 
 Free-space arm moves (to the start of a push, and home out of the camera's view afterwards)
 are kinematic resets: they never touch the block, so simulating them would only spend time.
@@ -37,8 +40,11 @@ from latent_sindy.worlds.push.scene import (
     GOAL_RGBA,
     PARKED,
     CameraView,
+    Look,
+    add_distractor,
     add_table_and_block,
     place,
+    place_distractor,
     yaw_quaternion,
 )
 
@@ -137,11 +143,19 @@ class PushWorld:
             basePosition=PARKED,
         )
         self.arm = Arm(c, self._arm_visuals)
+        # last, so the bodies the physics knows keep their ids; it has no collision shape
+        self.distractor = add_distractor(c) if self.cfg.distractor else None
 
     # ------------------------------------------------------------------ state
-    def reset(self, start: tuple[float, float, float], goal: tuple[float, float, float]) -> None:
-        """Rebuild the world with the block resting at `start` and the goal marker at `goal`."""
+    def reset(self, start: tuple[float, float, float], goal: tuple[float, float, float],
+              look: Look | None = None) -> None:
+        """Rebuild the world with the block resting at `start` and the goal marker at `goal`,
+        seen in `look` (an episode's light and distractor; None: as before)."""
         self._build()
+        if look is not None:
+            self.view.set_look(look)
+        if self.distractor is not None:
+            place_distractor(self.sim, self.distractor, self.view.look.distractor)
         self.last_push_executed = True
         self._turned = 0.0
         place(self.sim, self.block, start)
