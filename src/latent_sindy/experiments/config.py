@@ -85,8 +85,8 @@ class ReproduceConfig:
     """Folder for everything (data, runs, tables, figures, report.html); re-runs reuse it."""
     seeds: Seeds | None = None
     """Training and control seeds; several give mean ± std: 0 1 2, 0,1,2 or a range 0..9.
-    Default: the scale's (push worlds and pendulum: 0; pendulum-video: 0 at tiny, 0..2 at
-    demo, 0..9 at published)."""
+    Default: the scale's (the push study: 0; a world with a study of its own: as its
+    --scale says)."""
     data: Path | None = None
     """Trajectory file to use (default OUT/data.h5, collected for the scale if missing)."""
     data_seed: int = 0

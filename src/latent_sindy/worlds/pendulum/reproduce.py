@@ -42,7 +42,7 @@ VIDEO_SCALES = {
 }
 PENDULUM_SCALES = {
     "tiny": "seconds, for tests: 12 sequences of 3 steps at 16x16, 1 epoch, 2 swing-ups of 4 "
-            "steps",
+            "steps; seed 0 unless --seeds (each seed a whole study)",
     "demo": "the study's defaults: 400 sequences of 12 steps at 16x16, 40 epochs, 50 swing-ups "
             "of 100 steps",
     "published": "48x48 images as E2C: 1000 sequences of 12 steps, 100 epochs, 50 swing-ups "
