@@ -231,7 +231,7 @@ def train_config(plan: StudyPlan, spec: ModelSpec, seed: int, data: Path) -> Tra
     return TrainConfig(data=data, out=plan.runs[seed][spec.name], model=spec.model,
                        loss=spec.loss, window=spec.window,
                        epochs=scale.epochs * spec.epochs_factor,
-                       batch_size=scale.batch_size,
+                       batch_size=scale.batch_size, lr=scale.lr,
                        threshold=scale.threshold if spec.threshold is None else spec.threshold,
                        threshold_every=scale.threshold_every * spec.epochs_factor,
                        eval_every=scale.eval_every * spec.epochs_factor,
