@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -51,6 +52,23 @@ def test_a_given_file_of_another_world_is_refused(tmp_path):
         reproduce(cfg, lambda line: None)
     assert not out.exists()
     check_given_data(ReproduceConfig(scale="tiny", out=out, data=path), data)  # its own world
+
+
+def test_a_textured_world_file_is_told_from_the_symmetric_world() -> None:
+    """The textured world pushes like the symmetric one; its table, light and distractor still
+    make it another world for a study (and the symmetric file is not the textured study's)."""
+    rng = np.random.default_rng(0)
+    plain = make_trajectories()
+    textured = push_data(plain.images, plain.actions, rng.uniform(-0.3, 0.7, (6, 5, 3)),
+                         plain.split, PushEnvConfig.named("textured"), seed=0)
+    with pytest.raises(UserError, match=r"--world symmetric.*the textured world.*--world "
+                                        r"textured"):
+        check_given_data(ReproduceConfig(scale="tiny", data=Path("t.h5")), textured)
+    with pytest.raises(UserError, match=r"--world textured.*the symmetric world"):
+        check_given_data(ReproduceConfig(scale="tiny", world="textured", data=Path("s.h5")),
+                         plain)
+    check_given_data(ReproduceConfig(scale="tiny", world="textured", data=Path("t.h5")),
+                     textured)
 
 
 # ----------------------------------------------------------------------------- D3, D12: where

@@ -41,7 +41,6 @@ from latent_sindy.experiments.sweeps import check_windows
 from latent_sindy.progress import bar
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
-from latent_sindy.worlds.push.config import ENV_PRESETS, PushEnvConfig
 
 __all__ = ["baseline_stage", "check_given_data", "check_reused_data", "collect_stage", "run_stage",
            "train_config"]
@@ -70,12 +69,6 @@ def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     return collect(path, plan, progress=progress if cfg.verbose else None, executor=pool)
 
 
-def _world_name(env: PushEnvConfig) -> str | None:
-    """The named world (``--world``) whose pushes and block ``env`` has, if any."""
-    return next((name for name, w in ENV_PRESETS.items()
-                 if (w.push, w.block_look) == (env.push, env.block_look)), None)
-
-
 def _scale_name(trajectories: int, steps: int) -> str | None:
     return next((name for name, s in SCALES.items()
                  if (s.trajectories, s.steps) == (trajectories, steps)), None)
@@ -94,9 +87,9 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
         return
     if old == plan:
         return
-    world, size = _world_name(old.env), old.env.image_size
+    world, size = old.env.world_name, old.env.image_size
     differs = []
-    if (old.env.push, old.env.block_look) != (plan.env.push, plan.env.block_look):
+    if old.env.world_key != plan.env.world_key:
         differs.append(f"--world {world or 'of another kind'} (this study: --world {cfg.world})")
     if size != plan.env.image_size:
         differs.append(f"--image-size {size} (this study: --image-size {plan.env.image_size})")
@@ -121,8 +114,8 @@ def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
     """A given trajectory file must be of the study's ``--world``, hold images of
     ``--image-size`` (where that is given) and trajectories as long as every swept window."""
     env = data.env_config
-    if (env.push, env.block_look) != (cfg.env_config().push, cfg.env_config().block_look):
-        world = _world_name(env)
+    if env.world_key != cfg.env_config().world_key:
+        world = env.world_name
         raise UserError(f"--world {cfg.world}, but {cfg.data} was collected in "
                         f"{f'the {world} world' if world else 'another world'}: "
                         f"{f'give --world {world}' if world else 'drop --world'}, or another "
