@@ -241,3 +241,15 @@ def test_cuda_asked_for_on_a_machine_without_one_is_refused_up_front(tmp_path, c
     line = _error(capsys, "reproduce", "--world", "pendulum-video", "--scale", "tiny", "--out",
                   str(out), "--device", "cuda")
     assert "--device cuda" in line and "sees no CUDA device" in line and not out.exists()
+
+
+@pytest.mark.parametrize("successes", [0, 49, 50])
+def test_the_success_figure_draws_every_count_with_its_interval(tmp_path, successes):
+    """All or none of 50 puts the Wilson interval's end on the rate itself."""
+    from latent_sindy.worlds.pendulum.reproduce import _pendulum_figure
+
+    rows = [{"model": m, "successes": k, "episodes": 50,
+             "success_wilson95": list(wilson_interval(k, 50))}
+            for m, k in (("state", successes), ("sindy", 50 - successes))]
+    path = _pendulum_figure({0: rows, 1: rows}, tmp_path / "f.png")
+    assert path.read_bytes()[:4] == b"\x89PNG"

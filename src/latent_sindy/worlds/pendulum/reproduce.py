@@ -233,7 +233,8 @@ def _pendulum_figure(per_seed: dict[int, list[dict[str, Any]]], path: Path) -> P
         lo = np.array([r["success_wilson95"][0] for r in rows])
         hi = np.array([r["success_wilson95"][1] for r in rows])
         ax.bar(x + (k - (len(per_seed) - 1) / 2) * width, 100 * rate, width,
-               yerr=100 * np.stack([rate - lo, hi - rate]), capsize=3, label=f"seed {seed}")
+               yerr=100 * np.stack([rate - lo, hi - rate]).clip(0),  # (rounding at 0 and n)
+               capsize=3, label=f"seed {seed}")
     ax.set_xticks(x, models, rotation=15, fontsize=8)
     ax.set(ylabel="swing-up success (%)", ylim=(0, 105),
            title="swing-up success with 95 % Wilson intervals")
