@@ -14,6 +14,7 @@ import pytest
 from latent_sindy.cli import main
 from latent_sindy.locks import exclusive
 from latent_sindy.worlds.pendulum import VIDEO, WORLD, video_pca, video_study
+from latent_sindy.worlds.pendulum import study as study_module
 from latent_sindy.worlds.pendulum.study import wilson_interval
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -170,6 +171,15 @@ def test_the_tiny_pendulum_study_writes_what_it_found(tmp_path, monkeypatch):
     html = (out / "report.html").read_text()
     assert 'src="data:image/png;base64,' in html and "Wilson" in html
     assert (out / "figures" / "pendulum_success.png").stat().st_size > 1000
+
+    def no_rerun(*args, **kwargs):
+        raise AssertionError("a finished seed was run again")
+
+    monkeypatch.setattr(study_module, "run_study", no_rerun)  # a re-run reads seed 0 back
+    assert main(["reproduce", "--world", "pendulum", "--scale", "tiny", "--out", str(out),
+                 "--device", "cpu"]) == 0
+    again = json.loads((out / "summary.json").read_text())["results"]["per_seed"]["0"]
+    assert again == rows and (out / "table.md").read_text() == table
 
 
 @pytest.mark.parametrize(("args", "needle"), [

@@ -14,6 +14,7 @@ command writes summary.json, table.md, report.html and equations_*.txt from the
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from latent_sindy.atomic import atomic_path
+from latent_sindy.atomic import atomic_path, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.training.config import resolve_device
@@ -243,13 +244,37 @@ def _pendulum_figure(per_seed: dict[int, list[dict[str, Any]]], path: Path) -> P
     return _save(fig, path)
 
 
+def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
+    """One seed's study: read back from OUT/pendulum_seed<S>.json when it was run there with
+    these settings (the device aside), else run and kept there (atomically)."""
+    from latent_sindy.worlds.pendulum.study import run_study
+
+    path = out / f"pendulum_seed{cfg.seed}.json"
+    key = {k: v for k, v in to_json(cfg).items() if k != "device"}
+    try:
+        saved = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(saved, dict) and saved.get("settings") == key:
+            say(f"seed {cfg.seed}: reused from {path} (same settings)")
+            return saved
+    except (OSError, ValueError):
+        pass  # none yet, or unreadable: run it
+    result = run_study(cfg, report=say)
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in result.table().splitlines()]
+    record = {"settings": key, "rows": [_row_record(r) for r in result.rows],
+              "header": cells[0], "table": cells[2:], "data_s": result.data_seconds}
+    text = json.dumps(record)
+    write_atomic(path, lambda f: f.write(text), binary=False)
+    return record
+
+
 def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
                        device: str = "auto", threads: int = 1,
                        say: Say = print) -> WorldStudy:
-    """The controlled-pendulum study at ``scale``, once per seed, in ``out``."""
+    """The controlled-pendulum study at ``scale``, once per seed, in ``out`` (a seed run
+    there before with the same settings is read back)."""
     import torch
 
-    from latent_sindy.worlds.pendulum.study import run_study, wilson_interval
+    from latent_sindy.worlds.pendulum.study import wilson_interval
 
     seeds = tuple(seeds) if seeds else (0,)
     configs = {s: pendulum_config(scale, s, device) for s in seeds}
@@ -262,16 +287,14 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
             say(f"pendulum, {scale} scale, seed {seed}: {cfg.sequences} sequences at "
                 f"{cfg.image_size}x{cfg.image_size}, {cfg.epochs} epochs, {cfg.episodes} "
                 f"swing-ups, device {resolve_device(device)}")
-            result = run_study(cfg, report=say)
-            per_seed[seed] = [_row_record(r) for r in result.rows]
-            data_s[seed] = result.data_seconds
-            lines = result.table().splitlines()
-            cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines]
-            tables.append(Table(f"Seed {seed}", cells[0], cells[2:]))
-            for r in result.rows:
-                name = "state_sindy" if r.name.startswith("state") else r.name.split(" ")[0]
+            record = _seed_record(cfg, out, say)
+            per_seed[seed], data_s[seed] = record["rows"], record["data_s"]
+            tables.append(Table(f"Seed {seed}", record["header"], record["table"]))
+            for r in record["rows"]:
+                name = ("state_sindy" if r["model"].startswith("state")
+                        else r["model"].split(" ")[0])
                 equations[name] = (equations.get(name, "") + f"seed {seed}:\n  "
-                                   + "\n  ".join(r.equations) + "\n")
+                                   + "\n  ".join(r["equations"]) + "\n")
     finally:
         torch.set_num_threads(threads_before)
     pooled = []
