@@ -188,7 +188,8 @@ def test_the_tiny_pendulum_study_writes_what_it_found(tmp_path, monkeypatch):
     (["--image-size", "64"], "--image-size is for the push study"),
     (["--data", "x.h5", "--workers", "1"], "--data, --workers are for the push study"),
     (["--executor", "ray"], "--executor is for the push study"),
-    (["--scale", "paper"], "the pendulum-video world's scales are tiny, demo, published"),
+    (["--scale", "paper"], "the pendulum-video world's scales are tiny, demo, recovery, "
+                           "recovery-frames, published"),
 ])
 def test_push_settings_are_refused_with_a_pendulum_world(tmp_path, capsys, args, needle):
     out = tmp_path / "study"
@@ -223,7 +224,7 @@ def test_the_help_names_the_worlds_and_their_scales(capsys, monkeypatch):
     with pytest.raises(SystemExit):
         main(["reproduce", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
-    for name in ("pendulum-video", "pendulum", "symmetric", "published", "lite100",
+    for name in ("pendulum-video", "pendulum", "symmetric", "published", "calibrated",
                  "48x48 images as E2C", "--device"):
         assert name in text, name
 
@@ -236,7 +237,11 @@ def test_each_scale_names_its_seeds_and_schedule():
     cfg = ReproduceConfig(world="pendulum-video", scale="demo")
     assert cfg.seeds is None and cfg.study_world is VIDEO
     demo = video_config("demo", cfg.seeds, "auto", 1)
-    assert demo.seeds == (0, 1, 2) and demo.schedule == "lite100" and demo.splits == (100, 10, 10)
+    assert demo.seeds == (0, 1, 2) and demo.schedule == "calibrated"
+    assert demo.splits == (100, 10, 10)
+    frames = video_config("recovery-frames", None, "cpu", 1)
+    assert frames.seeds == tuple(range(10)) and frames.derivatives == "central"
+    assert frames.resolved_schedule().calibrate_epochs > 0
     published = video_config("published", None, "cuda", 1)
     assert published.seeds == tuple(range(10)) and published.schedule == "published"
     assert published.resolved_schedule().epochs == 6002 and published.device == "cuda"

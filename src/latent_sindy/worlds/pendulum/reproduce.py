@@ -36,8 +36,11 @@ Say = Callable[[str], None]
 VIDEO_SCALES = {
     "tiny": "seconds, for tests: 4/2/2 trajectories of 50 frames, 8 components, 3 epochs of "
             "the lite100 schedule, seed 0",
-    "demo": "the lite100 schedule (250 + 50 epochs, every 5th frame, 48 components) on seeds "
-            "0..2; several minutes a seed on 2 CPU cores",
+    "demo": "the calibrated schedule (250 + 50 + 300 epochs, every 5th frame, 48 "
+            "components) on seeds 0..2; about 9 minutes a seed on a CPU core",
+    "recovery": "the calibrated schedule on seeds 0..9: the ten-seed recovery rate on a CPU",
+    "recovery-frames": "as recovery, with the image derivatives taken by central differences "
+                       "of the frames instead of exactly",
     "published": "the published schedule (6002 epochs, batch 1000, every frame) on seeds "
                  "0..9, 48 components: for a CUDA device",
 }
@@ -110,7 +113,10 @@ def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads
     _scale(scale, VIDEO_SCALES, "pendulum-video")
     base = {"tiny": dict(seeds=(0,), schedule="lite100", components=8, epochs=3,
                          splits=(4, 2, 2), steps=50),
-            "demo": dict(seeds=(0, 1, 2), schedule="lite100"),
+            "demo": dict(seeds=(0, 1, 2), schedule="calibrated"),
+            "recovery": dict(seeds=tuple(range(10)), schedule="calibrated"),
+            "recovery-frames": dict(seeds=tuple(range(10)), schedule="calibrated",
+                                    derivatives="central"),
             "published": dict(seeds=tuple(range(10)), schedule="published")}[scale]
     if seeds:
         base["seeds"] = tuple(seeds)
@@ -202,7 +208,7 @@ def pendulum_config(scale: str, seed: int, device: str):
     _scale(scale, PENDULUM_SCALES, "pendulum")
     base = {"tiny": dict(image_size=16, sequences=12, steps=3, epochs=1, window=2,
                          episodes=2, episode_steps=4, last=2, samples=16, horizon=3,
-                         nodes=20, neighbours=4, cost_check=1),
+                         nodes=20, neighbours=4, cost_check=1, centroid_models=()),
             "demo": {},
             "published": dict(image_size=48, sequences=1000, epochs=100)}[scale]
     return StudyConfig(**base, seed=seed, device=device)
