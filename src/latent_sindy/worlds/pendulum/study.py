@@ -6,10 +6,12 @@ dynamics "sindy", "mlp", "linear", same autoencoder and training) are fitted, an
 SINDy on the true features (cos θ, sin θ, θ̇) shows what the data say about the physics.
 Each image model then plans with MPPI in its own latent space, from the image alone, with
 the distance to the goal image's code along the data (:mod:`.graph_cost`), on ``episodes``
-seeded tasks of 100 steps. The table holds, per model, the swing-up success (upright within
-10° over the last 20 steps) with its 95 % Wilson interval, the mean fraction of steps
-upright (E2C's measure) with a 95 % normal interval, the one-step R², sparsity and times;
-every model's equations are printed.
+seeded tasks of 100 steps. The same three kinds are also fitted, by regression, on a
+fixed latent of the images, each frame's intensity centroid (:mod:`.centroid_sindy`), and
+plan alike ("... (images, centroid latent)"). The table holds, per model, the swing-up
+success (upright within 10° over the last 20 steps) with its 95 % Wilson interval, the mean
+fraction of steps upright (E2C's measure) with a 95 % normal interval, the one-step R²,
+sparsity and times; every model's equations are printed.
 
     python -m latent_sindy.worlds.pendulum.study --help
     python -m latent_sindy.worlds.pendulum.study --episodes 50        # the default run
@@ -34,6 +36,11 @@ from latent_sindy.errors import UserError
 from latent_sindy.models import LossWeights
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum import physics
+from latent_sindy.worlds.pendulum.centroid_sindy import (
+    CentroidMlp,
+    CentroidSindy,
+    frame_centroids,
+)
 from latent_sindy.worlds.pendulum.config import PendulumConfig
 from latent_sindy.worlds.pendulum.diagnostics import TrueDynamicsImageCost
 from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost
@@ -50,7 +57,8 @@ MODELS = ("sindy", "mlp", "linear")
 
 @dataclass(frozen=True)
 class StudyConfig:
-    """Settings of one pendulum study (the defaults: the measured run of RESULTS.md)."""
+    """Settings of one pendulum study (the defaults: the measured runs of RESULTS.md and,
+    for the centroid rows and the planner, docs/pendulum_swing_up.md)."""
 
     image_size: int = 16
     """Camera side in pixels (16 trained 3.6 times faster than 32 here)."""
@@ -69,7 +77,14 @@ class StudyConfig:
     lambda_l1: float = 1e-2
     """SINDy's L1 weight."""
     models: tuple[str, ...] = MODELS
-    """Image models to fit: any of sindy, mlp, linear."""
+    """Image models to fit: any of sindy, mlp, linear (empty: none)."""
+    centroid_models: tuple[str, ...] = MODELS
+    """Models fitted on the fixed centroid latent of the images (:mod:`.centroid_sindy`):
+    any of sindy, mlp, linear (empty: none)."""
+    centroid_order: int = 3
+    """The centroid SINDy's polynomial order (order 2 diverged within 8 steps)."""
+    centroid_threshold: float = 0.03
+    """The centroid SINDy's STLSQ threshold (relative contribution of a kept term)."""
     state_control: bool = True
     """Also swing up with the state SINDy on the true state (a reference, not from images)."""
     episodes: int = 50
@@ -80,13 +95,14 @@ class StudyConfig:
     """Actions per episode."""
     last: int = 20
     """Success: upright within 10° over each of the last this many steps."""
-    samples: int = 300
-    """MPPI's K."""
+    samples: int = 500
+    """MPPI's K (500 with λ = 0.3: the centroid SINDy 50 of 50, against 43 at 300 with
+    λ = 1; docs/pendulum_swing_up.md)."""
     horizon: int = 30
     """MPPI's H."""
     sigma: float = 1.0
     """MPPI's noise variance Σ."""
-    lambda_: float = 1.0
+    lambda_: float = 0.3
     """MPPI's temperature λ."""
     nodes: int = 600
     """Nodes of the latent graph of the distance cost."""
@@ -104,10 +120,10 @@ class StudyConfig:
     plan on the CPU."""
 
     def __post_init__(self) -> None:
-        unknown = set(self.models) - set(MODELS)
-        if unknown or not self.models:
-            raise UserError(f"pendulum study models {self.models!r}: choose from "
-                            f"{', '.join(MODELS)}")
+        unknown = (set(self.models) | set(self.centroid_models)) - set(MODELS)
+        if unknown or not (self.models or self.centroid_models):
+            raise UserError(f"pendulum study models {self.models!r} and centroid_models "
+                            f"{self.centroid_models!r}: choose from {', '.join(MODELS)}")
         for name in ("sequences", "steps", "epochs", "window", "episodes", "episode_steps"):
             if getattr(self, name) < 1:
                 raise UserError(f"pendulum study {name} {getattr(self, name)!r} must be >= 1")
@@ -131,17 +147,22 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
 
 class LatentSwingUp:
     """A swing-up policy from images only: encode the image, plan with MPPI through the
-    model's latent dynamics, cost the distance to the goal's code along the data's codes."""
+    model's latent dynamics, cost the distance to the goal's code along the data's codes.
+    ``encode`` and ``step`` replace the model's (the centroid latent and its models)."""
 
-    def __init__(self, model: LatentSINDy, codes: np.ndarray, config: StudyConfig) -> None:
+    def __init__(self, model: LatentSINDy | None, codes: np.ndarray, config: StudyConfig,
+                 encode: Callable[[np.ndarray], np.ndarray] | None = None,
+                 step: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                 ) -> None:
         self.model, self.codes, self.config = model, codes, config
-        self.step = latent_step(model.model_.dynamics)
+        self.encode = encode or model.encode
+        self.step = step or latent_step(model.model_.dynamics)
         self.mppi: MPPI | None = None
         self._costs: dict[bytes, GraphDistanceCost] = {}  # per goal code
 
     def cost(self, goal_image: np.ndarray) -> GraphDistanceCost:
         """The cost toward ``goal_image`` (built once per goal)."""
-        cfg, goal = self.config, self.model.encode(goal_image)
+        cfg, goal = self.config, np.asarray(self.encode(goal_image))
         if goal.tobytes() not in self._costs:
             cost = GraphDistanceCost(self.codes, goal, cfg.neighbours, cfg.nodes,
                                      seed=cfg.seed, grid=cfg.grid)
@@ -158,7 +179,7 @@ class LatentSwingUp:
                          (physics.MAX_TORQUE,), seed=cfg.seed if seed is None else seed)
 
     def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
-        z = torch.as_tensor(self.model.encode(image))  # the image only: the state is unread
+        z = torch.as_tensor(np.asarray(self.encode(image)))  # the image only, not the state
         return self.mppi.command(z)[0].numpy()
 
 
@@ -175,6 +196,9 @@ class ModelRow:
     control_seconds: float = 0.0
     cost_check: list[SwingUp] = field(default_factory=list)
     """The diagnostic's episodes (true dynamics, this model's cost from images)."""
+    step: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = field(
+        default=None, repr=False)
+    """The fitted latent step (centroid rows)."""
 
     @property
     def successes(self) -> int:
@@ -280,7 +304,38 @@ def run_study(config: StudyConfig | None = None,
         report(f"{kind}: {row.successes} of {cfg.episodes} swing-ups "
                f"({row.control_seconds:.0f} s); with the true dynamics and this cost "
                f"{sum(e.success for e in row.cost_check)} of {len(row.cost_check)}")
+    codes = frame_centroids(frames).numpy()
+    for kind in cfg.centroid_models:
+        row = centroid_row(kind, data, cfg, report)
+        t0 = time.perf_counter()
+        policy = LatentSwingUp(None, codes, cfg, encode=lambda x: frame_centroids(x).numpy(),
+                               step=row.step)
+        row.episodes = run_swing_up(tasks, policy, cfg.episodes, cfg.episode_steps,
+                                    cfg.seed, cfg.last)
+        row.control_seconds = time.perf_counter() - t0
+        result.rows.append(row)
+        report(f"{row.name}: {row.successes} of {cfg.episodes} swing-ups "
+               f"({row.control_seconds:.0f} s)")
     return result
+
+
+def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
+                 report: Callable[[str], None] = print) -> ModelRow:
+    """Fit one model on the centroid latent; its row, with ``step`` set, not yet run."""
+    t0 = time.perf_counter()
+    if kind == "mlp":
+        model, eq = CentroidMlp(seed=cfg.seed).fit(data), ["(an MLP: no equations)"]
+    else:
+        order, threshold = (1, 0.0) if kind == "linear" else (cfg.centroid_order,
+                                                              cfg.centroid_threshold)
+        model = CentroidSindy(order, threshold).fit(data)
+        eq = model.equations()
+    row = ModelRow(f"{kind} (images, centroid latent)", [], eq,
+                   sparsity=model.sparsity() if kind == "sindy" else None,
+                   fit_seconds=time.perf_counter() - t0)
+    row.step = model.step
+    report(f"{row.name}: fitted in {row.fit_seconds:.1f} s\n  " + "\n  ".join(eq))
+    return row
 
 
 def main(argv: list[str] | None = None) -> StudyResult:

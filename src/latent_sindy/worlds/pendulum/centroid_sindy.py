@@ -1,0 +1,137 @@
+"""Latent models of the pendulum on a fixed image latent: each frame's centroid.
+
+The latent of an observation (C, S, S) is, per channel (frame), the centroid (x, y) of the
+pixels' absolute difference from that frame's median (the background where the object
+covers under half the pixels), in the image coordinates of
+:func:`~latent_sindy.models.encoders.image_coordinates` (x right, y down). Nothing is
+learned and only the image is read. On the pendulum's two stacked frames the four latents
+are the rod's midpoint a step ago and now: the angle is their direction, the rate their
+turn (linear probes of (cos θ, sin θ) reach R² 1.000, a quadratic probe of θ̇ 0.999; see
+docs/pendulum_swing_up.md).
+
+On these latents the dynamics are fitted by regression on the encoded transitions:
+
+* :class:`CentroidSindy`: STLSQ on monomials of (z, u) up to ``order`` (3: the rotation of
+  the rod's midpoint needs the cubic terms; order 2 diverged within 8 steps);
+* ``CentroidSindy(order=1, threshold=0)``: least squares on (1, z, u), the linear model
+  z' = A z + B u + c;
+* :class:`CentroidMlp`: z' = z + MLP([z, u]), trained by Adam on one-step errors.
+
+    >>> z = frame_centroids(images)              # (..., 2, S, S) uint8 -> (..., 4)
+    >>> model = CentroidSindy().fit(data)        # data: PendulumWorld(...).collect(...)
+    >>> model.step(z, u)                          # (K, 4), (K, 1) -> (K, 4)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from latent_sindy.data import SequenceData
+from latent_sindy.models.encoders import image_coordinates
+from latent_sindy.sindy import Polynomial, SindyLibrary
+from latent_sindy.sindy.fit import fit_state_data
+from latent_sindy.sindy.optimizers import STLSQ
+from latent_sindy.worlds.pendulum import physics
+
+__all__ = ["CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]
+
+
+@torch.no_grad()
+def frame_centroids(images: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """Images (..., C, H, W) -> (..., 2C) float32: per channel, the centroid (x, y) of the
+    absolute difference from that channel's median pixel (a blank channel reads (0, 0))."""
+    x = torch.as_tensor(np.asarray(images), dtype=torch.float32)
+    *lead, c, h, w = x.shape
+    flat = x.reshape(-1, c, h * w)
+    d = (flat - flat.median(-1, keepdim=True).values).abs().reshape(-1, c, h, w)
+    mass = d.sum((2, 3)).clamp_min(torch.finfo(torch.float32).tiny)  # (B, C)
+    xs, ys = image_coordinates(h, w)
+    cx = (d.sum(2) * xs).sum(-1) / mass  # columns: x
+    cy = (d.sum(3) * ys).sum(-1) / mass  # rows: y
+    return torch.stack([cx, cy], -1).reshape(*lead, 2 * c)
+
+
+def transitions(data: SequenceData) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The training split's encoded transitions (z, u, z_next), float64, leaving out steps
+    where the rate hit its clip (a different law there)."""
+    train = data.split("train")
+    z = frame_centroids(train.images).double()  # (N, T+1, 2C)
+    nz = z.shape[-1]
+    keep = torch.as_tensor(np.abs(train.states[:, 1:, 1]).reshape(-1) < physics.MAX_SPEED) \
+        if train.states is not None else torch.ones(z[:, 1:].numel() // nz, dtype=torch.bool)
+    u = torch.as_tensor(train.actions.reshape(-1, train.actions.shape[-1]), dtype=torch.float64)
+    return z[:, :-1].reshape(-1, nz)[keep], u[keep], z[:, 1:].reshape(-1, nz)[keep]
+
+
+class CentroidSindy:
+    """Sparse regression of the centroid latents' steps on a polynomial library of (z, u)."""
+
+    def __init__(self, order: int = 3, threshold: float = 0.01) -> None:
+        self.order, self.threshold = order, threshold
+        self.library: SindyLibrary | None = None
+
+    def fit(self, data: SequenceData) -> CentroidSindy:
+        z, u, z_next = transitions(data)
+        self.library = SindyLibrary(Polynomial("z,u", self.order), n_state=z.shape[1],
+                                    n_control=u.shape[1])
+        fit = fit_state_data(self.library, z, u, z_next, STLSQ(threshold=self.threshold))
+        self.mask_ = np.asarray(fit.mask_, bool)
+        self.coef_ = torch.as_tensor(fit.coef_, dtype=torch.float64) * torch.as_tensor(
+            self.mask_)  # (p, nz), pruned entries 0
+        return self
+
+    def sparsity(self) -> float:
+        """Fraction of the library's coefficients pruned."""
+        return float(1 - self.mask_.mean())
+
+    def equations(self, precision: int = 3) -> list[str]:
+        names = [n.replace("u0", "torque") for n in self.library.names]
+        lines = []
+        for i in range(self.coef_.shape[1]):
+            terms = [f"{float(self.coef_[j, i]):+.{precision}g}"
+                     + ("" if names[j] == "1" else f" {names[j]}")
+                     for j in np.flatnonzero(self.mask_[:, i])]
+            lines.append(f"z{i}[t+1] = z{i} " + (" ".join(terms) if terms else ""))
+        return lines
+
+    @torch.no_grad()
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """z (K, nz), u (K, 1) -> (K, nz) (torque clipped into the box)."""
+        z64 = z.to(torch.float64)
+        u64 = u.to(torch.float64).clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE)
+        return (z64 + self.library(z64, u64) @ self.coef_).to(z.dtype)
+
+
+class CentroidMlp:
+    """z' = z + MLP([z, u]) on the centroid latents (two hidden layers of ``width``, tanh),
+    trained by Adam on the one-step error of the latent scaled to unit spread."""
+
+    def __init__(self, width: int = 128, epochs: int = 1000, seed: int = 0) -> None:
+        self.width, self.epochs, self.seed = width, epochs, seed
+
+    def fit(self, data: SequenceData) -> CentroidMlp:
+        z, u, z_next = (a.float() for a in transitions(data))
+        gen = torch.Generator().manual_seed(self.seed)
+        torch.manual_seed(self.seed)
+        nz, nu = z.shape[1], u.shape[1]
+        self.net = nn.Sequential(nn.Linear(nz + nu, self.width), nn.Tanh(),
+                                 nn.Linear(self.width, self.width), nn.Tanh(),
+                                 nn.Linear(self.width, nz))
+        self.scale = (z_next - z).std(0).clamp_min(1e-6)  # (nz,) the step's spread
+        opt = torch.optim.Adam(self.net.parameters(), lr=3e-3)
+        for _ in range(self.epochs):
+            for idx in torch.randperm(len(z), generator=gen).split(256):
+                pred = self.net(torch.cat([z[idx], u[idx] / physics.MAX_TORQUE], 1))
+                loss = (pred - (z_next[idx] - z[idx]) / self.scale).square().mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+        return self
+
+    @torch.no_grad()
+    def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        uc = u.clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE) / physics.MAX_TORQUE
+        zf = z.float()
+        return (zf + self.net(torch.cat([zf, uc.float()], 1)) * self.scale).to(z.dtype)

@@ -1,0 +1,68 @@
+"""The pendulum's centroid latent and its models: the latent holds the angle and the rate,
+the SINDy on it finds the frame shift exactly and predicts steps closely, and the study
+fits and runs its rows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.errors import UserError
+from latent_sindy.worlds.pendulum import PendulumConfig, PendulumWorld, physics
+from latent_sindy.worlds.pendulum.centroid_sindy import (
+    CentroidMlp,
+    CentroidSindy,
+    frame_centroids,
+    transitions,
+)
+from latent_sindy.worlds.pendulum.render import observe
+from latent_sindy.worlds.pendulum.study import StudyConfig, run_study
+
+
+@pytest.fixture(scope="module")
+def data():
+    return PendulumWorld(PendulumConfig(start="random", image_size=16)).collect(60, 12, seed=1)
+
+
+def test_the_centroids_are_the_rods_direction_a_step_ago_and_now():
+    theta = np.array([0.0, 0.7, -2.0, 3.0, -0.3])
+    rate = np.array([0.0, 2.0, -4.0, 1.0, 6.0])
+    z = frame_centroids(observe(theta, rate, 16)).numpy()  # (5, 4): (x, y) before, now
+    assert z.shape == (5, 4)
+    # x right, y down: the rod at θ points to (−sin θ, −cos θ)
+    for frame, angle in ((1, theta), (0, theta - rate * physics.DT)):
+        got = np.arctan2(-z[:, 2 * frame], -z[:, 2 * frame + 1])
+        assert np.abs(physics.wrap_angle(got - angle)).max() < np.radians(2)
+    blank = frame_centroids(np.zeros((2, 16, 16), np.uint8))
+    assert torch.equal(blank, torch.zeros(4))
+
+
+def test_the_centroid_sindy_finds_the_frame_shift_and_predicts_steps(data):
+    model = CentroidSindy(order=3, threshold=0.03).fit(data)
+    assert model.equations()[:2] == ["z0[t+1] = z0 -1 z0 +1 z2", "z1[t+1] = z1 -1 z1 +1 z3"]
+    z, u, z_next = transitions(data)
+    err = (model.step(z, u) - z_next).norm(dim=1).mean()
+    motion = (z_next - z).norm(dim=1).mean()
+    assert float(err) < 0.1 * float(motion)  # the step, not just "stay put"
+    assert 0.3 < model.sparsity() < 1
+    linear = CentroidSindy(order=1, threshold=0.0).fit(data)
+    assert float((linear.step(z, u) - z_next).norm(dim=1).mean()) > float(err)
+    mlp = CentroidMlp(width=16, epochs=2, seed=0).fit(data)
+    assert mlp.step(z[:3].float(), u[:3].float()).shape == (3, 4)
+
+
+def test_the_study_runs_the_centroid_rows_with_its_settings():
+    assert StudyConfig().centroid_models == ("sindy", "mlp", "linear")
+    assert (StudyConfig().centroid_order, StudyConfig().centroid_threshold) == (3, 0.03)
+    assert (StudyConfig().samples, StudyConfig().lambda_) == (500, 0.3)
+    with pytest.raises(UserError, match="models"):
+        StudyConfig(models=(), centroid_models=())
+    cfg = StudyConfig(sequences=40, steps=6, window=2, models=(), centroid_models=("sindy",),
+                      state_control=False, episodes=1, episode_steps=4, last=2, samples=8,
+                      horizon=3, nodes=20, neighbours=4, grid=8, cost_check=0)
+    result = run_study(cfg, report=lambda _: None)
+    (row,) = result.rows
+    assert row.name == "sindy (images, centroid latent)"
+    assert len(row.episodes) == 1 and row.sparsity is not None
+    assert row.equations[0] == "z0[t+1] = z0 -1 z0 +1 z2"
