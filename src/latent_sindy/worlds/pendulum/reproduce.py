@@ -298,7 +298,8 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
             tables.append(Table(f"Seed {seed}", record["header"], record["table"]))
             for r in record["rows"]:
                 name = ("state_sindy" if r["model"].startswith("state")
-                        else r["model"].split(" ")[0])
+                        else r["model"].split(" ")[0]
+                        + ("_centroid" if "centroid" in r["model"] else ""))
                 equations[name] = (equations.get(name, "") + f"seed {seed}:\n  "
                                    + "\n  ".join(r["equations"]) + "\n")
     finally:
