@@ -75,9 +75,9 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
     assert SCALES["demo"] == base
     paper = {f.name for f in dataclasses.fields(Scale)
              if getattr(SCALES["paper"], f.name) != getattr(base, f.name)}
-    assert paper == {"epochs", "lr", "batch_size", "threshold_every", "eval_every", "paper_episodes",
-                     "random_episodes", "other_random_episodes", "image_paper_episodes",
-                     "image_random_episodes", "batching"}
+    assert paper == {"epochs", "lr", "batch_size", "threshold_every", "eval_every",
+                     "paper_episodes", "random_episodes", "other_random_episodes",
+                     "image_paper_episodes", "image_random_episodes", "batching"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)
     # the large scale: ten times the paper's trajectories on the round-one demo's schedule
     assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == ROUND_ONE
