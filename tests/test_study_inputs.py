@@ -204,3 +204,14 @@ def test_reproduce_help_lists_every_sweepable_setting(capsys, monkeypatch):
 
 def test_the_catalogue_without_sweeps_is_as_it_was(tmp_path):
     assert study_specs(ReproduceConfig(scale="tiny", out=tmp_path)) == model_specs(SCALES["tiny"])
+
+
+def test_every_named_world_is_described_for_the_report_and_help() -> None:
+    """The study's report and --help describe each pushing world; a world without its phrase
+    crashed the textured world's report."""
+    from latent_sindy.experiments.config import _world_help
+    from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT
+
+    assert set(WORLD_ABOUT) == set(ENV_PRESETS)
+    text = _world_help()
+    assert all(f"{name} ({about})" in text for name, about in WORLD_ABOUT.items())

@@ -31,7 +31,7 @@ from latent_sindy.experiments.scales import SCALES, Scale
 from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
 from latent_sindy.plugins import get_world, world_names
 from latent_sindy.training.config import resolve_device
-from latent_sindy.worlds.push.config import ENV_PRESETS, PushEnvConfig
+from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT, PushEnvConfig
 
 __all__ = ["ReproduceConfig", "StudyPlan", "study_worlds"]
 
@@ -52,11 +52,11 @@ def study_worlds() -> dict[str, Any]:
 def _world_help() -> str:
     studies = "; ".join(f"{name}: {getattr(w, 'about', 'its own study')}"
                         for name, w in study_worlds().items())
-    return ("The world. A pushing world (the push study of models, control and Table I): "
-            f"{', '.join(ENV_PRESETS)} - symmetric (pushes in any direction, the default), "
-            "paper (the course's world: Table I as the paper defined it), marked (the "
-            "paper's push on a block with a visible mark). Or a world with a study of its "
-            f"own, written into the same report format: {studies or '(none installed)'}.")
+    push = "; ".join(f"{name} ({WORLD_ABOUT.get(name, 'a pushing world')})"
+                     for name in ENV_PRESETS)
+    return ("The world. A pushing world (the push study of models, control and Table I; "
+            f"symmetric is the default): {push}. Or a world with a study of its own, written "
+            f"into the same report format: {studies or '(none installed)'}.")
 
 
 def _scale_help() -> str:

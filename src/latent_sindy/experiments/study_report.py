@@ -24,6 +24,7 @@ from latent_sindy.experiments.report import Report
 from latent_sindy.experiments.results import Study
 from latent_sindy.experiments.scales import SCALES
 from latent_sindy.experiments.table import format_stat, table1_rows
+from latent_sindy.worlds.push.config import WORLD_ABOUT
 
 __all__ = ["findings", "write_report"]
 
@@ -222,11 +223,7 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                     f"{scale.image_random_episodes} with image-space MPPI for {image} (at most "
                     f"{scale.image_max_steps}); MPPI K={planner.samples}, "
                     f"H={planner.horizon}, Σ={planner.sigma}")
-    world = {"symmetric": "symmetric pushes: the push direction is a world angle, pushed from "
-                          "the face most opposite to it",
-             "paper": "the paper's world: pushes from the block's −x face, angle relative to "
-                      "its x axis",
-             "marked": "the paper's push on a block whose +x half is marked"}[cfg.world]
+    world = WORLD_ABOUT.get(cfg.world, "a pushing world")
     r.heading("The study")
     r.paragraph(f"World: {cfg.world} ({world}). The strict criterion compares orientations "
                 "modulo the block's visible symmetry (90° for the uniform block, 360° for the "

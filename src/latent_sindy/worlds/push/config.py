@@ -250,3 +250,13 @@ ENV_PRESETS: dict[str, PushEnvConfig] = {
     "textured": PushEnvConfig(push="symmetric", table_look="textured", lighting="varied",
                               distractor=True),
 }
+
+#: What each named world is, in a phrase (``--help``, the report).
+WORLD_ABOUT: dict[str, str] = {
+    "symmetric": "symmetric pushes: the push direction is a world angle, pushed from the face "
+                 "most opposite to it",
+    "paper": "the paper's world: pushes from the block's −x face, angle relative to its x axis",
+    "marked": "the paper's push on a block whose +x half is marked",
+    "textured": "the symmetric world's pushes on a wood-grain table, under a light drawn per "
+                "episode, beside an untouchable distractor",
+}
