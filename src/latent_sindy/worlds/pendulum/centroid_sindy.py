@@ -34,6 +34,7 @@ from latent_sindy.sindy import Polynomial, SindyLibrary
 from latent_sindy.sindy.fit import fit_state_data
 from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.worlds.pendulum import physics
+from latent_sindy.worlds.pendulum.state_sindy import sindy_step
 
 __all__ = ["CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]
 
@@ -96,12 +97,9 @@ class CentroidSindy:
             lines.append(f"z{i}[t+1] = z{i} " + (" ".join(terms) if terms else ""))
         return lines
 
-    @torch.no_grad()
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """z (K, nz), u (K, 1) -> (K, nz) (torque clipped into the box)."""
-        z64 = z.to(torch.float64)
-        u64 = u.to(torch.float64).clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE)
-        return (z64 + self.library(z64, u64) @ self.coef_).to(z.dtype)
+        return sindy_step(self.library, self.coef_, z, u)
 
 
 class CentroidMlp:

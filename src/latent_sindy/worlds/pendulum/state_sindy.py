@@ -69,9 +69,14 @@ class StateSindy:
             name = name.replace(k, v)
         return name
 
-    @torch.no_grad()
     def step(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """x (K, 3), u (K, 1) -> (K, 3): the fitted step (torque clipped into the box)."""
-        x64 = x.to(torch.float64)
-        u64 = u.to(torch.float64).clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE)
-        return (x64 + self.library(x64, u64) @ self.coef_).to(x.dtype)
+        return sindy_step(self.library, self.coef_, x, u)
+
+
+@torch.no_grad()
+def sindy_step(library, coef: torch.Tensor, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """x + Θ(x, u) Ξ in float64 for x (K, n), u (K, 1), the torque clipped into the box."""
+    x64 = x.to(torch.float64)
+    u64 = u.to(torch.float64).clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE)
+    return (x64 + library(x64, u64) @ coef).to(x.dtype)
