@@ -164,18 +164,13 @@ class PushEnvConfig:
                                 f"workspace {self.workspace_low}..{self.workspace_high}")
         if self.success_distance <= 0 or self.strict_distance <= 0:
             raise UserError("success distances must be positive")
-        if self.push not in PUSH_STYLES:
-            raise UserError(f"push={self.push!r} is not a push style: use one of "
-                            f"{', '.join(PUSH_STYLES)}")
-        if self.block_look not in BLOCK_LOOKS:
-            raise UserError(f"block_look={self.block_look!r} is not a block look: use one of "
-                            f"{', '.join(BLOCK_LOOKS)}")
-        if self.table_look not in TABLE_LOOKS:
-            raise UserError(f"table_look={self.table_look!r} is not a table look: use one of "
-                            f"{', '.join(TABLE_LOOKS)}")
-        if self.lighting not in LIGHTINGS:
-            raise UserError(f"lighting={self.lighting!r} is not a lighting: use one of "
-                            f"{', '.join(LIGHTINGS)}")
+        for name, choices, what in (("push", PUSH_STYLES, "push style"),
+                                    ("block_look", BLOCK_LOOKS, "block look"),
+                                    ("table_look", TABLE_LOOKS, "table look"),
+                                    ("lighting", LIGHTINGS, "lighting")):
+            if getattr(self, name) not in choices:
+                raise UserError(f"{name}={getattr(self, name)!r} is not a {what}: use one of "
+                                f"{', '.join(choices)}")
 
     # ------------------------------------------------------------------ the action
     @property
