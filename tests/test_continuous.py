@@ -197,6 +197,43 @@ def test_a_short_fit_recovers_the_oscillator() -> None:
     assert last["val/recon"] < 0.01 and last["val/pred_x"] < 0.05
 
 
+def test_the_relative_latent_term_is_the_unexplained_fraction_and_scale_free(
+        fitted: LatentSINDy) -> None:
+    """relative_pred_z: the z̈ term is the absolute one over the encoder's z̈ variance, and
+    stretching z (the decoder undoing it) leaves it as it was where the absolute term grows
+    with the stretch squared."""
+    import copy
+    from dataclasses import replace
+
+    model = copy.deepcopy(fitted.model_)
+    names = model.dynamics.names
+    coef = torch.zeros(len(names), 1)
+    coef[names.index("z0")] = -0.7  # z'' = -0.7 z: the same equation in any scale of z
+    model.dynamics.set_coefficients(coef)
+    x = torch.randn(16, 3, 1, 8, 8, generator=torch.Generator().manual_seed(0))
+    u = torch.zeros(16, 0)
+    plain = LossWeights(lambda_pred_z=1.0)
+    rel = replace(plain, relative_pred_z=True)
+
+    def terms(m) -> tuple[float, float, torch.Tensor]:
+        with torch.no_grad():
+            ddz = along(m.autoencoder.encoder, *x.unbind(1))[2]
+            return (float(m.loss(x, u, weights=plain)["pred_z"]),
+                    float(m.loss(x, u, weights=rel)["pred_z"]), ddz)
+
+    a, r, ddz = terms(model)
+    assert r == pytest.approx(a / float((ddz - ddz.mean()).square().mean()), rel=1e-5)
+    with torch.no_grad():
+        enc = [m for m in model.autoencoder.encoder.net if isinstance(m, nn.Linear)][-1]
+        dec = next(m for m in model.autoencoder.decoder.net if isinstance(m, nn.Linear))
+        enc.weight.mul_(3.0)
+        enc.bias.mul_(3.0)
+        dec.weight.div_(3.0)
+    a3, r3, _ = terms(model)
+    assert a3 == pytest.approx(9 * a, rel=1e-4)
+    assert r3 == pytest.approx(r, rel=1e-4)
+
+
 def test_refinement_drops_the_l1_term_and_prunes_no_more(fitted: LatentSINDy) -> None:
     """8 epochs, the last 4 refining: their total is the objective (no L1 term), and the
     pruning (every 2 epochs here) stops after epoch 4."""

@@ -224,7 +224,7 @@ def test_the_help_names_the_worlds_and_their_scales(capsys, monkeypatch):
     with pytest.raises(SystemExit):
         main(["reproduce", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
-    for name in ("pendulum-video", "pendulum", "symmetric", "published", "calibrated",
+    for name in ("pendulum-video", "pendulum", "symmetric", "published", "scalefree",
                  "48x48 images as E2C", "--device"):
         assert name in text, name
 
@@ -237,7 +237,7 @@ def test_each_scale_names_its_seeds_and_schedule():
     cfg = ReproduceConfig(world="pendulum-video", scale="demo")
     assert cfg.seeds is None and cfg.study_world is VIDEO
     demo = video_config("demo", cfg.seeds, "auto", 1)
-    assert demo.seeds == (0, 1, 2) and demo.schedule == "calibrated"
+    assert demo.seeds == (0, 1, 2) and demo.schedule == "scalefree"
     assert demo.splits == (100, 10, 10)
     frames = video_config("recovery-frames", None, "cpu", 1)
     assert frames.seeds == tuple(range(10)) and frames.derivatives == "central"
@@ -268,3 +268,24 @@ def test_the_success_figure_draws_every_count_with_its_interval(tmp_path, succes
             for m, k in (("state", successes), ("sindy", 50 - successes))]
     path = _pendulum_figure({0: rows, 1: rows}, tmp_path / "f.png")
     assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_poor_first_start_is_restarted_and_the_calibration_can_prune():
+    """Schedule.restarts: a first phase that reconstructs the validation frames worse than
+    ``restart_above`` gets a fresh start (never with an unreachable bound, always with 0);
+    the calibration runs scale-free and thresholds when asked."""
+    from dataclasses import replace
+
+    video = video_pca.compressed_video(8, 5, "exact", (4, 2, 2), 50)
+    data, lo, span = video_study.as_sequences(video)
+    base = replace(video_study.SCHEDULES["scalefree"], epochs=2, refine_epochs=1,
+                   threshold_every=1, calibrate_epochs=3, calibrate_prune_every=1)
+    never = video_study.train_seed(0, replace(base, restart_above=float("inf")), data, 8,
+                                   video, lo, span)
+    assert never["starts"] == 1 and never["start_kept"] == 1
+    always = video_study.train_seed(0, replace(base, restart_above=0.0), data, 8, video, lo,
+                                    span)
+    assert always["starts"] == 2 and always["start_kept"] in (1, 2)
+    assert always["epochs"] == 5
+    with pytest.raises(Exception, match="calibrate"):
+        video_study.Schedule(1, 1e-3, 10, 5, 1, 0, calibrate_prune_every=-1)

@@ -203,6 +203,11 @@ class LossWeights:
     lambda_pose: float = 0.0
     """λ4: weight of the pose head's error on the true poses (models with --pose-head; a
     privileged signal used in training only). 0: the head is not trained."""
+    relative_pred_z: bool = False
+    """λ2's term as a fraction of its targets' variance (the encoded latents' z_t, or the
+    encoder's z^(k) in continuous time) instead of the mean squared error: scale-free, so the
+    encoder cannot lower it by shrinking z, and a large λ2 straightens the latent instead
+    (the pendulum video: RESULTS.md, "A scale-free latent loss")."""
     foreground_weight: float = 0.0
     """Image models: extra weight of the moving object's pixels in the trained image terms
     (recon, pred_x): a pixel of the true image further than 1 (one training pixel std) from
@@ -222,6 +227,18 @@ class LossWeights:
 
 
 _DEFAULT_WEIGHTS = LossWeights()
+
+
+def _latent_error(pred: torch.Tensor, target: torch.Tensor, relative: bool) -> torch.Tensor:
+    """The mean squared error of ``pred`` against ``target`` (..., nz), or with ``relative``
+    that divided by the target's variance over every sample (its mean per coordinate
+    removed): the fraction of it left unexplained."""
+    err = (pred - target).square().mean()
+    if not relative:
+        return err
+    flat = target.reshape(-1, target.shape[-1])
+    spread = (flat - flat.mean(0)).square().mean()
+    return err / spread.clamp_min(torch.finfo(spread.dtype).tiny)
 
 
 def _foreground(x: torch.Tensor) -> torch.Tensor:
@@ -337,7 +354,7 @@ class LatentModel(nn.Module):
         err_recon = (x_dec[:, : t + 1] - x).square()
         err_pred = (x_dec[:, t + 1 :] - targets(x)).square()
         recon, pred_x = err_recon.mean(), err_pred.mean()
-        pred_z = (z_hat - targets(z)).square().mean()
+        pred_z = _latent_error(z_hat, targets(z), weights.relative_pred_z)
         l1 = self.l1_penalty()
         pose = self._pose_error(z, z_hat, poses, targets)
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
@@ -387,7 +404,7 @@ class LatentModel(nn.Module):
         x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
         recon = (x_hat[0] - frames[0]).square().mean()
         pred_x = (x_hat[k] - frames[k]).square().mean()
-        pred_z = (top - z[k]).square().mean()
+        pred_z = _latent_error(top, z[k], weights.relative_pred_z)
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,

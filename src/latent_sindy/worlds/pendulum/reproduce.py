@@ -36,9 +36,9 @@ Say = Callable[[str], None]
 VIDEO_SCALES = {
     "tiny": "seconds, for tests: 4/2/2 trajectories of 50 frames, 8 components, 3 epochs of "
             "the lite100 schedule, seed 0",
-    "demo": "the calibrated schedule (250 + 50 + 300 epochs, every 5th frame, 48 "
-            "components) on seeds 0..2; about 9 minutes a seed on a CPU core",
-    "recovery": "the calibrated schedule on seeds 0..9: the ten-seed recovery rate on a CPU",
+    "demo": "the scalefree schedule (250 + 50 + 300 epochs, every 5th frame, 48 "
+            "components) on seeds 0..2; about 10 minutes a seed on a CPU core",
+    "recovery": "the scalefree schedule on seeds 0..9: the ten-seed recovery rate on a CPU",
     "recovery-frames": "as recovery, with the image derivatives taken by central differences "
                        "of the frames instead of exactly",
     "published": "the published schedule (6002 epochs, batch 1000, every frame) on seeds "
@@ -113,9 +113,9 @@ def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads
     _scale(scale, VIDEO_SCALES, "pendulum-video")
     base = {"tiny": dict(seeds=(0,), schedule="lite100", components=8, epochs=3,
                          splits=(4, 2, 2), steps=50),
-            "demo": dict(seeds=(0, 1, 2), schedule="calibrated"),
-            "recovery": dict(seeds=tuple(range(10)), schedule="calibrated"),
-            "recovery-frames": dict(seeds=tuple(range(10)), schedule="calibrated",
+            "demo": dict(seeds=(0, 1, 2), schedule="scalefree"),
+            "recovery": dict(seeds=tuple(range(10)), schedule="scalefree"),
+            "recovery-frames": dict(seeds=tuple(range(10)), schedule="scalefree",
                                     derivatives="central"),
             "published": dict(seeds=tuple(range(10)), schedule="published")}[scale]
     if seeds:
