@@ -1,8 +1,8 @@
 """The image autoencoder: its config and the module joining an encoder and a decoder.
 
-The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments"; "mlp") and
-:mod:`.decoders` ("fc", the course's; "conv"; "sprite"; "mlp"); :data:`ENCODERS` and
-:data:`DECODERS` name them. Both work on normalised images (see
+The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments";
+"mask_moments"; "mlp") and :mod:`.decoders` ("fc", the course's; "conv"; "sprite"; "mlp");
+:data:`ENCODERS` and :data:`DECODERS` name them. Both work on normalised images (see
 :class:`latent_sindy.data.windows.Normalizer`) of any shape (C, H, W), so the decoder's output
 is unbounded. Dimensions: B batch, C channels, H × W image, nz latent size.
 
@@ -32,6 +32,7 @@ from latent_sindy.models.encoders import (
     KERNEL,
     Encoder,
     KeypointEncoder,
+    MaskMomentEncoder,
     MlpEncoder,
     MomentEncoder,
 )
@@ -85,14 +86,16 @@ class AutoencoderConfig:
     """fc decoder: widths of the hidden layers (the course: 500, 500)."""
     decoder_channels: int = 16
     """conv decoder: feature maps of its convolutions."""
-    encoder_kind: Annotated[Literal["conv", "keypoints", "moments", "mlp"],
+    encoder_kind: Annotated[Literal["conv", "keypoints", "moments", "mask_moments", "mlp"],
                             tyro.conf.arg(name="encoder")] = "conv"
     """Encoder kind: "conv" (the course's: conv + pool stages, then fully connected),
     "keypoints" (a spatial softmax: the latent is the expected image position of
     latent_dim / 2 learned feature maps, so it is a position by construction) or "moments"
     (nothing learned: the latent is the centroid and the orientation of what differs from the
-    background, (x, y, cos nφ, sin nφ); latent_dim 4) or "mlp" (fully connected through
-    --mlp-widths with --mlp-activation: the SINDy autoencoder's, any image size)."""
+    background, (x, y, cos nφ, sin nφ); latent_dim 4), "mask_moments" (the same latent, the
+    moments of a per-pixel weight that small convolutions learn; latent_dim 4) or "mlp"
+    (fully connected through --mlp-widths with --mlp-activation: the SINDy autoencoder's, any
+    image size)."""
     keypoint_channels: int = 16
     """keypoints encoder: feature maps of its two hidden 5×5 convolutions."""
     sprite_size: int | None = None
@@ -102,9 +105,24 @@ class AutoencoderConfig:
     """sprite decoder: draw at this many times the image's resolution, then average-pool (1:
     draw at the image's resolution)."""
     moment_order: int = 4
-    """moments encoder: n, the order of the angular moment that gives the orientation: the
-    object's visible rotational symmetry (4 for a uniform square, which looks alike every
-    quarter turn; 1 for an object with none)."""
+    """moments and mask_moments encoders: n, the order of the angular moment that gives the
+    orientation: the object's visible rotational symmetry (4 for a uniform square, which
+    looks alike every quarter turn; 1 for an object with none)."""
+    mask_channels: int = 16
+    """mask_moments encoder: feature maps of its hidden 3×3 convolutions."""
+    mask_layers: int = 3
+    """mask_moments encoder: hidden 3×3 convolutions before the one that gives the weight."""
+    mask_normalise: bool = True
+    """mask_moments encoder: standardise each image on its own (its median subtracted, divided
+    by its standard deviation) before the convolutions."""
+    mask_weight: Literal["background", "image", "mask"] = "background"
+    """mask_moments encoder: a pixel's weight is the learned mask (in (0, 1)) times its
+    deviation from the "background" (the per-pixel median of the training images as the
+    encoder sees them) or from its "image"'s median (the mask chooses which pixels count, the
+    image keeps their shape), or the "mask" alone."""
+    mask_window: float = 3.0
+    """mask_moments encoder: σ in pixels of the Gaussian window about the centroid that the
+    angular moment is taken in (0: none, the whole image's)."""
     mlp_widths: tuple[int, ...] = (128, 64, 32)
     """mlp encoder: widths of its hidden layers (the mlp decoder: the same, reversed); the
     SINDy autoencoder's pendulum: 128, 64, 32."""
@@ -143,15 +161,28 @@ class AutoencoderConfig:
             raise UserError(f"the moments encoder's latent is (x, y, cos nφ, sin nφ): use "
                             f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1 "
                             f"(got {self.moment_order})")
+        if self.encoder_kind == "mask_moments" and (self.latent_dim != 4
+                                                     or self.moment_order < 1):
+            raise UserError(f"the mask_moments encoder's latent is (x, y, cos nφ, sin nφ): use "
+                            f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1 "
+                            f"(got {self.moment_order})")
+        if self.mask_channels < 1 or self.mask_layers < 1:
+            raise UserError(f"--mask-channels {self.mask_channels} and --mask-layers "
+                            f"{self.mask_layers}: use 1 or more of each")
+        if self.mask_weight not in ("background", "image", "mask"):
+            raise UserError(f"--mask-weight {self.mask_weight!r}: use background, image or mask")
+        if not (math.isfinite(self.mask_window) and self.mask_window >= 0):
+            raise UserError(f"--mask-window {self.mask_window}: use a window of 0 (none) or "
+                            f"more pixels")
         if self.encoder_kind == "keypoints" and (self.latent_dim % 2
                                                  or self.keypoint_channels < 1):
             raise UserError(f"the keypoints encoder gives two coordinates per keypoint: use an "
                             f"even latent_dim (got {self.latent_dim}) and keypoint_channels "
                             f">= 1 (got {self.keypoint_channels})")
-        if self.decoder_kind == "sprite" and self.encoder_kind != "moments":
+        if self.decoder_kind == "sprite" and not self.pose_latent:
             raise UserError(f"the sprite decoder draws the object at the moments encoder's "
-                            f"pose: use it with --encoder moments (got {self.encoder_kind!r}), "
-                            f"or --decoder conv")
+                            f"pose: use it with --encoder moments or mask_moments (got "
+                            f"{self.encoder_kind!r}), or --decoder conv")
         if self.sprite_size is not None and (
                 self.sprite_size < 1 or self.sprite_size % 2 == 0
                 or (self.image_size is not None and self.sprite_size > min(self.hw))):
@@ -225,7 +256,7 @@ class AutoencoderConfig:
     @property
     def pose_latent(self) -> bool:
         """Whether the latent is a pose (x, y, cos nφ, sin nφ), as a face library needs."""
-        return self.encoder_kind == "moments"
+        return self.encoder_kind in ("moments", "mask_moments")
 
     @property
     def fixed_encoder(self) -> bool:
@@ -285,11 +316,11 @@ class Autoencoder(nn.Module):
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor) -> None:
-        """Let an encoder or a decoder that needs them (the moments encoder's and the sprite
+        """Let an encoder or a decoder that needs them (the moments encoders' and the sprite
         decoder's background) take their statistics from normalised training images
         (N, C, H, W); the learned ones need none."""
         for part in (self.encoder, self.decoder):
-            if isinstance(part, MomentEncoder | SpriteDecoder):
+            if isinstance(part, MomentEncoder | MaskMomentEncoder | SpriteDecoder):
                 part.fit_statistics(frames)
 
     def cost_weights(self, period: float) -> torch.Tensor:
@@ -297,7 +328,7 @@ class Autoencoder(nn.Module):
         the moments latent one pixel of position error costs 1, and so does 10° of
         orientation (modulo its symmetry 2π / n; ``period`` unused); on any other latent every
         coordinate alike."""
-        if isinstance(self.encoder, MomentEncoder):
+        if isinstance(self.encoder, MomentEncoder | MaskMomentEncoder):
             return cost_weights(4, positions=(0, 1), position_scale=self.encoder.pixel,
                                 circle=(2, 3), period=2 * math.pi / self.encoder.order,
                                 angle_scale=math.radians(10.0))
@@ -306,7 +337,8 @@ class Autoencoder(nn.Module):
 
 #: The encoder kinds of ``AutoencoderConfig.encoder_kind``.
 ENCODERS: dict[str, type[nn.Module]] = {"conv": Encoder, "keypoints": KeypointEncoder,
-                                        "moments": MomentEncoder, "mlp": MlpEncoder}
+                                        "moments": MomentEncoder,
+                                        "mask_moments": MaskMomentEncoder, "mlp": MlpEncoder}
 
 #: The decoder kinds of ``AutoencoderConfig.decoder_kind``.
 DECODERS: dict[str, type[nn.Module]] = {"fc": Decoder, "conv": Decoder,

@@ -1,6 +1,6 @@
 """Image encoders: normalised images x (B, C, H, W) -> latents z (B, nz).
 
-Four kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
+Five kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
 
 * ``"conv"`` (:class:`Encoder`, the course's): two stages of 5×5 convolution + ReLU + 2×2
   max-pool, a fully connected layer and a linear map to the latent size;
@@ -8,6 +8,8 @@ Four kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.EN
   positions of learned feature maps;
 * ``"moments"`` (:class:`MomentEncoder`): nothing learned, the image moments of what differs
   from the background: the position and orientation of the one object that moves;
+* ``"mask_moments"`` (:class:`MaskMomentEncoder`): the same moments of a learned per-pixel
+  weight (a small convolutional net) instead of the difference from a median background;
 * ``"mlp"`` (:class:`MlpEncoder`): fully connected on the flattened image, hidden widths
   ``mlp_widths`` (the SINDy autoencoder's 128, 64, 32) with ``mlp_activation`` (sigmoid), and a
   linear map to the latent; smooth, so its time derivatives along the data are too.
@@ -29,11 +31,14 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
+from latent_sindy.errors import UserError
+
 if TYPE_CHECKING:
     from latent_sindy.models.autoencoder import AutoencoderConfig
 
-__all__ = ["ACTIVATIONS", "KERNEL", "Encoder", "KeypointEncoder", "MlpEncoder", "MomentEncoder",
-           "image_coordinates", "median_background", "mlp"]
+__all__ = ["ACTIVATIONS", "KERNEL", "Encoder", "KeypointEncoder", "MaskMomentEncoder",
+           "MlpEncoder", "MomentEncoder", "angular_moments", "image_coordinates",
+           "median_background", "mlp", "moment_pose", "symmetry_order"]
 
 #: The side of every learned encoder's convolution kernels.
 KERNEL = 5
@@ -189,19 +194,186 @@ class MomentEncoder(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         d = x - self.background  # (B, C, H, W)
         w = d.abs().sum(1)  # (B, H, W)
-        tiny = torch.finfo(x.dtype).tiny
-        mass = w.sum((1, 2)).clamp_min(tiny)  # (B,)
-        xs, ys = self.xs, self.ys
-        cx = (w.sum(1) * xs).sum(1) / mass  # columns: x
-        cy = (w.sum(2) * ys).sum(1) / mass  # rows: y
-        rx = xs[None, None, :] - cx[:, None, None]  # (B, 1, W)
-        ry = ys[None, :, None] - cy[:, None, None]  # (B, H, 1)
-        re, im = rx.expand_as(w), ry.expand_as(w)
-        pr, pi = re, im  # (rx + i ry)^n by repeated products
-        for _ in range(self.order - 1):
-            pr, pi = pr * re - pi * im, pr * im + pi * re
-        wm = w if self.order > 1 else d.square().sum(1)
-        mr, mi = (wm * pr).sum((1, 2)), (wm * pi).sum((1, 2))
-        size = (wm * (re.square() + im.square()).pow(self.order / 2)).sum((1, 2))
-        norm = torch.sqrt(mr.square() + mi.square() + (1e-6 * size).square() + tiny)
-        return torch.stack([cx, cy, mr / norm, mi / norm], -1)
+        return moment_pose(w, d.square().sum(1) if self.order == 1 else w, self.xs, self.ys,
+                           self.order)
+
+
+def moment_pose(w: torch.Tensor, wm: torch.Tensor, xs: torch.Tensor, ys: torch.Tensor,
+                order: int, window: float | None = None) -> torch.Tensor:
+    """(x, y, cos nφ, sin nφ) (B, 4) of weights w (B, H, W) >= 0: the centroid of w (pixel
+    coordinates xs (W,), ys (H,)) and the unit direction of the n-th angular moment
+    Σ wm (r_x + i r_y)ⁿ of ``wm`` about it (``wm`` is w itself for n >= 2; for n = 1, where
+    the moment of w about its own centroid is 0, another weight such as w²). ``window`` σ
+    (position units): the moment of wm times exp(−r² / 2σ²) instead, so that weight far from
+    the centroid, which rⁿ would magnify, does not drown the object's. Weights that are all 0
+    read the image centre and (0, 0)."""
+    tiny = torch.finfo(w.dtype).tiny
+    mass = w.sum((1, 2)).clamp_min(tiny)  # (B,)
+    cx = (w.sum(1) * xs).sum(1) / mass  # columns: x
+    cy = (w.sum(2) * ys).sum(1) / mass  # rows: y
+    rx = xs[None, None, :] - cx[:, None, None]  # (B, 1, W)
+    ry = ys[None, :, None] - cy[:, None, None]  # (B, H, 1)
+    re, im = rx.expand_as(w), ry.expand_as(w)
+    pr, pi = re, im  # (rx + i ry)^n by repeated products
+    for _ in range(order - 1):
+        pr, pi = pr * re - pi * im, pr * im + pi * re
+    if window is not None:
+        wm = wm * torch.exp((re.square() + im.square()) / (-2 * window**2))
+    mr, mi = (wm * pr).sum((1, 2)), (wm * pi).sum((1, 2))
+    size = (wm * (re.square() + im.square()).pow(order / 2)).sum((1, 2))
+    norm = torch.sqrt(mr.square() + mi.square() + (1e-6 * size).square() + tiny)
+    return torch.stack([cx, cy, mr / norm, mi / norm], -1)
+
+
+def angular_moments(w: torch.Tensor, xs: torch.Tensor, ys: torch.Tensor,
+                    orders: tuple[int, ...] = (1, 2, 3, 4, 5, 6),
+                    window: float | None = None, centre: torch.Tensor | None = None
+                    ) -> torch.Tensor:
+    """(B, len(orders)) complex: for each image's weights w (B, H, W) >= 0 and each order n
+    the normalised angular moment Σ w' rⁿ e^{inφ} / Σ w' rⁿ about the centroid of w (or
+    ``centre`` (B, 2), points (x, y)), of modulus at most 1: 1 for weight on n rays 2π / n
+    apart, 0 for weight with no n-fold part (a disc: 0 for every n). w' = w for n >= 2 and
+    w² for n = 1, as the encoders' moments, times the Gaussian ``window`` σ about the centre
+    where given (:func:`moment_pose`)."""
+    tiny = torch.finfo(w.dtype).tiny
+    if centre is None:
+        mass = w.sum((1, 2)).clamp_min(tiny)
+        cx = (w.sum(1) * xs).sum(1) / mass
+        cy = (w.sum(2) * ys).sum(1) / mass
+    else:
+        cx, cy = centre[:, 0], centre[:, 1]
+    rx = (xs[None, None, :] - cx[:, None, None]).expand_as(w)
+    ry = (ys[None, :, None] - cy[:, None, None]).expand_as(w)
+    r, phi = torch.hypot(rx, ry), torch.atan2(ry, rx)
+    g = torch.ones_like(r) if window is None else torch.exp(r.square() / (-2 * window**2))
+    out = []
+    for n in orders:
+        rn = (w.square() if n == 1 else w) * g * r.pow(n)
+        m = torch.complex((rn * torch.cos(n * phi)).sum((1, 2)),
+                          (rn * torch.sin(n * phi)).sum((1, 2)))
+        out.append(m / rn.sum((1, 2)).clamp_min(tiny))
+    return torch.stack(out, -1)
+
+
+def symmetry_order(w: torch.Tensor, xs: torch.Tensor, ys: torch.Tensor,
+                   orders: tuple[int, ...] = (1, 2, 3, 4, 5, 6),
+                   window: float | None = None, centre: torch.Tensor | None = None) -> int:
+    """The order n among ``orders`` whose normalised angular moment
+    (:func:`angular_moments`) turns most between the images' weights w (B, H, W): the mean
+    modulus of its deviation from its mean over the images. An object's moment turns with
+    it, where a fixed pattern's (a table's grain about the object) stays put; of an object
+    seen at many orientations, its visible rotational symmetry 2π / n as far as the moments
+    see it (4 for a square, 2 for an oblong)."""
+    if not orders or min(orders) < 1:
+        raise UserError(f"symmetry orders {orders}: give one or more orders >= 1")
+    m = angular_moments(w, xs, ys, tuple(orders), window, centre)
+    strength = (m - m.mean(0)).abs().mean(0)
+    return int(orders[int(strength.argmax())])
+
+
+class MaskMomentEncoder(nn.Module):
+    """x (B, C, H, W) -> z (B, 4) = (x, y, cos nφ, sin nφ): the moments of a learned weight.
+
+    :class:`MomentEncoder`'s latent, with a learned say in which pixels count. Each image is
+    first standardised on its own (``mask_normalise``: its median subtracted, divided by its
+    standard deviation), so a change of lighting is not a change of weight. A few 3×3
+    convolutions (``mask_layers`` hidden ones of ``mask_channels`` maps, ReLU, the same size;
+    then one map) and a sigmoid give a mask in (0, 1); a pixel's weight w is the mask times
+    its deviation from the per-pixel median of the standardised training images
+    (``mask_weight`` "background", :meth:`fit_statistics`), from its image's median ("image"),
+    or the mask alone ("mask"): the mask chooses which pixels are the object, the image keeps
+    their shape. The latent is the centroid of w and the direction of its n-th angular
+    moment (n = ``moment_order``) in a Gaussian window of σ = ``mask_window`` pixels about
+    the centroid (:func:`moment_pose`), so that what the mask lets through far from the
+    object does not turn it. The convolutions see every position alike, so what they learn
+    to weigh moves the centroid with the object by construction.
+
+    Trained by the autoencoder's reconstruction through the sprite decoder (no pose labels);
+    :meth:`symmetry_order` of a trained encoder on training images chooses n from the data.
+    Measured (RESULTS.md, "A learned object mask for the moments"): in the textured world
+    it reads the block's position where the moments encoder cannot.
+    """
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        self.order = cfg.moment_order
+        self.normalise, self.kind = cfg.mask_normalise, cfg.mask_weight
+        self.window_pixels = cfg.mask_window
+        c, layers, width = cfg.channels, [], cfg.mask_channels
+        for _ in range(cfg.mask_layers):
+            layers += [nn.Conv2d(c, width, 3, padding=1), nn.ReLU()]
+            c = width
+        layers.append(nn.Conv2d(c, 1, 3, padding=1))
+        self.net = nn.Sequential(*layers)
+        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
+        xs, ys = image_coordinates(cfg.height, cfg.width)
+        self.register_buffer("xs", xs, persistent=False)
+        self.register_buffer("ys", ys, persistent=False)
+
+    @property
+    def pixel(self) -> float:
+        """One pixel's width in the latent's position units."""
+        return float(self.xs[1] - self.xs[0])
+
+    @property
+    def window(self) -> float | None:
+        """σ of the angular moment's window in position units (None: no window)."""
+        return self.window_pixels * self.pixel if self.window_pixels > 0 else None
+
+    @torch.no_grad()
+    def symmetry_order(self, x: torch.Tensor, orders: tuple[int, ...] = (1, 2, 3, 4, 5, 6),
+                       steps: int = 3) -> int:
+        """The visible symmetry order n of the object this encoder finds in images
+        x (B, C, H, W): :func:`symmetry_order` of the images' own deviation (from the
+        background or their median, as ``mask_weight``; the mask for "mask") in the window
+        about its centre. The centre starts at the latent's centroid and moves ``steps``
+        times to the centroid of the deviation in the window there. The mask only places
+        the window: its own shape, trained at some order, could favour that order."""
+        s = self._standardised(x)
+        if self.kind == "mask":
+            d = self.weights(x)
+        else:
+            ref = self.background if self.kind == "background" else (
+                s.flatten(1).median(1).values[:, None, None, None])
+            d = (s - ref).abs().sum(1)  # (B, H, W)
+        c = self(x)[:, :2]  # (B, 2)
+        window = self.window if self.window is not None else float("inf")
+        for _ in range(steps):
+            r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
+                  + (self.ys[None, :, None] - c[:, 1, None, None]).square())
+            dg = d * torch.exp(r2 / (-2 * window**2))
+            mass = dg.sum((1, 2)).clamp_min(torch.finfo(dg.dtype).tiny)
+            c = torch.stack([(dg.sum(1) * self.xs).sum(1) / mass,
+                             (dg.sum(2) * self.ys).sum(1) / mass], -1)
+        return symmetry_order(d, self.xs, self.ys, orders, self.window, c)
+
+    @torch.no_grad()
+    def fit_statistics(self, frames: torch.Tensor) -> None:
+        """Set the background from normalised training images (N, C, H, W): the per-pixel
+        median of the images as the encoder sees them (standardised each on its own where
+        ``mask_normalise``)."""
+        self.background.copy_(median_background(self._standardised(frames),
+                                                self.background.shape))
+
+    def _standardised(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.normalise:
+            return x
+        flat = x.flatten(1)
+        median = flat.median(1, keepdim=True).values
+        return ((flat - median) / (flat.std(1, keepdim=True) + 1e-6)).view_as(x)
+
+    def weights(self, x: torch.Tensor) -> torch.Tensor:
+        """The per-pixel weights w (B, H, W) >= 0 of images x (B, C, H, W): the learned mask,
+        times the deviation that ``mask_weight`` names."""
+        x = self._standardised(x)
+        mask = torch.sigmoid(self.net(x))[:, 0]  # (B, H, W)
+        if self.kind == "mask":
+            return mask
+        ref = self.background if self.kind == "background" else (
+            x.flatten(1).median(1).values[:, None, None, None])
+        return mask * (x - ref).abs().sum(1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        w = self.weights(x)
+        return moment_pose(w, w.square() if self.order == 1 else w, self.xs, self.ys,
+                           self.order, self.window)
