@@ -14,7 +14,7 @@ are those of the frames (``--derivatives central``, taken at the video's own dt 
 keeping every ``frames_every``-th frame). The FVUs are measured in pixel space, the truncation
 included.
 
-    .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..2 --schedule lite
+    .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..2 --schedule scalefree
     .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..9 --derivatives central
 
 The data is cached in /tmp (pendulum_pca_K_EVERY_DERIVATIVES.npz) after its first making.
@@ -50,7 +50,7 @@ def seeds_of(text: str) -> list[int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0..9", help="model seeds: 0..9 or 0,3,5")
-    ap.add_argument("--schedule", default="lite", choices=sorted(SCHEDULES))
+    ap.add_argument("--schedule", default="scalefree", choices=sorted(SCHEDULES))
     ap.add_argument("--derivatives", default="exact", choices=["exact", "central"])
     ap.add_argument("--components", type=int, default=48, help="principal components kept")
     ap.add_argument("--epochs", type=int, default=None, help="override the schedule's epochs")
