@@ -50,7 +50,6 @@ Dimensions: B batch, H horizon, C channels, h × w image, nz latent size, nu act
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Literal, Union
@@ -68,6 +67,7 @@ from latent_sindy.models.dynamics import (
     SindyConfig,
     SparseDynamics,
 )
+from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, foreground, latent_error
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
 from latent_sindy.models.renamed import renamed
 from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
@@ -182,73 +182,6 @@ class ModelConfig:
             action_dim=action_dim)
 
 
-#: Largest :attr:`LossWeights.foreground_weight` (1e308 made the first epoch's loss NaN).
-MAX_FOREGROUND_WEIGHT = 1000.0
-
-
-@dataclass(frozen=True)
-class LossWeights:
-    """λ1, λ2, λ3 of the loss (see the module docstring)."""
-
-    # On a 60-trajectory set (SINDy order 2, 300 epochs): λ2 = 0.1 left the latent prediction
-    # error 9x larger than λ2 = 1 for 6% better validation reconstruction. On 100 training
-    # trajectories (conv decoder, 60 epochs): λ3 = 1e-3 pruned 90% of the order-2
-    # coefficients, 1e-2 pruned 98.5% for a 1% higher validation loss.
-    lambda_pred_x: float = 1.0
-    """λ1: weight of the image prediction loss, dec(ẑ_t) vs x_t."""
-    lambda_pred_z: float = 1.0
-    """λ2: weight of the latent prediction loss, ẑ_t vs enc(x_t) (latent MPPI relies on it)."""
-    lambda_l1: float = 1e-2
-    """λ3: weight of ‖M ⊙ Ψ‖₁, a sum over all coefficients (SINDy only)."""
-    lambda_pose: float = 0.0
-    """λ4: weight of the pose head's error on the true poses (models with --pose-head; a
-    privileged signal used in training only). 0: the head is not trained."""
-    relative_pred_z: bool = False
-    """λ2's term as a fraction of its targets' variance (the encoded latents' z_t, or the
-    encoder's z^(k) in continuous time) instead of the mean squared error: scale-free, so the
-    encoder cannot lower it by shrinking z, and a large λ2 straightens the latent instead
-    (the pendulum video: RESULTS.md, "A scale-free latent loss")."""
-    foreground_weight: float = 0.0
-    """Image models: extra weight of the moving object's pixels in the trained image terms
-    (recon, pred_x): a pixel of the true image further than 1 (one training pixel std) from
-    its image's median counts 1 + this. The reported terms and objective stay unweighted."""
-
-    def __post_init__(self) -> None:
-        for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "lambda_pose",
-                     "foreground_weight"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise UserError(f"--{name.replace('_', '-')} {v}: use a finite number >= 0")
-        if self.foreground_weight > MAX_FOREGROUND_WEIGHT:
-            raise UserError(f"--foreground-weight {self.foreground_weight}: use 0 to "
-                            f"{MAX_FOREGROUND_WEIGHT:g} (the object's pixels count 1 + this; "
-                            "far larger drowns the background and overflows the loss; "
-                            "3 and 10 were tried, RESULTS.md)")
-
-
-_DEFAULT_WEIGHTS = LossWeights()
-
-
-def _latent_error(pred: torch.Tensor, target: torch.Tensor, relative: bool) -> torch.Tensor:
-    """The mean squared error of ``pred`` against ``target`` (..., nz), or with ``relative``
-    that divided by the target's variance over every sample (its mean per coordinate
-    removed): the fraction of it left unexplained."""
-    err = (pred - target).square().mean()
-    if not relative:
-        return err
-    flat = target.reshape(-1, target.shape[-1])
-    spread = (flat - flat.mean(0)).square().mean()
-    return err / spread.clamp_min(torch.finfo(spread.dtype).tiny)
-
-
-def _foreground(x: torch.Tensor) -> torch.Tensor:
-    """1 where a normalised image (..., C, h, w) differs from its median by more than 1 (one
-    training pixel std: the object against the background), else 0."""
-    flat = x.flatten(-3)
-    median = flat.median(dim=-1, keepdim=True).values
-    return ((flat - median).abs() > 1).to(x.dtype).view_as(x)
-
-
 class LatentModel(nn.Module):
     """Autoencoder + latent dynamics; ``step(z, u)`` is the dynamics model's step (with the
     angle features of a pose latent projected onto the unit circle: ``dynamics.circle``).
@@ -324,7 +257,7 @@ class LatentModel(nn.Module):
         defaults of :class:`LossWeights`. ``poses`` (B, T+1, 4): the true pose features of
         the sequences, for the pose head's term (0 without them or without a head).
         """
-        weights = weights or _DEFAULT_WEIGHTS
+        weights = weights or DEFAULT_WEIGHTS
         if self.dynamics.continuous:
             return self._continuous_loss(x, u, weights)
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
@@ -354,13 +287,13 @@ class LatentModel(nn.Module):
         err_recon = (x_dec[:, : t + 1] - x).square()
         err_pred = (x_dec[:, t + 1 :] - targets(x)).square()
         recon, pred_x = err_recon.mean(), err_pred.mean()
-        pred_z = _latent_error(z_hat, targets(z), weights.relative_pred_z)
+        pred_z = latent_error(z_hat, targets(z), weights.relative_pred_z)
         l1 = self.l1_penalty()
         pose = self._pose_error(z, z_hat, poses, targets)
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         trained = objective
         if weights.foreground_weight and self.config.observation.kind == "image":
-            w = 1 + weights.foreground_weight * _foreground(x)  # (B, T+1, C, h, w)
+            w = 1 + weights.foreground_weight * foreground(x)  # (B, T+1, C, h, w)
             trained = ((w * err_recon).mean() + weights.lambda_pred_x * (targets(w) * err_pred)
                        .mean() + weights.lambda_pred_z * pred_z)
         total = trained + weights.lambda_l1 * l1
@@ -404,7 +337,7 @@ class LatentModel(nn.Module):
         x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
         recon = (x_hat[0] - frames[0]).square().mean()
         pred_x = (x_hat[k] - frames[k]).square().mean()
-        pred_z = _latent_error(top, z[k], weights.relative_pred_z)
+        pred_z = latent_error(top, z[k], weights.relative_pred_z)
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,
