@@ -153,7 +153,25 @@ def median_background(frames: torch.Tensor, shape: torch.Size) -> torch.Tensor:
     return frames.reshape(-1, *shape).median(0).values
 
 
-class MomentEncoder(nn.Module):
+class _PoseFrame(nn.Module):
+    """What both moments encoders hold: the order n, the background buffer (C, H, W) and the
+    pixel coordinates xs (W,), ys (H,) of :func:`image_coordinates`."""
+
+    def __init__(self, cfg: AutoencoderConfig) -> None:
+        super().__init__()
+        self.order = cfg.moment_order
+        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
+        xs, ys = image_coordinates(cfg.height, cfg.width)
+        self.register_buffer("xs", xs, persistent=False)
+        self.register_buffer("ys", ys, persistent=False)
+
+    @property
+    def pixel(self) -> float:
+        """One pixel's width in the latent's position units."""
+        return float(self.xs[1] - self.xs[0])
+
+
+class MomentEncoder(_PoseFrame):
     """x (B, C, H, W) -> z (B, 4) = (x, y, cos nφ, sin nφ): the pose of the one object that
     differs from the background, in image coordinates.
 
@@ -172,19 +190,6 @@ class MomentEncoder(nn.Module):
     (For example, on the pushing world's images a linear map of (x, y) reads the block's
     position to 0.54 cm and nφ its orientation to 4.0°, mean errors; RESULTS.md.)
     """
-
-    def __init__(self, cfg: AutoencoderConfig) -> None:
-        super().__init__()
-        self.order = cfg.moment_order
-        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
-        xs, ys = image_coordinates(cfg.height, cfg.width)
-        self.register_buffer("xs", xs, persistent=False)
-        self.register_buffer("ys", ys, persistent=False)
-
-    @property
-    def pixel(self) -> float:
-        """One pixel's width in the latent's position units."""
-        return float(self.xs[1] - self.xs[0])
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor) -> None:
@@ -271,7 +276,7 @@ def symmetry_order(w: torch.Tensor, xs: torch.Tensor, ys: torch.Tensor,
     return int(orders[int(strength.argmax())])
 
 
-class MaskMomentEncoder(nn.Module):
+class MaskMomentEncoder(_PoseFrame):
     """x (B, C, H, W) -> z (B, 4) = (x, y, cos nφ, sin nφ): the moments of a learned weight.
 
     :class:`MomentEncoder`'s latent, with a learned say in which pixels count. Each image is
@@ -295,8 +300,7 @@ class MaskMomentEncoder(nn.Module):
     """
 
     def __init__(self, cfg: AutoencoderConfig) -> None:
-        super().__init__()
-        self.order = cfg.moment_order
+        super().__init__(cfg)
         self.normalise, self.kind = cfg.mask_normalise, cfg.mask_weight
         self.window_pixels = cfg.mask_window
         c, layers, width = cfg.channels, [], cfg.mask_channels
@@ -305,15 +309,6 @@ class MaskMomentEncoder(nn.Module):
             c = width
         layers.append(nn.Conv2d(c, 1, 3, padding=1))
         self.net = nn.Sequential(*layers)
-        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
-        xs, ys = image_coordinates(cfg.height, cfg.width)
-        self.register_buffer("xs", xs, persistent=False)
-        self.register_buffer("ys", ys, persistent=False)
-
-    @property
-    def pixel(self) -> float:
-        """One pixel's width in the latent's position units."""
-        return float(self.xs[1] - self.xs[0])
 
     @property
     def window(self) -> float | None:
