@@ -279,7 +279,8 @@ def test_a_poor_first_start_is_restarted_and_the_calibration_can_prune():
     video = video_pca.compressed_video(8, 5, "exact", (4, 2, 2), 50)
     data, lo, span = video_study.as_sequences(video)
     base = replace(video_study.SCHEDULES["scalefree"], epochs=2, refine_epochs=1,
-                   threshold_every=1, calibrate_epochs=3, calibrate_prune_every=1)
+                   threshold_every=1, calibrate_epochs=3, calibrate_prune_every=1,
+                   restart_fvu=float("inf"))
     never = video_study.train_seed(0, replace(base, restart_above=float("inf")), data, 8,
                                    video, lo, span)
     assert never["starts"] == 1 and never["start_kept"] == 1
@@ -287,5 +288,12 @@ def test_a_poor_first_start_is_restarted_and_the_calibration_can_prune():
                                     span)
     assert always["starts"] == 2 and always["start_kept"] in (1, 2)
     assert always["epochs"] == 5
+    # The second rule: calibrated equations that leave more than restart_fvu of z̈
+    # unexplained (0: always) start again, and the start with the smaller fraction is kept.
+    unexplained = video_study.train_seed(0, replace(base, restart_above=float("inf"),
+                                                    restart_fvu=0.0), data, 8, video, lo, span)
+    assert unexplained["starts"] == 2 and unexplained["start_kept"] in (1, 2)
     with pytest.raises(Exception, match="calibrate"):
         video_study.Schedule(1, 1e-3, 10, 5, 1, 0, calibrate_prune_every=-1)
+    with pytest.raises(Exception, match="restart_fvu"):
+        video_study.Schedule(1, 1e-3, 10, 5, 1, 0, restart_fvu=0.01)

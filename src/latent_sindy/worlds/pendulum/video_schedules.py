@@ -53,6 +53,11 @@ class Schedule:
     """Fresh starts (seed + 1000 r) of the first phase allowed when its kept model's
     validation reconstruction error (normalised coordinates) is above ``restart_above``."""
     restart_above: float = 0.1
+    restart_fvu: float = float("inf")
+    """A fresh start (while ``restarts`` allow) also when the calibrated model's equations
+    leave more than this fraction of the encoder's z̈ unexplained on the validation frames
+    (needs ``calibrate_relative``; inf: never). Of the calibrated starts the one with the
+    smallest fraction is kept."""
 
     def __post_init__(self) -> None:
         for name in ("calibrate_epochs", "calibrate_prune_every", "restarts"):
@@ -61,6 +66,11 @@ class Schedule:
         if not (self.calibrate_relative >= 0 and self.restart_above >= 0):
             raise UserError(f"schedule calibrate_relative {self.calibrate_relative}, "
                             f"restart_above {self.restart_above}: use numbers >= 0")
+        if not self.restart_fvu >= 0 or (self.restart_fvu != float("inf")
+                                         and not self.calibrate_relative):
+            raise UserError(f"schedule restart_fvu {self.restart_fvu}: use a number >= 0 "
+                            "with calibrate_relative > 0 (it judges the scale-free z̈ "
+                            "term), or inf")
 
 
 SCHEDULES = {
@@ -92,11 +102,12 @@ SCHEDULES = {
     # lite100, then 300 epochs of calibration with the z̈ term scale-free (weight 100 on the
     # fraction of the encoder's z̈ the library misses: it straightens a stretched z where the
     # absolute term shrank it), thresholding at 0.1 every 25 epochs through its first 200;
-    # one fresh start when the first reconstructs the validation frames poorly.
+    # one fresh start when the first reconstructs the validation frames poorly or its
+    # calibrated equations leave over 1 % of the encoder's z̈ unexplained.
     "scalefree": Schedule(250, 3e-3, 100, 5, 25, 50, pred_z=5e-7, l1=1e-9, init="normal",
                           init_scale=1e-3, calibrate_epochs=300, calibrate_x=5e-2,
                           calibrate_lr=1e-3, calibrate_relative=100.0,
-                          calibrate_prune_every=25, restarts=1),
+                          calibrate_prune_every=25, restarts=1, restart_fvu=0.01),
 }
 
 
