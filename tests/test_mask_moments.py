@@ -170,7 +170,7 @@ def test_the_encoder_is_part_of_the_autoencoder_and_its_state() -> None:
 
 @pytest.mark.parametrize(("kw", "match"), [
     ({"latent_dim": 8}, "--latent-dim 4"),
-    ({"moment_order": 0}, "--moment-order >= 1"),
+    ({"moment_order": -1}, "--moment-order >= 1, or 0 to choose it"),
     ({"mask_channels": 0}, "--mask-channels 0"),
     ({"mask_layers": 0}, "--mask-layers 0"),
     ({"mask_window": -1.0}, "--mask-window -1.0"),

@@ -36,7 +36,13 @@ from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
 from latent_sindy.training.core import FitResult, fit
-from latent_sindy.training.prepare import new_model, regression_init, training_tensors
+from latent_sindy.training.prepare import (
+    fit_after,
+    new_model,
+    regression_init,
+    settle_model,
+    training_tensors,
+)
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 
@@ -150,10 +156,10 @@ class LatentSINDy:
                             f"{data.source} ({data.steps} steps): use 1..{data.steps}")
         record = run_record(cfg, data)
         device = torch.device(resolve_device(cfg.device))
-        model_cfg = _model_of(record)
+        norm = Normalizer.from_dict(record["normalizer"])
+        model_cfg = settle_model(record, data, norm, cfg, device)
         model, opt, gen = new_model(model_cfg, cfg, device)
         regression = regression_init(cfg, model)
-        norm = Normalizer.from_dict(record["normalizer"])
         tensors = training_tensors(model, data, norm, cfg, device, regression=regression)
         threads = torch.get_num_threads()
         parallel = resolve_parallel(cfg, device.type, threads)
@@ -167,6 +173,8 @@ class LatentSINDy:
         finally:
             progress.close()
         model.load_state_dict(result.state)
+        if cfg.sindy_fit == "after":
+            fit_after(model, data, norm, cfg, device)
         self.model_, self.normalizer_ = model.cpu().eval(), norm
         self.description_ = record["description"]
         self.world_record_ = record["world"]["record"]
@@ -334,12 +342,6 @@ class LatentSINDy:
                 if self.time == "continuous" else "")
         return (f"LatentSINDy(latent_dim={self.latent_dim}, dynamics={self.dynamics!r}, "
                 f"order={self.order}, library={self.library!r}{time}; {state})")
-
-
-def _model_of(record: dict[str, Any]) -> ModelConfig:
-    from latent_sindy.configs import from_json
-
-    return from_json(ModelConfig, record["model"], "model")
 
 
 def _natural(name: str) -> tuple:

@@ -64,6 +64,9 @@ class ModelSpec:
     init_threshold: float = 0.0
     """SINDy on a fixed encoder: the threshold of the sparse regression its coefficients start
     from (``TrainConfig.sindy_init_threshold``)."""
+    sindy_fit: Literal["joint", "after"] = "joint"
+    """SINDy: trained with the autoencoder ("joint") or fitted by sparse regression to the
+    trained encoder's latents ("after", ``TrainConfig.sindy_fit``)."""
     latent_cost: Literal["latent", "pose"] = "latent"
     """The cost of its latent MPPI: "latent" (the distance to the encoded goal image, every
     coordinate alike) or "pose" (its pose head's reading against the goal image's; a model
@@ -79,8 +82,9 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                 push: Literal["symmetric", "paper"] = "symmetric") -> tuple[ModelSpec, ...]:
     """SINDy orders 1-4, linear (E2C), MLP, SINDy order 2 trained on H-step windows, SINDy
     order 2 with the push library, and the same with a privileged pose head planning on its
-    pose cost, all with the same autoencoder architecture; the pose latents (privileged, and
-    read from the image's moments); then SINDy (face library), linear
+    pose cost, all with the same autoencoder architecture; the pose latents (privileged, read
+    from the image's moments, and learned: a learned mask's moments at an order the data
+    chooses); then SINDy (face library), linear
     and MLP on the true state (the reference rows the image models are measured against).
     ``angle_period`` is the world's visible symmetry, which sets the face library's angle
     frequency; ``push`` its push style: the face library writes pushes given as world
@@ -96,6 +100,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                                   decoder_kind="sprite",
                                   moment_order=round(2 * math.pi / angle_period))
     frame_dynamics = dataclasses.replace(pose_dynamics, library="frame") if frame else None
+    learned = dataclasses.replace(moments, encoder_kind="mask_moments", moment_order=0)
 
     def model(dynamics: Any) -> ModelConfig:
         return ModelConfig(observation=auto, dynamics=dynamics)
@@ -160,6 +165,18 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                      loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
                      init_threshold=0.05, cost=0.6, headline=True),
            ) if frame else ()),
+        # The same latent with nothing set by hand: the mask that says which pixels count is
+        # learned (mask_moments: 3x3 convolutions, trained by reconstruction through the
+        # sprite decoder, no pose labels), the angular moment's order n is chosen from the
+        # training images (a short fit at order 2 first) and the library's angle frequency is
+        # that n. SINDy is fitted after the autoencoder, by STLSQ at 0.2 on its latents (the
+        # prediction terms erase the orientation: RESULTS.md, "A learned object mask").
+        ModelSpec("sindy_learned", f"SINDy ({library} library), learned mask moments",
+                  ModelConfig(observation=learned,
+                              dynamics=dataclasses.replace(pose_dynamics, angle_frequency=0.0)),
+                  loss=LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0),
+                  threshold=0.0, init_threshold=0.2, sindy_fit="after", cost=1.0,
+                  headline=True),
         # The face library: the push as it is (x += 0.080 ℓ cos ψ, y += 0.080 ℓ sin ψ) and the
         # turn, through the push angle relative to the pushed face (sin 4ψ, cos 4ψ times the
         # orientation features); the push library cannot write the turn. State losses are in

@@ -229,5 +229,6 @@ def train_config(plan: StudyPlan, spec: ModelSpec, seed: int, data: Path) -> Tra
                        threshold_every=scale.threshold_every * spec.epochs_factor,
                        eval_every=scale.eval_every * spec.epochs_factor,
                        sindy_init_threshold=spec.init_threshold,
+                       sindy_fit=spec.sindy_fit,
                        batching=scale.batching, seed=seed,
                        device="auto" if plan.config.gpus > 0 else "cpu")

@@ -107,7 +107,9 @@ class AutoencoderConfig:
     moment_order: int = 4
     """moments and mask_moments encoders: n, the order of the angular moment that gives the
     orientation: the object's visible rotational symmetry (4 for a uniform square, which
-    looks alike every quarter turn; 1 for an object with none)."""
+    looks alike every quarter turn; 1 for an object with none). mask_moments: 0 chooses it
+    from the data at training (a short fit at order 2, then the trained encoder's
+    ``symmetry_order`` on the training images; the run's record states the order chosen)."""
     mask_channels: int = 16
     """mask_moments encoder: feature maps of its hidden 3×3 convolutions."""
     mask_layers: int = 3
@@ -162,10 +164,10 @@ class AutoencoderConfig:
                             f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1 "
                             f"(got {self.moment_order})")
         if self.encoder_kind == "mask_moments" and (self.latent_dim != 4
-                                                     or self.moment_order < 1):
+                                                     or self.moment_order < 0):
             raise UserError(f"the mask_moments encoder's latent is (x, y, cos nφ, sin nφ): use "
-                            f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1 "
-                            f"(got {self.moment_order})")
+                            f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1, "
+                            f"or 0 to choose it from the data (got {self.moment_order})")
         if self.mask_channels < 1 or self.mask_layers < 1:
             raise UserError(f"--mask-channels {self.mask_channels} and --mask-layers "
                             f"{self.mask_layers}: use 1 or more of each")
@@ -208,7 +210,14 @@ class AutoencoderConfig:
     # ------------------------------------------------------------------ the image's shape
     @property
     def resolved(self) -> bool:
-        return self.channels is not None and self.image_size is not None
+        return (self.channels is not None and self.image_size is not None
+                and not self.order_from_data)
+
+    @property
+    def order_from_data(self) -> bool:
+        """Whether the angular moment's order is still to be chosen from the data
+        (``moment_order`` 0: training chooses it)."""
+        return self.encoder_kind == "mask_moments" and self.moment_order == 0
 
     @property
     def hw(self) -> tuple[int, int]:

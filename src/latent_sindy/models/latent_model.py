@@ -133,6 +133,13 @@ class ModelConfig:
                             "features (z2, z3 = cos, sin of the angle): use it with the state "
                             "encoder, the moments encoder (--encoder moments --latent-dim 4) or "
                             "--pose-head coordinates, or use --library push")
+        if isinstance(self.dynamics, SindyConfig) and self.dynamics.pose_library and (
+                self.dynamics.angle_frequency == 0
+                and getattr(self.observation, "encoder_kind", None) not in ("moments",
+                                                                          "mask_moments")):
+            raise UserError("--angle-frequency 0 takes the moments encoder's --moment-order: "
+                            "use it with --encoder moments or mask_moments, or give the "
+                            "object's symmetry (4 for a square)")
         if self.turn and not self.pose_latent:
             raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
                             "it with the state or moments encoder or --pose-head coordinates")
@@ -161,7 +168,17 @@ class ModelConfig:
 
     @property
     def resolved(self) -> bool:
-        return self.observation.resolved and self.action_dim is not None
+        return self.observation.resolved and self.action_dim is not None and (
+            getattr(self.dynamics, "angle_frequency", 1) != 0)
+
+    def with_moment_order(self, order: int) -> ModelConfig:
+        """This config with the moments encoder's order ``order``, and the pose library's
+        angle frequency too where it was left to it (0)."""
+        dyn = self.dynamics
+        if getattr(dyn, "angle_frequency", None) == 0:
+            dyn = dataclasses.replace(dyn, angle_frequency=float(order))
+        return dataclasses.replace(self, observation=dataclasses.replace(
+            self.observation, moment_order=order), dynamics=dyn)
 
     @property
     def dynamics_kind(self) -> str:
@@ -177,9 +194,13 @@ class ModelConfig:
         if self.action_dim is not None and self.action_dim != action_dim:
             raise UserError(f"--action-dim {self.action_dim} but {source} has actions of "
                             f"size {action_dim}: leave it unset to use the data's")
-        return dataclasses.replace(
+        out = dataclasses.replace(
             self, observation=self.observation.resolve(channels, image_size, source),
             action_dim=action_dim)
+        order = getattr(self.observation, "moment_order", 0)
+        if getattr(self.dynamics, "angle_frequency", None) == 0 and order:
+            out = out.with_moment_order(order)
+        return out
 
 
 class LatentModel(nn.Module):

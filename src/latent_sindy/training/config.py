@@ -101,6 +101,16 @@ class TrainConfig:
     """SINDy, regression start: the sequentially thresholded least squares' threshold, the
     smallest share a term may contribute (on RMS-normalised library columns); the terms it
     drops start pruned. 0: plain least squares, every term."""
+    sindy_fit: Literal["joint", "after"] = "joint"
+    """SINDy: "joint" trains the coefficients with the autoencoder (the paper); "after" trains
+    the autoencoder first (its loss terms as given; with the prediction weights at 0, on
+    reconstruction alone) and then sets the coefficients to the sequentially thresholded
+    least squares (at --sindy-init-threshold) of the trained encoder's training transitions,
+    as for an encoder that learns nothing: for a learned latent that the prediction terms
+    would bend (RESULTS.md, "A learned object mask for the moments")."""
+    order_epochs: int = 10
+    """A mask_moments encoder with --moment-order 0: epochs of the short fit (at order 2)
+    whose encoder chooses the order from the training images."""
     checkpoint_every: int = 10
     """Write checkpoint.pt every this many epochs (and always at the end)."""
     # Validation is a forward pass over 500 windows, about a seventh of an epoch at the
@@ -139,6 +149,9 @@ class TrainConfig:
              f"--sindy-init {self.sindy_init!r}: use auto, random or regression"),
             (self.sindy_init_threshold >= 0 and finite(self.sindy_init_threshold),
              f"--sindy-init-threshold {self.sindy_init_threshold}: use a finite number >= 0"),
+            (self.sindy_fit in ("joint", "after"),
+             f"--sindy-fit {self.sindy_fit!r}: use joint or after"),
+            (self.order_epochs >= 1, f"--order-epochs {self.order_epochs}: use 1 or more"),
             (self.threshold_every >= 0,
              f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
             (0 <= self.refine_epochs <= self.epochs,

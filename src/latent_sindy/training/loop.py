@@ -41,7 +41,13 @@ from latent_sindy.training.core import (
     to_cpu,
 )
 from latent_sindy.training.metrics import METRIC_COLUMNS
-from latent_sindy.training.prepare import new_model, regression_init, training_tensors
+from latent_sindy.training.prepare import (
+    fit_after,
+    new_model,
+    regression_init,
+    settle_model,
+    training_tensors,
+)
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 
@@ -174,6 +180,8 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     norm = Normalizer.from_dict(record["normalizer"])
     model_cfg = from_json(ModelConfig, record["model"], "model")
     _check_model_size(model_cfg, cfg)
+    model_cfg = settle_model(record, data, norm, cfg, device,
+                             run.read_record() if ckpt is not None else None)
 
     model, opt, gen = new_model(model_cfg, cfg, device)
     regression = regression_init(cfg, model)  # (checks the settings before anything is written)
@@ -226,6 +234,10 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
         raise _diverged(cfg, e, last_ckpt) from None
     finally:
         progress.close()
+    if cfg.sindy_fit == "after":
+        model.load_state_dict(result.state)
+        fit_after(model, data, norm, cfg, device)
+        result.state = to_cpu(model.state_dict())
     from latent_sindy.version import __version__
 
     # both before model.pt, which marks the run finished: a finished run lacks neither

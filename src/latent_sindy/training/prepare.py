@@ -23,8 +23,8 @@ from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, resolve_batching
 from latent_sindy.training.core import Sequences
 
-__all__ = ["TrainingTensors", "derivative_samples", "new_model", "regression_init",
-           "training_tensors"]
+__all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
+           "regression_init", "settle_model", "training_tensors"]
 
 
 def new_model(model_cfg, cfg: TrainConfig, device: torch.device
@@ -67,10 +67,13 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
                         "the state or moments encoder")
     regression = sindy and cfg.sindy_init != "random" and fixed and (
         not model.dynamics.continuous)
-    if cfg.sindy_init_threshold > 0 and not regression:
+    if cfg.sindy_fit == "after" and (not sindy or model.dynamics.continuous):
+        raise UserError("--sindy-fit after fits SINDy coefficients to the trained encoder's "
+                        "transitions: use it with discrete-time SINDy dynamics, or drop it")
+    if cfg.sindy_init_threshold > 0 and not regression and cfg.sindy_fit != "after":
         raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
                         "model that starts from regression (a state or moments encoder, "
-                        "--sindy-init auto or regression): drop it")
+                        "--sindy-init auto or regression) or --sindy-fit after: drop it")
     return regression
 
 
@@ -80,10 +83,75 @@ def fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
     """Sparse regression (STLSQ at ``threshold``) of every encoded training transition
     (x (N, T+1, ..), u (N, T, nu)) on the SINDy library: the coefficients and the mask
     training starts from."""
-    z = model.encode(x.to(device).flatten(0, 1)).reshape(*x.shape[:2], -1)
+    frames = x.flatten(0, 1)
+    z = torch.cat([model.encode(frames[i:i + ENCODE_CHUNK].to(device))
+                   for i in range(0, len(frames), ENCODE_CHUNK)]).reshape(*x.shape[:2], -1)
     nz, nu = z.shape[-1], u.shape[-1]
     model.dynamics.fit_state_data(z[:, :-1].reshape(-1, nz), u.to(device).reshape(-1, nu),
                                   z[:, 1:].reshape(-1, nz), optimizer=STLSQ(threshold=threshold))
+
+
+#: Frames encoded at once where a whole split is encoded (bounds the encoder's activations).
+ENCODE_CHUNK = 2048
+#: The moment order a mask_moments encoder is first fitted at when the data chooses it.
+PROVISIONAL_ORDER = 2
+
+
+def choose_moment_order(model_cfg, data: SequenceData, norm: Normalizer, cfg: TrainConfig,
+                        device: torch.device):
+    """``model_cfg`` (resolved but for the order) with a mask_moments encoder's
+    ``moment_order`` 0 chosen from the data: ``cfg.order_epochs`` of training at order
+    :data:`PROVISIONAL_ORDER` (same seed, loss and batches), then the trained encoder's
+    :meth:`~latent_sindy.models.encoders.MaskMomentEncoder.symmetry_order` on the training
+    images; any other config as it is."""
+    from dataclasses import replace
+
+    from latent_sindy.training.core import fit
+
+    if not getattr(model_cfg.observation, "order_from_data", False):
+        return model_cfg
+    first = model_cfg.with_moment_order(PROVISIONAL_ORDER)
+    short = replace(cfg, epochs=cfg.order_epochs, refine_epochs=0, threshold_every=0,
+                    sindy_fit="joint")
+    model, opt, gen = new_model(first, short, device)
+    tensors = training_tensors(model, data, norm, short, device)
+    result = fit(model, opt, gen, tensors.train, tensors.val, short, per_batch=tensors.per_batch)
+    model.load_state_dict(result.state)
+    model.eval()
+    images = WindowDataset(data.split("train"), 1, norm, "image").images.flatten(0, 1)
+    with torch.no_grad():
+        order = model.autoencoder.encoder.symmetry_order(images[:ENCODE_CHUNK].to(device))
+    return model_cfg.with_moment_order(order)
+
+
+def settle_model(record: dict, data: SequenceData, norm: Normalizer, cfg: TrainConfig,
+                 device: torch.device, earlier: dict | None = None):
+    """The model config of a run's ``record`` with what training chooses from the data
+    chosen (:func:`choose_moment_order`) and written back into ``record["model"]``;
+    ``earlier``: the record of the run being resumed, whose choice stands."""
+    import json
+
+    from latent_sindy.configs import from_json, to_json
+    from latent_sindy.models.latent_model import ModelConfig
+
+    model_cfg = from_json(ModelConfig, record["model"], "model")
+    if not getattr(model_cfg.observation, "order_from_data", False):
+        return model_cfg
+    if earlier is not None:
+        model_cfg = from_json(ModelConfig, earlier["model"], "model")
+    else:
+        model_cfg = choose_moment_order(model_cfg, data, norm, cfg, device)
+    record["model"] = json.loads(json.dumps(to_json(model_cfg)))
+    return model_cfg
+
+
+def fit_after(model: LatentModel, data: SequenceData, norm: Normalizer, cfg: TrainConfig,
+              device: torch.device) -> None:
+    """``--sindy-fit after``: the trained encoder's training transitions fitted by STLSQ at
+    ``cfg.sindy_init_threshold`` (the coefficients and the mask; the encoder as it is)."""
+    windows = WindowDataset(data.split("train"), 1, norm, model.config.observation.kind)
+    model.eval()
+    fit_dynamics(model, *windows.trajectories(), device, cfg.sindy_init_threshold)
 
 
 def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,

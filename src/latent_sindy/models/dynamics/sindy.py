@@ -306,7 +306,9 @@ class SindyConfig:
     angle_frequency: float = 4.0
     """"face" and "frame" presets: f of the orientation features (cos fθ, sin fθ), the
     object's visible symmetry (2π over the visible period; 4 for a square). The relative
-    action angle enters as sin(f u1), cos(f u1) times those features."""
+    action angle enters as sin(f u1), cos(f u1) times those features. 0: the moments
+    encoder's ``moment_order`` (the order its latent's features turn at; chosen from the data
+    when that is 0)."""
     frame_degree: int = 3
     """"frame" preset: highest degree of its monomials (of the contact offset and the angle
     from the face normal)."""
@@ -334,8 +336,8 @@ class SindyConfig:
             raise UserError(f"--library {self.library} with --order {self.order}: the "
                             f"{self.library} library's push terms already hold the "
                             "higher-order products; use --order 1")
-        if self.library == "frame" and (self.angle_frequency < 3
-                                        or self.angle_frequency != round(self.angle_frequency)):
+        if self.library == "frame" and self.angle_frequency != 0 and (
+                self.angle_frequency < 3 or self.angle_frequency != round(self.angle_frequency)):
             raise UserError(f"--library frame with --angle-frequency {self.angle_frequency:g}: "
                             "its angle a is measured from the nearest face normal of a block "
                             "whose visible symmetry is its number of faces (a uniform square: "
@@ -346,9 +348,9 @@ class SindyConfig:
             raise UserError(f"--frame-sense {self.frame_sense}: use 1 or -1")
         if self.frame_offset is not None and not math.isfinite(self.frame_offset):
             raise UserError(f"--frame-offset {self.frame_offset}: use a finite angle (radians)")
-        if not (math.isfinite(self.angle_frequency) and self.angle_frequency > 0):
+        if not (math.isfinite(self.angle_frequency) and self.angle_frequency >= 0):
             raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
-                            "> 0 (4 for a square block)")
+                            "> 0 (4 for a square block), or 0 for the moments encoder's order")
         check_init_scale("SINDy", self.init_scale)
 
     @property

@@ -55,7 +55,9 @@ def prepare_model(model_cfg: ModelConfig, data: SequenceData, where: str) -> Mod
     if getattr(model_cfg.observation, "encoder_kind", None) == "moments":
         _check_symmetry("--moment-order", model_cfg.observation.moment_order, data, where)
     library = getattr(model_cfg.dynamics, "library", None)
-    if library in ("face", "frame"):
+    if library in ("face", "frame") and model_cfg.dynamics.angle_frequency != 0:
+        # (0: the learned encoder's order, chosen from the data, is not checked against the
+        # world's symmetry: nothing is set by hand)
         _check_symmetry("--angle-frequency", model_cfg.dynamics.angle_frequency, data, where)
     if library is not None:
         model_cfg = _resolve_frame(model_cfg, data, where)
