@@ -10,7 +10,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_mask_moments import TABLE, draw
 
 from latent_sindy import LatentSINDy
 from latent_sindy.data import SequenceData, write_sequences
@@ -19,6 +18,7 @@ from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
 from latent_sindy.models.latent_model import LossWeights
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training import TrainConfig
+from test_mask_moments import TABLE, draw
 
 
 def moving(half: tuple[float, float], n: int = 10, steps: int = 5, seed: int = 0
