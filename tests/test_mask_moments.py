@@ -87,6 +87,35 @@ def test_the_latent_follows_a_square_moved_and_turned() -> None:
     assert np.degrees(err).mean() < 2.0
 
 
+def test_the_refined_pose_is_the_objects_wherever_the_mask_puts_its_weight() -> None:
+    """A mask that has drifted to a blob beside the square: its own centroid and moment are
+    off, the centre moved by mean shift onto the square's own pixels is not (mask_refine)."""
+    p = poses(40, seed=2)
+    x = images(p)
+    torch.manual_seed(0)
+    errors = {}
+    for steps in (0, 3):
+        enc = half_mask(MaskMomentEncoder(config(mask_refine=steps)))
+        enc.fit_statistics(x)
+        offsets = torch.tensor(p[:, :2] + 1.5)  # a blob 1.5 pixels down and right
+
+        def blob(images: torch.Tensor, enc=enc, offsets=offsets) -> torch.Tensor:
+            centres = (offsets - 0.5) * 2 / (SIDE - 1) - 1  # pixels -> latent units
+            r2 = ((enc.xs[None, None, :] - centres[:, 0, None, None]).square()
+                  + (enc.ys[None, :, None] - centres[:, 1, None, None]).square())
+            return torch.exp(-r2 / (2 * (1.5 * enc.pixel) ** 2)).float()
+
+        enc.weights = blob
+        with torch.no_grad():
+            z = enc(x)
+        d = np.arctan2(z[:, 3].numpy(), z[:, 2].numpy()) - 4 * p[:, 2]
+        spread = np.abs(np.angle(np.exp(1j * (d - np.angle(np.exp(1j * d).mean()))))) / 4
+        errors[steps] = (np.abs(to_pixels(z[:, :2]) - p[:, :2]).max(),
+                         np.degrees(spread).mean())
+    assert errors[0][0] > 1.0 and errors[0][1] > 10
+    assert errors[3][0] < 0.15 and errors[3][1] < 2.0
+
+
 def test_the_window_keeps_far_weight_out_of_the_orientation() -> None:
     """A faint speck far from the square barely moves the centroid, but its weight times
     r⁴ turns the whole-image moment; the window's moment does not turn."""
@@ -136,7 +165,7 @@ def test_training_by_reconstruction_learns_to_leave_out_a_distractor() -> None:
     p, discs = p[far], discs[far]
     x = torch.cat([images(q[None], disc=tuple(d)) for q, d in zip(p, discs, strict=True)])
     torch.manual_seed(0)
-    ae = Autoencoder(config(moment_order=4))
+    ae = Autoencoder(config(moment_order=4, mask_refine=0))  # (the mask's own pose)
     ae.fit_statistics(x)
 
     def error() -> float:
@@ -176,6 +205,8 @@ def test_the_encoder_is_part_of_the_autoencoder_and_its_state() -> None:
     ({"mask_window": -1.0}, "--mask-window -1.0"),
     ({"mask_window": float("nan")}, "--mask-window nan"),
     ({"mask_weight": "edges"}, "--mask-weight 'edges'"),
+    ({"mask_refine": -1}, "--mask-refine -1"),
+    ({"mask_refine": 2, "mask_window": 0.0}, "a window > 0"),
 ])
 def test_bad_settings_name_the_value_and_the_fix(kw, match) -> None:
     with pytest.raises(UserError, match=match):

@@ -125,6 +125,13 @@ class AutoencoderConfig:
     mask_window: float = 3.0
     """mask_moments encoder: σ in pixels of the Gaussian window about the centroid that the
     angular moment is taken in (0: none, the whole image's)."""
+    mask_refine: int = 3
+    """mask_moments encoder: mean-shift steps of the centre: from the masked weights' centroid
+    it moves this many times to the centroid of the image's own deviation (``mask_weight``'s,
+    without the mask) in the window about it, and the pose is read from that deviation about
+    that centre, so the mask only says where the object is, not what shape it has. 0: the
+    pose of the masked weights themselves (a trained mask can drift off the object's shape:
+    RESULTS.md, "The learned row"). Needs a window."""
     mlp_widths: tuple[int, ...] = (128, 64, 32)
     """mlp encoder: widths of its hidden layers (the mlp decoder: the same, reversed); the
     SINDy autoencoder's pendulum: 128, 64, 32."""
@@ -173,6 +180,10 @@ class AutoencoderConfig:
                             f"{self.mask_layers}: use 1 or more of each")
         if self.mask_weight not in ("background", "image", "mask"):
             raise UserError(f"--mask-weight {self.mask_weight!r}: use background, image or mask")
+        if self.mask_refine < 0 or (self.mask_refine and self.mask_window <= 0):
+            raise UserError(f"--mask-refine {self.mask_refine} with --mask-window "
+                            f"{self.mask_window}: use 0 or more steps, and a window > 0 "
+                            "with steps (or --mask-refine 0)")
         if not (math.isfinite(self.mask_window) and self.mask_window >= 0):
             raise UserError(f"--mask-window {self.mask_window}: use a window of 0 (none) or "
                             f"more pixels")

@@ -287,11 +287,13 @@ class MaskMomentEncoder(_PoseFrame):
     its deviation from the per-pixel median of the standardised training images
     (``mask_weight`` "background", :meth:`fit_statistics`), from its image's median ("image"),
     or the mask alone ("mask"): the mask chooses which pixels are the object, the image keeps
-    their shape. The latent is the centroid of w and the direction of its n-th angular
-    moment (n = ``moment_order``) in a Gaussian window of σ = ``mask_window`` pixels about
-    the centroid (:func:`moment_pose`), so that what the mask lets through far from the
-    object does not turn it. The convolutions see every position alike, so what they learn
-    to weigh moves the centroid with the object by construction.
+    their shape. The centroid of w is moved ``mask_refine`` times (mean shift) to the
+    centroid of the image's own deviation in a Gaussian window of σ = ``mask_window`` pixels
+    about it; the latent is that centre and the direction of the deviation's n-th angular
+    moment (n = ``moment_order``) in the window (:func:`moment_pose`): the mask says where
+    the object is, the image what shape it has, and what lies far from the object does not
+    turn it (``mask_refine`` 0: the centroid and moment of w itself). The convolutions see
+    every position alike, so what they learn to weigh moves with the object.
 
     Trained by the autoencoder's reconstruction through the sprite decoder (no pose labels);
     :meth:`symmetry_order` of a trained encoder on training images chooses n from the data.
@@ -302,7 +304,7 @@ class MaskMomentEncoder(_PoseFrame):
     def __init__(self, cfg: AutoencoderConfig) -> None:
         super().__init__(cfg)
         self.normalise, self.kind = cfg.mask_normalise, cfg.mask_weight
-        self.window_pixels = cfg.mask_window
+        self.window_pixels, self.refine = cfg.mask_window, cfg.mask_refine
         c, layers, width = cfg.channels, [], cfg.mask_channels
         for _ in range(cfg.mask_layers):
             layers += [nn.Conv2d(c, width, 3, padding=1), nn.ReLU()]
@@ -321,26 +323,37 @@ class MaskMomentEncoder(_PoseFrame):
         """The visible symmetry order n of the object this encoder finds in images
         x (B, C, H, W): :func:`symmetry_order` of the images' own deviation (from the
         background or their median, as ``mask_weight``; the mask for "mask") in the window
-        about its centre. The centre starts at the latent's centroid and moves ``steps``
-        times to the centroid of the deviation in the window there. The mask only places
-        the window: its own shape, trained at some order, could favour that order."""
-        s = self._standardised(x)
+        about its centre: the masked weights' centroid moved ``steps`` times to the centroid
+        of the deviation in the window there. The mask only places the window: its own
+        shape, trained at some order, could favour that order."""
+        d = self._deviation(x)
+        c = self._shifted(d, self._centroid(self.weights(x)), steps)
+        return symmetry_order(d, self.xs, self.ys, orders, self.window, c)
+
+    def _deviation(self, x: torch.Tensor) -> torch.Tensor:
+        """The images' own deviation (B, H, W) that ``mask_weight`` names, without the mask
+        (the mask itself for "mask")."""
         if self.kind == "mask":
-            d = self.weights(x)
-        else:
-            ref = self.background if self.kind == "background" else (
-                s.flatten(1).median(1).values[:, None, None, None])
-            d = (s - ref).abs().sum(1)  # (B, H, W)
-        c = self(x)[:, :2]  # (B, 2)
+            return self.weights(x)
+        s = self._standardised(x)
+        ref = self.background if self.kind == "background" else (
+            s.flatten(1).median(1).values[:, None, None, None])
+        return (s - ref).abs().sum(1)
+
+    def _centroid(self, w: torch.Tensor) -> torch.Tensor:
+        mass = w.sum((1, 2)).clamp_min(torch.finfo(w.dtype).tiny)
+        return torch.stack([(w.sum(1) * self.xs).sum(1) / mass,
+                            (w.sum(2) * self.ys).sum(1) / mass], -1)
+
+    def _shifted(self, d: torch.Tensor, c: torch.Tensor, steps: int) -> torch.Tensor:
+        """The centre c (B, 2) moved ``steps`` times to the centroid of d in the window
+        about it (mean shift)."""
         window = self.window if self.window is not None else float("inf")
         for _ in range(steps):
             r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
                   + (self.ys[None, :, None] - c[:, 1, None, None]).square())
-            dg = d * torch.exp(r2 / (-2 * window**2))
-            mass = dg.sum((1, 2)).clamp_min(torch.finfo(dg.dtype).tiny)
-            c = torch.stack([(dg.sum(1) * self.xs).sum(1) / mass,
-                             (dg.sum(2) * self.ys).sum(1) / mass], -1)
-        return symmetry_order(d, self.xs, self.ys, orders, self.window, c)
+            c = self._centroid(d * torch.exp(r2 / (-2 * window**2)))
+        return c
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor) -> None:
@@ -370,5 +383,13 @@ class MaskMomentEncoder(_PoseFrame):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         w = self.weights(x)
+        if self.refine:  # the mask places the window; the object's own pixels give the pose
+            d = self._deviation(x)
+            c = self._shifted(d, self._centroid(w), self.refine)
+            r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
+                  + (self.ys[None, :, None] - c[:, 1, None, None]).square())
+            w = d * torch.exp(r2 / (-2 * self.window**2))  # its centroid: one more step
+            return moment_pose(w, d.square() if self.order == 1 else d, self.xs, self.ys,
+                               self.order, self.window)
         return moment_pose(w, w.square() if self.order == 1 else w, self.xs, self.ys,
                            self.order, self.window)
