@@ -5,7 +5,9 @@ The moments encoder weighs each pixel by its difference from the training images
 median and reads (x, y, cos 4φ, sin 4φ), 4 the block's symmetry set by hand from the world.
 The mask_moments encoder weighs it by a learned mask (3×3 convolutions, sigmoid) times its
 difference from the per-pixel median of per-image standardised training images, and reads
-the same latent, its angular moment in a Gaussian window about the centroid. It learns
+the same latent, its angular moment in a Gaussian window about the centroid (with
+``--refine`` steps, the default 3, the centre first moves by mean shift onto the image's own
+deviation, and the pose is read from that deviation rather than the masked weight). It learns
 without pose labels: the autoencoder's reconstruction through the sprite decoder
 (``LatentSINDy.fit``), with the symmetry order n chosen from the data: a first fit at a
 provisional order, then :meth:`MaskMomentEncoder.symmetry_order` on the training images,
@@ -148,7 +150,7 @@ def world(path: Path, args: argparse.Namespace) -> tuple[dict[str, dict[str, flo
     obs = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,
                             moment_order=args.provisional_order,
                             mask_channels=args.mask_channels, mask_weight=args.weight,
-                            mask_window=args.window)
+                            mask_window=args.window, mask_refine=args.refine)
     if args.order is None:
         model, norm, seconds = learned_model(data, obs, args, args.choose_epochs)
         x = norm.normalize(data.split("train").images).flatten(0, 1)
@@ -189,6 +191,9 @@ def main() -> None:
                     help="the mask_moments encoder's --mask-weight")
     ap.add_argument("--window", type=float, default=3.0,
                     help="the mask_moments encoder's --mask-window (pixels; 0: none)")
+    ap.add_argument("--refine", type=int, default=3,
+                    help="the mask_moments encoder's --mask-refine (mean-shift steps; 0: the "
+                         "masked weights' own pose, as first measured)")
     ap.add_argument("--threshold", type=float, default=0.2, help="STLSQ threshold")
     ap.add_argument("--seed", type=int, default=0, help="seed of the weights, batches, probes")
     args = ap.parse_args()
