@@ -146,13 +146,14 @@ def test_overview_figure_replaces_its_file_only_when_drawn(tmp_path, monkeypatch
 
 
 def test_first_screen_fits_1280_wide(report, tmp_path):
+    study, _, _ = fake_study(tmp_path / "same")  # the report's study: the rows it shows
     page = tmp_path / "measured.html"
     page.write_text(report.read_text().replace("</body>", MEASURE + "</body>"))
     got = _layout(page, tmp_path)
     assert got["innerWidth"] == WIDTH
     assert got["scrollWidth"] <= WIDTH, got  # the page never scrolls sideways
     fig, table = got["figure"], got["table"]
-    assert got["loaded"] and got["rows"] == 16
+    assert got["loaded"] and got["rows"] == len(overview_table(overview(study), seeds=1)[1])
     assert 0 <= fig["top"] < fig["bottom"] <= table["top"] < table["bottom"] <= HEIGHT, got
     assert 0 <= fig["left"] and fig["right"] <= WIDTH and table["right"] <= WIDTH, got
     # Table I is wider than the page: it scrolls inside its own box
