@@ -96,6 +96,21 @@ def test_a_run_folder_keeps_the_choice_and_is_reused(tmp_path) -> None:
     assert ensure_trained(cfg) == "reused"
 
 
+def test_settings_the_fit_refuses_are_refused_before_the_order_is_chosen(monkeypatch) -> None:
+    """--sindy-fit after with dynamics it cannot fit: the error comes before any training."""
+    from latent_sindy.models.dynamics import LinearConfig
+    from latent_sindy.training import core
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("trained before the settings were checked")
+
+    monkeypatch.setattr(core, "fit", no_training)
+    est = estimator()
+    est.model = ModelConfig(observation=est.model_config.observation, dynamics=LinearConfig())
+    with pytest.raises(UserError, match="--sindy-fit after"):
+        est.fit(moving((2.5, 2.5), n=4, steps=2), epochs=1)
+
+
 @pytest.mark.parametrize(("settings", "match"), [
     ({"sindy_fit": "later"}, "--sindy-fit"), ({"order_epochs": 0}, "--order-epochs")])
 def test_bad_settings_name_the_value(settings, match) -> None:

@@ -180,6 +180,9 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     norm = Normalizer.from_dict(record["normalizer"])
     model_cfg = from_json(ModelConfig, record["model"], "model")
     _check_model_size(model_cfg, cfg)
+    if ckpt is None and getattr(model_cfg.observation, "order_from_data", False):
+        progress.note(f"--moment-order 0: choosing the order from the data ({cfg.order_epochs} "
+                      "epochs at order 2 first)")
     model_cfg = settle_model(record, data, norm, cfg, device,
                              run.read_record() if ckpt is not None else None)
 

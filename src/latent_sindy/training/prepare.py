@@ -114,6 +114,7 @@ def choose_moment_order(model_cfg, data: SequenceData, norm: Normalizer, cfg: Tr
     short = replace(cfg, epochs=cfg.order_epochs, refine_epochs=0, threshold_every=0,
                     sindy_fit="joint")
     model, opt, gen = new_model(first, short, device)
+    regression_init(cfg, model)  # the real fit's settings refused before the short one
     tensors = training_tensors(model, data, norm, short, device)
     result = fit(model, opt, gen, tensors.train, tensors.val, short, per_batch=tensors.per_batch)
     model.load_state_dict(result.state)
