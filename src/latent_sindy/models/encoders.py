@@ -348,12 +348,16 @@ class MaskMomentEncoder(_PoseFrame):
     def _shifted(self, d: torch.Tensor, c: torch.Tensor, steps: int) -> torch.Tensor:
         """The centre c (B, 2) moved ``steps`` times to the centroid of d in the window
         about it (mean shift)."""
-        window = self.window if self.window is not None else float("inf")
         for _ in range(steps):
-            r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
-                  + (self.ys[None, :, None] - c[:, 1, None, None]).square())
-            c = self._centroid(d * torch.exp(r2 / (-2 * window**2)))
+            c = self._centroid(self._windowed(d, c))
         return c
+
+    def _windowed(self, d: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """d (B, H, W) times the Gaussian window about each centre c (B, 2)."""
+        window = self.window if self.window is not None else float("inf")
+        r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
+              + (self.ys[None, :, None] - c[:, 1, None, None]).square())
+        return d * torch.exp(r2 / (-2 * window**2))
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor) -> None:
@@ -386,9 +390,7 @@ class MaskMomentEncoder(_PoseFrame):
         if self.refine:  # the mask places the window; the object's own pixels give the pose
             d = self._deviation(x)
             c = self._shifted(d, self._centroid(w), self.refine)
-            r2 = ((self.xs[None, None, :] - c[:, 0, None, None]).square()
-                  + (self.ys[None, :, None] - c[:, 1, None, None]).square())
-            w = d * torch.exp(r2 / (-2 * self.window**2))  # its centroid: one more step
+            w = self._windowed(d, c)  # its centroid: one more step
             return moment_pose(w, d.square() if self.order == 1 else d, self.xs, self.ys,
                                self.order, self.window)
         return moment_pose(w, w.square() if self.order == 1 else w, self.xs, self.ys,
