@@ -39,14 +39,20 @@ def test_the_centroids_are_the_rods_direction_a_step_ago_and_now():
 
 
 def test_the_centroid_sindy_finds_the_frame_shift_and_predicts_steps(data):
-    model = CentroidSindy(order=3, threshold=0.03).fit(data)
+    model = CentroidSindy().fit(data)  # order 4, stepwise, tolerance chosen on rollouts
     assert model.equations()[:2] == ["z0[t+1] = z0 -1 z0 +1 z2", "z1[t+1] = z1 -1 z1 +1 z3"]
     z, u, z_next = transitions(data)
     err = (model.step(z, u) - z_next).norm(dim=1).mean()
     motion = (z_next - z).norm(dim=1).mean()
     assert float(err) < 0.1 * float(motion)  # the step, not just "stay put"
-    assert 0.3 < model.sparsity() < 1
-    linear = CentroidSindy(order=1, threshold=0.0).fit(data)
+    assert model.sparsity() > 0.9
+    assert model.selection_ is not None and model.setting_ == model.selection_.setting
+    # STLSQ judges coefficients, and on the circles the terms are dependent: it keeps more
+    stlsq = CentroidSindy(order=4, threshold=0.03, sparsifier="stlsq").fit(data)
+    assert stlsq.sparsity() < model.sparsity() and stlsq.selection_ is None
+    with pytest.raises(UserError, match="sparsifier"):
+        CentroidSindy(sparsifier="lasso")
+    linear = CentroidSindy(order=1, threshold=0.0, sparsifier="stlsq").fit(data)
     assert float((linear.step(z, u) - z_next).norm(dim=1).mean()) > float(err)
     mlp = CentroidMlp(width=16, epochs=2, seed=0).fit(data)
     assert mlp.step(z[:3].float(), u[:3].float()).shape == (3, 4)
@@ -54,7 +60,8 @@ def test_the_centroid_sindy_finds_the_frame_shift_and_predicts_steps(data):
 
 def test_the_study_runs_the_centroid_rows_with_its_settings():
     assert StudyConfig().centroid_models == ("sindy", "mlp", "linear")
-    assert (StudyConfig().centroid_order, StudyConfig().centroid_threshold) == (3, 0.03)
+    assert (StudyConfig().centroid_order, StudyConfig().centroid_threshold,
+            StudyConfig().centroid_sparsifier) == (4, None, "stepwise")
     assert (StudyConfig().samples, StudyConfig().lambda_) == (500, 0.3)
     with pytest.raises(UserError, match="models"):
         StudyConfig(models=(), centroid_models=())

@@ -5,10 +5,12 @@ derived-variable nodes worlds add), ``latent_sindy.sindy.terms`` the compiler fr
 terms and names, ``latent_sindy.sindy.torch_library`` the differentiable libraries Θ(z, u),
 ``latent_sindy.sindy.presets`` the library presets by name; ``latent_sindy.sindy.optimizers``
 the sparsifier (:class:`STLSQ`), ``latent_sindy.sindy.ensemble`` its bagged form for noisy data
-(:class:`EnsembleSTLSQ`); ``latent_sindy.sindy.fit`` the fits to state transitions and, in a
-windowed form for noisy data, to whole trajectories. The package works on libraries and
-arrays only: it imports neither :mod:`latent_sindy.models` (which builds on it) nor any world
-(worlds register their presets and nodes here).
+(:class:`EnsembleSTLSQ`), ``latent_sindy.sindy.stepwise`` backward elimination for libraries
+whose terms are dependent on the data (:class:`StepwiseSR`); ``latent_sindy.sindy.fit`` the
+fits to state transitions and, in a windowed form for noisy data, to whole trajectories;
+``latent_sindy.sindy.selection`` a sparsifier's setting chosen on held-out rollouts.
+The package works on libraries and arrays only: it imports neither :mod:`latent_sindy.models`
+(which builds on it) nor any world (worlds register their presets and nodes here).
 
     >>> from latent_sindy.sindy import CandidateLibrary, Identity, Polynomial, Sine, SindyLibrary
     >>> CandidateLibrary(n_state=16, n_control=3, order=2).n_terms
@@ -41,6 +43,8 @@ from latent_sindy.sindy.presets import (
     preset_names,
     register_preset,
 )
+from latent_sindy.sindy.selection import Selection, rollout_error, select_on_rollouts
+from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import (
     VALID_ORDERS,
     CandidateLibrary,
@@ -62,8 +66,10 @@ __all__ = [
     "LibrarySubset",
     "Polynomial",
     "Product",
+    "Selection",
     "SindyLibrary",
     "Sine",
+    "StepwiseSR",
     "Sum",
     "fit_state_data",
     "fit_trajectory_data",
@@ -73,6 +79,8 @@ __all__ = [
     "preset_names",
     "register_derived",
     "register_preset",
+    "rollout_error",
+    "select_on_rollouts",
     "spec_from_dict",
     "window_regression_data",
 ]

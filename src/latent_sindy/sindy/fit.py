@@ -30,6 +30,7 @@ import torch
 from latent_sindy.errors import UserError
 from latent_sindy.sindy.ensemble import EnsembleSTLSQ
 from latent_sindy.sindy.optimizers import STLSQ
+from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import SindyLibrary
 
 __all__ = [
@@ -40,7 +41,7 @@ __all__ = [
     "window_regression_data",
 ]
 
-Sparsifier = STLSQ | EnsembleSTLSQ
+Sparsifier = STLSQ | EnsembleSTLSQ | StepwiseSR
 
 
 def _check_data(nz: int, nu: int, Z: torch.Tensor, U: torch.Tensor, Znext: torch.Tensor) -> None:

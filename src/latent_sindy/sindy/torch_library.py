@@ -91,6 +91,12 @@ class _ProductTerms(nn.Module):
         return self._one
 
     @property
+    def degrees(self) -> torch.Tensor:
+        """(p,) long: factors per term (``1`` has 0, ``z0 z1^2`` 3, ``z0 sin(u1)`` 2): the
+        terms' complexity, for :class:`~latent_sindy.sindy.StepwiseSR`."""
+        return (self.table != self._one).sum(dim=1).cpu()
+
+    @property
     def n_features(self) -> int:
         """Columns of F = [z, u, derived, 1, trig...]."""
         return self._one + 1 + len(self.trig)

@@ -11,10 +11,14 @@ docs/pendulum_swing_up.md).
 
 On these latents the dynamics are fitted by regression on the encoded transitions:
 
-* :class:`CentroidSindy`: STLSQ on monomials of (z, u) up to ``order`` (3: the rotation of
-  the rod's midpoint needs the cubic terms; order 2 diverged within 8 steps);
-* ``CentroidSindy(order=1, threshold=0)``: least squares on (1, z, u), the linear model
-  z' = A z + B u + c;
+* :class:`CentroidSindy`: sparse regression on monomials of (z, u) up to ``order`` (the
+  rotation of the rod's midpoint needs the cubic terms; order 2 diverged within 8 steps).
+  On these latents the library's terms are dependent (each frame's centroid stays on a
+  circle about the pivot), so the default sparsifier is backward elimination by the fit a
+  term costs, most complex terms first (:class:`~latent_sindy.sindy.StepwiseSR`); STLSQ,
+  which judges terms by their coefficients, keeps about half of the library there;
+* ``CentroidSindy(order=1, threshold=0, sparsifier="stlsq")``: least squares on (1, z, u),
+  the linear model z' = A z + B u + c;
 * :class:`CentroidMlp`: z' = z + MLP([z, u]), trained by Adam on one-step errors.
 
     >>> z = frame_centroids(images)              # (..., 2, S, S) uint8 -> (..., 4)
@@ -29,14 +33,23 @@ import torch
 from torch import nn
 
 from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
 from latent_sindy.models.encoders import image_coordinates
-from latent_sindy.sindy import Polynomial, SindyLibrary
+from latent_sindy.sindy import Polynomial, SindyLibrary, StepwiseSR, select_on_rollouts
 from latent_sindy.sindy.fit import fit_state_data
 from latent_sindy.sindy.optimizers import STLSQ
+from latent_sindy.sindy.selection import TOLERANCES
 from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.state_sindy import sindy_step
 
-__all__ = ["CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]
+__all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]
+
+SPARSIFIERS = ("stepwise", "stlsq")
+"""The sparse regressions of :class:`CentroidSindy`: :class:`~latent_sindy.sindy.StepwiseSR`
+(``threshold``: its tolerance) or :class:`~latent_sindy.sindy.optimizers.STLSQ`."""
+
+STLSQ_THRESHOLDS = (0.003, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2, 0.3)
+"""STLSQ thresholds tried when the threshold is chosen on rollouts."""
 
 
 @torch.no_grad()
@@ -67,17 +80,48 @@ def transitions(data: SequenceData) -> tuple[torch.Tensor, torch.Tensor, torch.T
 
 
 class CentroidSindy:
-    """Sparse regression of the centroid latents' steps on a polynomial library of (z, u)."""
+    """Sparse regression of the centroid latents' steps on a polynomial library of (z, u).
 
-    def __init__(self, order: int = 3, threshold: float = 0.01) -> None:
-        self.order, self.threshold = order, threshold
+    Args:
+        order: highest degree of the monomials of (z, u).
+        threshold: the sparsifier's setting: StepwiseSR's tolerance (the share of a step's
+            mean square a dropped term may cost) or STLSQ's threshold. None: chosen on the
+            validation sequences' rollouts (:func:`~latent_sindy.sindy.select_on_rollouts`,
+            the sparsest fit within twice the best rollout error; the training sequences
+            stand in when the data has no validation split).
+        sparsifier: one of :data:`SPARSIFIERS`.
+
+    Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the threshold used)
+    and ``selection_`` (the path it was chosen from, or None when it was given).
+    """
+
+    def __init__(self, order: int = 4, threshold: float | None = None,
+                 sparsifier: str = "stepwise") -> None:
+        if sparsifier not in SPARSIFIERS:
+            raise UserError(f"centroid SINDy sparsifier {sparsifier!r}: choose from "
+                            f"{', '.join(SPARSIFIERS)}")
+        self.order, self.threshold, self.sparsifier = order, threshold, sparsifier
         self.library: SindyLibrary | None = None
 
     def fit(self, data: SequenceData) -> CentroidSindy:
         z, u, z_next = transitions(data)
         self.library = SindyLibrary(Polynomial("z,u", self.order), n_state=z.shape[1],
                                     n_control=u.shape[1])
-        fit = fit_state_data(self.library, z, u, z_next, STLSQ(threshold=self.threshold))
+        def make(setting: float):
+            return (StepwiseSR(setting, complexity=self.library.degrees)
+                    if self.sparsifier == "stepwise" else STLSQ(threshold=setting))
+
+        self.selection_ = None
+        if self.threshold is None:
+            held = data.split("val") if data.split_counts()["val"] else data.split("train")
+            self.selection_ = select_on_rollouts(
+                self.library, z, u, z_next, frame_centroids(held.images).double(),
+                torch.as_tensor(held.actions, dtype=torch.float64),
+                TOLERANCES if self.sparsifier == "stepwise" else STLSQ_THRESHOLDS, make)
+            fit, self.setting_ = self.selection_.model, self.selection_.setting
+        else:
+            fit = fit_state_data(self.library, z, u, z_next, make(self.threshold))
+            self.setting_ = self.threshold
         self.mask_ = np.asarray(fit.mask_, bool)
         self.coef_ = torch.as_tensor(fit.coef_, dtype=torch.float64) * torch.as_tensor(
             self.mask_)  # (p, nz), pruned entries 0

@@ -81,10 +81,17 @@ class StudyConfig:
     centroid_models: tuple[str, ...] = MODELS
     """Models fitted on the fixed centroid latent of the images (:mod:`.centroid_sindy`):
     any of sindy, mlp, linear (empty: none)."""
-    centroid_order: int = 3
+    centroid_order: int = 4
     """The centroid SINDy's polynomial order (order 2 diverged within 8 steps)."""
-    centroid_threshold: float = 0.03
-    """The centroid SINDy's STLSQ threshold (relative contribution of a kept term)."""
+    centroid_sparsifier: Literal["stepwise", "stlsq"] = "stepwise"
+    """The centroid SINDy's sparse regression: backward elimination by the fit a term costs,
+    most complex first (``StepwiseSR``), or STLSQ (keeps about half of the library there:
+    the centroids stay on circles, so the library's terms are dependent)."""
+    centroid_threshold: float | None = None
+    """The sparsifier's setting: stepwise, the share of a step's mean square one dropped
+    term may cost; STLSQ, the smallest relative contribution of a kept term. None: chosen
+    on the validation sequences, the sparsest fit whose rollouts are within twice the best
+    error (``CentroidSindy``)."""
     state_control: bool = True
     """Also swing up with the state SINDy on the true state (a reference, not from images)."""
     episodes: int = 50
@@ -326,14 +333,16 @@ def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
     if kind == "mlp":
         model, eq = CentroidMlp(seed=cfg.seed).fit(data), ["(an MLP: no equations)"]
     else:
-        order, threshold = (1, 0.0) if kind == "linear" else (cfg.centroid_order,
-                                                              cfg.centroid_threshold)
-        model = CentroidSindy(order, threshold).fit(data)
+        model = (CentroidSindy(1, 0.0, "stlsq") if kind == "linear" else CentroidSindy(
+            cfg.centroid_order, cfg.centroid_threshold, cfg.centroid_sparsifier)).fit(data)
         eq = model.equations()
     row = ModelRow(f"{kind} (images, centroid latent)", [], eq,
                    sparsity=model.sparsity() if kind == "sindy" else None,
                    fit_seconds=time.perf_counter() - t0)
     row.step = model.step
+    chosen = getattr(model, "selection_", None)
+    if chosen is not None:
+        report(f"{row.name}: {kind} threshold chosen on validation rollouts\n{chosen.table()}")
     report(f"{row.name}: fitted in {row.fit_seconds:.1f} s\n  " + "\n  ".join(eq))
     return row
 
