@@ -96,8 +96,9 @@ class StudyConfig:
     """Also swing up with the state SINDy on the true state (a reference, not from images)."""
     episodes: int = 50
     """Swing-up tasks per model (the same tasks for every model)."""
-    start: Literal["hanging", "random"] = "hanging"
-    """Where the swing-up tasks start: hanging (π ± 0.1) or anywhere."""
+    start: Literal["hanging", "random"] = "random"
+    """Where the swing-up tasks start: anywhere (θ uniform, θ̇ in [−1, 1]; the measure of
+    E2C and of issue 22's target) or hanging (π ± 0.1, each task a full swing-up)."""
     episode_steps: int = 100
     """Actions per episode."""
     last: int = 20
@@ -136,6 +137,9 @@ class StudyConfig:
                 raise UserError(f"pendulum study {name} {getattr(self, name)!r} must be >= 1")
         if self.window > self.steps:
             raise UserError(f"pendulum study window {self.window} exceeds steps {self.steps}")
+        if not 1 <= self.last <= self.episode_steps:
+            raise UserError(f"pendulum study last {self.last} must lie in 1..episode_steps "
+                            f"({self.episode_steps}): success is judged on the last steps")
 
     def mppi(self) -> MPPIConfig:
         return MPPIConfig(samples=self.samples, horizon=self.horizon, sigma=self.sigma,
@@ -353,7 +357,10 @@ def main(argv: list[str] | None = None) -> StudyResult:
     torch.set_num_threads(1)
     cfg = tyro.cli(StudyConfig, args=argv, description=__doc__.split("\n\n")[0])
     t0 = time.perf_counter()
-    result = run_study(cfg)
+    try:
+        result = run_study(cfg)
+    except UserError as err:
+        raise SystemExit(f"error: {err}") from None
     print("\n" + result.table())
     print(f"\n(the whole run: {time.perf_counter() - t0:.0f} s)")
     return result
