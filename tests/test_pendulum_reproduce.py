@@ -247,6 +247,9 @@ def test_each_scale_names_its_seeds_and_schedule():
     assert published.resolved_schedule().epochs == 6002 and published.device == "cuda"
     assert video_config("demo", (4, 7), "cpu", 1).seeds == (4, 7)
     assert pendulum_config("published", 3, "cpu").image_size == 48
+    cpu = pendulum_config("published-cpu", 0, "cpu")
+    assert (cpu.image_size, cpu.sequences, cpu.models) == (48, 1000, ())
+    assert cpu.centroid_models == ("sindy", "mlp", "linear") and cpu.start == "random"
     assert ReproduceConfig(scale="tiny").seeds == (0,)  # the push study's default, as before
 
 
