@@ -65,7 +65,7 @@ def test_the_study_runs_the_centroid_rows_with_its_settings():
     assert (StudyConfig().samples, StudyConfig().lambda_) == (500, 0.3)
     with pytest.raises(UserError, match="models"):
         StudyConfig(models=(), centroid_models=())
-    with pytest.raises(UserError, match="last 20 must lie in 1..episode_steps"):
+    with pytest.raises(UserError, match=r"last 20 must lie in 1\.\.episode_steps"):
         StudyConfig(episode_steps=10)
     cfg = StudyConfig(sequences=40, steps=6, window=2, models=(), centroid_models=("sindy",),
                       state_control=False, episodes=1, episode_steps=4, last=2, samples=8,

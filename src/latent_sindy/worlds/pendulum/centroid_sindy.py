@@ -107,6 +107,7 @@ class CentroidSindy:
         z, u, z_next = transitions(data)
         self.library = SindyLibrary(Polynomial("z,u", self.order), n_state=z.shape[1],
                                     n_control=u.shape[1])
+
         def make(setting: float):
             return (StepwiseSR(setting, complexity=self.library.degrees)
                     if self.sparsifier == "stepwise" else STLSQ(threshold=setting))
