@@ -34,8 +34,8 @@ def test_the_choice_is_the_true_law_and_the_sparsest_within_the_slack():
     assert torch.equal(choice.model.mask_, system.true_coefficients() != 0)
     best = min(p.error for p in choice.path)
     chosen = next(p for p in choice.path if p.setting == choice.setting)
-    assert chosen.error <= 2 * best
-    assert all(p.active >= chosen.active or p.error > 2 * best for p in choice.path)
+    assert chosen.error <= 3 * best
+    assert all(p.active >= chosen.active or p.error > 3 * best for p in choice.path)
     assert any(p.active < chosen.active for p in choice.path)  # sparser fits were refused
     assert "* setting" in choice.table() and len(choice.table().splitlines()) == 5
 

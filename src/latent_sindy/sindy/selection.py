@@ -92,7 +92,7 @@ def select_on_rollouts(
     U_val: torch.Tensor,
     settings: Sequence[float] = TOLERANCES,
     make: Callable[[float], Sparsifier] | None = None,
-    slack: float = 2.0,
+    slack: float = 3.0,
 ) -> Selection:
     """Fit ``Znext − Z ≈ Θ(Z, U) Ψ`` at every setting and keep the sparsest fit whose rollout
     error on the held-out trajectories is at most ``slack`` times the best one's.

@@ -87,8 +87,8 @@ class CentroidSindy:
         threshold: the sparsifier's setting: StepwiseSR's tolerance (the share of a step's
             mean square a dropped term may cost) or STLSQ's threshold. None: chosen on the
             validation sequences' rollouts (:func:`~latent_sindy.sindy.select_on_rollouts`,
-            the sparsest fit within twice the best rollout error; the training sequences
-            stand in when the data has no validation split).
+            the sparsest fit within three times the best rollout error; the training
+            sequences stand in when the data has no validation split).
         sparsifier: one of :data:`SPARSIFIERS`.
 
     Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the threshold used)

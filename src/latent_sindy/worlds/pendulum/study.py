@@ -90,8 +90,8 @@ class StudyConfig:
     centroid_threshold: float | None = None
     """The sparsifier's setting: stepwise, the share of a step's mean square one dropped
     term may cost; STLSQ, the smallest relative contribution of a kept term. None: chosen
-    on the validation sequences, the sparsest fit whose rollouts are within twice the best
-    error (``CentroidSindy``)."""
+    on the validation sequences, the sparsest fit whose rollouts are within three times the
+    best error (``CentroidSindy``)."""
     state_control: bool = True
     """Also swing up with the state SINDy on the true state (a reference, not from images)."""
     episodes: int = 50
