@@ -294,9 +294,11 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
     tables, equations, data_s = [], {}, {}
     try:
         for seed, cfg in configs.items():
+            trained = (f"{cfg.epochs} epochs of {', '.join(cfg.models)}" if cfg.models
+                       else "no autoencoder rows")
             say(f"pendulum, {scale} scale, seed {seed}: {cfg.sequences} sequences at "
-                f"{cfg.image_size}x{cfg.image_size}, {cfg.epochs} epochs, {cfg.episodes} "
-                f"swing-ups, device {resolve_device(device)}")
+                f"{cfg.image_size}x{cfg.image_size}, {trained}, {cfg.episodes} swing-ups "
+                f"from {cfg.start} starts, device {resolve_device(device)}")
             record = _seed_record(cfg, out, say)
             per_seed[seed], data_s[seed] = record["rows"], record["data_s"]
             tables.append(Table(f"Seed {seed}", record["header"], record["table"]))
