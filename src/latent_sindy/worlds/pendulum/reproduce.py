@@ -53,7 +53,7 @@ PENDULUM_SCALES = {
                  "of 100 steps",
     "published-cpu": "the published camera and data without the autoencoder rows (hours "
                      "of training on a CPU): the state row and the centroid-latent rows, "
-                     "about 25 minutes a seed on a CPU core",
+                     "about 10 minutes a seed on a CPU core",
 }
 
 

@@ -97,8 +97,8 @@ class StudyConfig:
     episodes: int = 50
     """Swing-up tasks per model (the same tasks for every model)."""
     start: Literal["hanging", "random"] = "random"
-    """Where the swing-up tasks start: anywhere (θ uniform, θ̇ in [−1, 1]; the measure of
-    E2C and of issue 22's target) or hanging (π ± 0.1, each task a full swing-up)."""
+    """Where the swing-up tasks start: anywhere (θ uniform, θ̇ in [−1, 1]; E2C's measure) or
+    hanging (π ± 0.1, each task a full swing-up)."""
     episode_steps: int = 100
     """Actions per episode."""
     last: int = 20
