@@ -20,9 +20,8 @@ there, but only the linear one keeps a fitted map's rollouts off the manifold ta
 model-residual criterion, Boninsegna et al. 2018).
 
 Each drop inverts the active terms' Gram matrix again, so a target column with p terms costs
-O(p⁴): a quarter of a second for 120 terms and 4 columns, 7 s for 364 terms and 8 columns on
-one CPU thread; STLSQ is 10–100 times faster and the better choice where the terms are
-independent.
+O(p⁴) (BENCHMARKS.md has times); STLSQ is much faster and the better choice where the terms
+are independent.
 
     >>> opt = StepwiseSR(tolerance=1e-4, complexity=library.degrees).fit(theta, target)
     >>> opt.coef_.shape, opt.mask_.shape  # (p, m) float64, (p, m) bool
