@@ -13,6 +13,8 @@ ridge regression (``alpha`` relative to the unit diagonal of the normalised Gram
 the active terms and drops those below the rule, until nothing changes; then an ordinary
 least-squares refit on the final active set removes the ridge's shrinkage (``unbias``).
 The mask only ever turns terms off, so a given starting ``mask`` (e.g. a model's) is kept.
+The checked, normalised problem and the per-column solves (:func:`normalised_problem`,
+:func:`ridge_solve`, :func:`lstsq_solve`) are shared with the other sparsifiers.
 
     >>> opt = STLSQ(threshold=1e-2).fit(theta, target)  # theta (N, p), target (N, m)
     >>> opt.coef_.shape, opt.mask_.shape  # (p, m) float64, (p, m) bool
@@ -21,13 +23,14 @@ The mask only ever turns terms off, so a given starting ``mask`` (e.g. a model's
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from latent_sindy.errors import UserError
 
-__all__ = ["STLSQ"]
+__all__ = ["STLSQ", "NormalisedProblem", "lstsq_solve", "normalised_problem", "ridge_solve"]
 
 ArrayLike = torch.Tensor | np.ndarray
 
@@ -102,44 +105,23 @@ class STLSQ:
             target: (N, m) what the terms should explain (for SINDy steps: z_{t+1} − z_t).
             mask: optional (p, m) bool: terms allowed at the start (default all).
         """
-        th = as_matrix(theta, "theta")  # (N, p)
-        y = as_matrix(target, "target")  # (N, m)
-        n, p = th.shape
-        m = y.shape[1]
-        if y.shape[0] != n:
-            raise ValueError(f"STLSQ.fit: theta has {n} rows but target {y.shape[0]}")
-        if not (th.isfinite().all() and y.isfinite().all()):
-            raise ValueError("STLSQ.fit: theta and target must be finite (found NaN or inf)")
-        allowed = torch.ones(p, m, dtype=torch.bool)
-        if mask is not None:
-            allowed = torch.as_tensor(mask).to("cpu", torch.bool)
-            if allowed.shape != (p, m):
-                raise ValueError(f"STLSQ.fit: mask must be ({p}, {m}), got {tuple(allowed.shape)}")
-        scale = th.square().mean(dim=0).sqrt()  # (p,)
-        y_scale = y.square().mean(dim=0).sqrt()  # (m,)
-        usable = scale > 0
-        scale_safe = torch.where(usable, scale, torch.ones_like(scale))
-        th_n = th / scale_safe  # (N, p), unit-RMS columns
-        gram = th_n.T @ th_n / n  # (p, p)
-        rhs = th_n.T @ y / n  # (p, m)
-        active = allowed & usable[:, None] & (y_scale > 0)[None, :]
-        bound = self.threshold * y_scale  # (m,) in the normalised scale of the coefficients
+        prob = normalised_problem(theta, target, mask, "STLSQ.fit")
+        gram, rhs, active = prob.gram, prob.rhs, prob.active
+        bound = self.threshold * prob.target_scale  # (m,) in the coefficients' normalised scale
 
         n_iter = 0
         while n_iter < self.max_iter:
             n_iter += 1
-            xi = self._ridge(gram, rhs, active)
+            xi = ridge_solve(gram, rhs, active, self.alpha)
             keep = active & (xi.abs() >= bound)
             if torch.equal(keep, active):
                 break
             active = keep
-        xi = self._lstsq(th_n, y, active) if self.unbias else self._ridge(gram, rhs, active)
-
-        self.coef_ = xi / scale_safe[:, None]  # (p, m)
+        self.coef_ = prob.refit(active, self.unbias, self.alpha)  # (p, m)
         self.mask_ = active
         self.n_iter_ = n_iter
-        self.column_scale_ = scale
-        self.target_scale_ = y_scale
+        self.column_scale_ = prob.column_scale
+        self.target_scale_ = prob.target_scale
         return self
 
     @torch.no_grad()
@@ -172,23 +154,80 @@ class STLSQ:
             keep &= torch.as_tensor(mask).to("cpu", torch.bool)
         return keep.to(c.device)
 
-    def _ridge(self, gram: torch.Tensor, rhs: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
-        """Per column j: (G_aa + αI) ξ_a = rhs_aj on the active set a; 0 elsewhere: (p, m)."""
-        xi = torch.zeros_like(rhs)
-        for j, idx in _column_sets(active):
-            g = gram[idx][:, idx] + self.alpha * torch.eye(len(idx), dtype=gram.dtype)
-            sol = torch.linalg.lstsq(g, rhs[idx][:, j]).solution
-            xi[idx[:, None], j] = sol
-        return xi
 
-    @staticmethod
-    def _lstsq(th_n: torch.Tensor, y: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
-        """Per column j: least squares of y[:, j] on th_n's active columns: (p, m)."""
-        xi = torch.zeros(th_n.shape[1], y.shape[1], dtype=th_n.dtype)
-        for j, idx in _column_sets(active):
-            sol = torch.linalg.lstsq(th_n[:, idx], y[:, j], driver="gelsd").solution
-            xi[idx[:, None], j] = sol
-        return xi
+@dataclass(frozen=True)
+class NormalisedProblem:
+    """A checked regression ``target ≈ theta @ coef`` with RMS-normalised library columns,
+    as the sparsifiers solve it (see the module)."""
+
+    theta_n: torch.Tensor
+    """(N, p) float64 library columns divided by their RMS (unused columns as they are)."""
+    target: torch.Tensor
+    """(N, m) float64 targets."""
+    column_scale: torch.Tensor
+    """(p,) each library column's RMS (0: a column of zeros)."""
+    target_scale: torch.Tensor
+    """(m,) each target column's RMS."""
+    gram: torch.Tensor
+    """(p, p) theta_nᵀ theta_n / N."""
+    rhs: torch.Tensor
+    """(p, m) theta_nᵀ target / N."""
+    active: torch.Tensor
+    """(p, m) bool: the terms a fit may use (allowed by the mask, non-zero column and
+    target)."""
+
+    def refit(self, active: torch.Tensor, unbias: bool, alpha: float) -> torch.Tensor:
+        """The (p, m) coefficients in the original scale on ``active``: least squares
+        (``unbias``) or the ridge fit at ``alpha``."""
+        xi = (lstsq_solve(self.theta_n, self.target, active) if unbias
+              else ridge_solve(self.gram, self.rhs, active, alpha))
+        safe = torch.where(self.column_scale > 0, self.column_scale,
+                           torch.ones_like(self.column_scale))
+        return xi / safe[:, None]
+
+
+def normalised_problem(theta: ArrayLike, target: ArrayLike, mask: ArrayLike | None,
+                       where: str) -> NormalisedProblem:
+    """Check ``theta`` (N, p), ``target`` (N, m) and ``mask`` (p, m) for the fit named
+    ``where`` (ValueError naming it) and normalise the columns."""
+    th = as_matrix(theta, "theta", where)  # (N, p)
+    y = as_matrix(target, "target", where)  # (N, m)
+    n, p = th.shape
+    m = y.shape[1]
+    if y.shape[0] != n:
+        raise ValueError(f"{where}: theta has {n} rows but target {y.shape[0]}")
+    if not (th.isfinite().all() and y.isfinite().all()):
+        raise ValueError(f"{where}: theta and target must be finite (found NaN or inf)")
+    allowed = torch.ones(p, m, dtype=torch.bool)
+    if mask is not None:
+        allowed = torch.as_tensor(mask).to("cpu", torch.bool)
+        if allowed.shape != (p, m):
+            raise ValueError(f"{where}: mask must be ({p}, {m}), got {tuple(allowed.shape)}")
+    scale = th.square().mean(dim=0).sqrt()  # (p,)
+    y_scale = y.square().mean(dim=0).sqrt()  # (m,)
+    usable = scale > 0
+    th_n = th / torch.where(usable, scale, torch.ones_like(scale))  # unit-RMS columns
+    return NormalisedProblem(
+        th_n, y, scale, y_scale, th_n.T @ th_n / n, th_n.T @ y / n,
+        allowed & usable[:, None] & (y_scale > 0)[None, :])
+
+
+def ridge_solve(gram: torch.Tensor, rhs: torch.Tensor, active: torch.Tensor,
+                alpha: float) -> torch.Tensor:
+    """Per column j: (G_aa + αI) ξ_a = rhs_aj on the active set a; 0 elsewhere: (p, m)."""
+    xi = torch.zeros_like(rhs)
+    for j, idx in _column_sets(active):
+        g = gram[idx][:, idx] + alpha * torch.eye(len(idx), dtype=gram.dtype)
+        xi[idx[:, None], j] = torch.linalg.lstsq(g, rhs[idx][:, j]).solution
+    return xi
+
+
+def lstsq_solve(th_n: torch.Tensor, y: torch.Tensor, active: torch.Tensor) -> torch.Tensor:
+    """Per column j: least squares of y[:, j] on th_n's active columns: (p, m)."""
+    xi = torch.zeros(th_n.shape[1], y.shape[1], dtype=th_n.dtype)
+    for j, idx in _column_sets(active):
+        xi[idx[:, None], j] = torch.linalg.lstsq(th_n[:, idx], y[:, j], driver="gelsd").solution
+    return xi
 
 
 def _column_sets(active: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:

@@ -73,13 +73,12 @@ def rollout_error(library: SindyLibrary, coef: torch.Tensor, X: torch.Tensor,
     spread = X.reshape(-1, X.shape[-1]).std(0).clamp_min(1e-12)
     coef = torch.as_tensor(coef, dtype=torch.float64)
     x, total = X[:, 0], 0.0
-    with np.errstate(all="ignore"):
-        for t in range(U.shape[1]):
-            x = x + library(x, U[:, t]) @ coef
-            step = float(((x - X[:, t + 1]) / spread).norm(dim=-1).mean())
-            if not math.isfinite(step):
-                return math.inf
-            total += step
+    for t in range(U.shape[1]):
+        x = x + library(x, U[:, t]) @ coef
+        step = float(((x - X[:, t + 1]) / spread).norm(dim=-1).mean())
+        if not math.isfinite(step):
+            return math.inf
+        total += step
     return total / max(U.shape[1], 1)
 
 

@@ -34,7 +34,7 @@ import math
 import torch
 
 from latent_sindy.errors import UserError
-from latent_sindy.sindy.optimizers import ArrayLike, as_matrix
+from latent_sindy.sindy.optimizers import ArrayLike, normalised_problem
 
 __all__ = ["StepwiseSR"]
 
@@ -95,37 +95,18 @@ class StepwiseSR:
             target: (N, m) what the terms should explain.
             mask: optional (p, m) bool: terms allowed (default all); others stay 0.
         """
-        th = as_matrix(theta, "theta", "StepwiseSR.fit")
-        y = as_matrix(target, "target", "StepwiseSR.fit")
-        n, p = th.shape
-        m = y.shape[1]
-        if y.shape[0] != n:
-            raise ValueError(f"StepwiseSR.fit: theta has {n} rows but target {y.shape[0]}")
-        if not (th.isfinite().all() and y.isfinite().all()):
-            raise ValueError("StepwiseSR.fit: theta and target must be finite (found NaN or inf)")
+        prob = normalised_problem(theta, target, mask, "StepwiseSR.fit")
+        p, m = prob.rhs.shape
         complexity = torch.zeros(p, dtype=torch.float64) if self.complexity is None \
             else self.complexity
         if complexity.shape != (p,):
             raise ValueError(f"StepwiseSR.fit: complexity has {complexity.numel()} entries "
                              f"but theta {p} columns: give one per library term")
-        allowed = torch.ones(p, m, dtype=torch.bool)
-        if mask is not None:
-            allowed = torch.as_tensor(mask).to("cpu", torch.bool)
-            if allowed.shape != (p, m):
-                raise ValueError(f"StepwiseSR.fit: mask must be ({p}, {m}), "
-                                 f"got {tuple(allowed.shape)}")
-        scale = th.square().mean(dim=0).sqrt()  # (p,)
-        y_scale = y.square().mean(dim=0).sqrt()  # (m,)
-        usable = scale > 0
-        th_n = th / torch.where(usable, scale, torch.ones_like(scale))  # unit-RMS columns
-        gram = th_n.T @ th_n / n  # (p, p)
-        rhs = th_n.T @ y / n  # (p, m)
-
-        active = allowed & usable[:, None] & (y_scale > 0)[None, :]
+        gram, rhs, active = prob.gram, prob.rhs, prob.active.clone()
         self.n_iter_ = 0
         for j in range(m):
             idx = active[:, j].nonzero().flatten()
-            budget = self.tolerance * float(y_scale[j]) ** 2
+            budget = self.tolerance * float(prob.target_scale[j]) ** 2
             while len(idx):
                 inv = torch.linalg.inv(gram[idx][:, idx]
                                        + self.alpha * torch.eye(len(idx), dtype=gram.dtype))
@@ -140,20 +121,8 @@ class StepwiseSR:
                 active[idx[k], j] = False
                 idx = torch.cat([idx[:k], idx[k + 1:]])
                 self.n_iter_ += 1
-
-        coef_n = torch.zeros(p, m, dtype=th.dtype)
-        for j in range(m):
-            idx = active[:, j].nonzero().flatten()
-            if not len(idx):
-                continue
-            if self.unbias:
-                coef_n[idx, j] = torch.linalg.lstsq(th_n[:, idx], y[:, j:j + 1],
-                                                    driver="gelsd").solution[:, 0]
-            else:
-                g = gram[idx][:, idx] + self.alpha * torch.eye(len(idx), dtype=gram.dtype)
-                coef_n[idx, j] = torch.linalg.lstsq(g, rhs[idx, j]).solution
-        self.coef_ = coef_n / torch.where(usable, scale, torch.ones_like(scale))[:, None]
+        self.coef_ = prob.refit(active, self.unbias, self.alpha)
         self.mask_ = active
-        self.column_scale_ = scale
-        self.target_scale_ = y_scale
+        self.column_scale_ = prob.column_scale
+        self.target_scale_ = prob.target_scale
         return self
