@@ -323,7 +323,7 @@ def test_model_config_round_trip_and_resolve() -> None:
      (lambda: MlpConfig(hidden=0), "hidden"),
      (lambda: SindyConfig(init_scale=float("nan")), "init_scale"),
      (lambda: LossWeights(lambda_l1=float("inf")), "lambda-l1"),
-     (lambda: ModelConfig(action_dim=0), "action_dim")],
+     (lambda: ModelConfig(action_dim=-1), "action_dim")],
 )
 def test_model_config_rejects(build, message: str) -> None:
     with pytest.raises(UserError, match=message):

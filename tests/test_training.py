@@ -343,7 +343,7 @@ def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None
     values leave val/* empty except every N-th and the last epoch, and the same model."""
     kw = {"epochs": 5, "threshold": 3e-3, "threshold_every": 2, "dynamics": {"init_scale": 3e-3},
           "batch_size": 20,  # one batch per epoch: the validation loss is one batch too
-          "batching": "windows"}
+          "batching": "windows", "prune": "absolute"}
     every = train(config(data, tmp_path / "every", **kw))
     ref, ref_val = reference_model(config(data, tmp_path / "ref", **kw))
     states_equal(load_run(every, checkpoint=True).model, ref)  # the last epoch

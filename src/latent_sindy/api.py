@@ -28,22 +28,30 @@ import torch
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.data import SequenceData
+from latent_sindy.data.inputs import check_actions, check_frames
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.equations import name_actions
 from latent_sindy.errors import UserError
+from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress, Silent
-from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
+from latent_sindy.training.config import (
+    TrainConfig,
+    check_fit_settings,
+    resolve_device,
+    resolve_parallel,
+)
 from latent_sindy.training.core import FitResult, fit
 from latent_sindy.training.prepare import (
     fit_after,
     new_model,
     regression_init,
     settle_model,
+    settle_settings,
     training_tensors,
 )
-from latent_sindy.training.record import run_record
+from latent_sindy.training.record import resolve_model, run_record
 from latent_sindy.training.runs import RunDir
 
 __all__ = ["LatentSINDy"]
@@ -142,6 +150,7 @@ class LatentSINDy:
         ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...)."""
         if not isinstance(data, SequenceData):
             raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
+        check_fit_settings(settings, out)
         if epochs is not None:
             settings["epochs"] = epochs
         if out is not None:
@@ -149,11 +158,14 @@ class LatentSINDy:
 
             cfg = self.train_config(out=Path(out), data=Path(data.source), **settings)
             train(cfg, progress, data=data)
-            return self._adopt(RunDir(out).load())
-        cfg = self.train_config(**settings)
+            return self._adopt(RunDir(out))
+        cfg = settle_settings(self.train_config(**settings), data)
         if cfg.window > data.steps:
             raise UserError(f"window {cfg.window} is longer than the sequences of "
                             f"{data.source} ({data.steps} steps): use 1..{data.steps}")
+        from latent_sindy.training.loop import check_training_memory
+
+        check_training_memory(resolve_model(cfg.model, data, data.source), cfg, data)
         record = run_record(cfg, data)
         device = torch.device(resolve_device(cfg.device))
         norm = Normalizer.from_dict(record["normalizer"])
@@ -182,11 +194,22 @@ class LatentSINDy:
         self.metrics_, self.kept_ = result.metrics, result.kept
         return self
 
-    def _adopt(self, run: Any) -> LatentSINDy:
+    def _adopt(self, folder: RunDir) -> LatentSINDy:
+        """Take the model, record, metrics and kept epoch of the finished run ``folder``."""
+        run = folder.load()
         self.model_, self.normalizer_ = run.model, run.normalizer
         self.description_, self.world_record_ = run.description, run.world_record
-        self.record_ = None
-        self.metrics_, self.kept_ = None, None
+        record = folder.read_record()
+        kept = record.get("kept")
+        if kept is None:  # recorded before the record named the kept epoch: model.pt does
+            payload = folder.load_torch(folder.MODEL)
+            kept = {"epoch": payload.get("epoch"),
+                    "selection": payload.get("selection", "last epoch")}
+        self.record_, self.kept_ = {**record, "kept": kept}, kept
+        try:
+            self.metrics_: list[dict[str, Any]] | None = folder.read_metrics()
+        except UserError:  # the model is usable without its history (missing or damaged)
+            self.metrics_ = None
         return self
 
     def _check_fitted(self) -> None:
@@ -195,56 +218,73 @@ class LatentSINDy:
                             "LatentSINDy.load(run_folder) first")
 
     # ------------------------------------------------------------------ using the model
-    def _observe(self, images: np.ndarray) -> torch.Tensor:
-        x = np.asarray(images)
-        shape = tuple(self.description_["frame_shape"])
-        if x.shape[-3:] != shape:
-            raise UserError(f"images of shape {x.shape} do not fit this model, which takes "
-                            f"frames {shape} (C, H, W)")
+    def _observe(self, images: Any, name: str, dims: tuple[int, ...]) -> torch.Tensor:
+        """``images`` (argument ``name``) of ``dims`` dimensions, each a frame (C, H, W) of
+        this model in its data's pixel type, normalised; UserError naming what differs."""
         kind = self.model_.config.observation.kind
         if kind != "image":
             raise UserError(f"this model observes {kind}s, not images")
-        return self.normalizer_.normalize(x)
+        d = self.description_
+        return self.normalizer_.normalize(check_frames(
+            images, name, dims, d["frame_shape"], d.get("pixel_dtype", "uint8")))
 
     def _pixels(self, x: torch.Tensor) -> np.ndarray:
         top = 255.0 if self.description_.get("pixel_dtype", "uint8") == "uint8" else 1.0
         return self.normalizer_.denormalize(x).clamp(0, top).numpy().astype(np.float32)
 
-    def _actions(self, actions: np.ndarray) -> torch.Tensor:
-        u = torch.as_tensor(np.asarray(actions, dtype=np.float32))
+    def _actions(self, actions: Any, lead: tuple[int, ...]) -> torch.Tensor:
         nu = len(self.description_["action_low"])
-        if u.shape[-1:] != (nu,) and not (nu == 0 and u.numel() == 0):
-            raise UserError(f"actions of shape {tuple(u.shape)} do not fit this model, which "
-                            f"takes {nu} per step")
-        return u
+        return torch.as_tensor(check_actions(actions, "actions", lead, nu))
 
     @torch.no_grad()
     def encode(self, images: np.ndarray) -> np.ndarray:
         """Images (..., C, H, W) in the data's pixel scale -> latents (..., nz)."""
         self._check_fitted()
-        x = self._observe(images)
+        x = self._observe(images, "images", tuple(range(3, 9)))
         lead = x.shape[:-3]
         return self.model_.encode(x.reshape(-1, *x.shape[-3:])).reshape(*lead, -1).numpy()
 
     @torch.no_grad()
     def predict(self, images: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """The next images (N, C, H, W) after ``actions`` (N, nu) from ``images`` (N, C, H, W),
-        in the data's pixel scale (a single image and action work too)."""
+        in the data's pixel scale (a single image (C, H, W) and action (nu,) work too)."""
         self._check_fitted()
         single = np.ndim(images) == 3
-        x = self._observe(images[None] if single else images)
-        u = self._actions(actions).reshape(len(x), -1)
+        x = self._observe(np.asarray(images)[None] if single else images, "images", (4,))
+        u = self._actions(actions, () if single else (len(x),)).reshape(len(x), -1)
         z_next = self.model_.step(self.model_.encode(x), u)
         out = self._pixels(self.model_.decode(z_next))
         return out[0] if single else out
 
     @torch.no_grad()
-    def simulate(self, image: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def simulate(self, image: np.ndarray, actions: np.ndarray | int
+                 ) -> tuple[np.ndarray, np.ndarray]:
         """Roll the model out from ``image`` (C, H, W) under ``actions`` (T, nu): the latents
-        (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale."""
+        (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale. A model
+        without actions (an autonomous system) takes the number of steps T instead (or
+        actions of shape (T, 0)); a continuous-time model steps dt apart."""
         self._check_fitted()
-        x = self._observe(np.asarray(image)[None])
-        u = self._actions(actions).reshape(1, -1, len(self.description_["action_low"]))
+        if np.ndim(image) != 3:
+            raise UserError(f"simulate rolls out one image (C, H, W), got shape "
+                            f"{np.shape(image)}: call it once per image")
+        dyn = self.model_.dynamics
+        if getattr(dyn, "derivative_order", 1) != 1:
+            raise UserError("a second-order continuous-time model needs the latent's velocity "
+                            "as well as the image to roll out, which one image does not give: "
+                            "use predict, or a first-order model")
+        nu = len(self.description_["action_low"])
+        if nu == 0 and isinstance(actions, int | np.integer) and not isinstance(actions, bool):
+            if actions < 0:
+                raise UserError(f"simulate: {actions} steps: use 0 or more")
+            actions = np.zeros((int(actions), 0), np.float32)
+        elif isinstance(actions, int | np.integer):
+            raise UserError(f"simulate: this model takes {nu} action(s) a step: give the "
+                            f"actions (T, {nu}), not a number of steps")
+        if np.ndim(actions) != 2:
+            raise UserError(f"actions of shape {np.shape(actions)}: give (T, {nu}), the "
+                            "actions of each step")
+        u = self._actions(actions, (len(actions),))[None]  # (1, T, nu)
+        x = self._observe(np.asarray(image)[None], "image", (4,))
         z = self.model_.rollout_latent(self.model_.encode(x), u)[0]  # (T+1, nz)
         return z.numpy(), self._pixels(self.model_.decode(z))
 
@@ -266,6 +306,13 @@ class LatentSINDy:
                   ) -> list[str]:
         """The latent update rules as text, one per latent state (SINDy: active terms only)."""
         self._check_fitted()
+        nu = len(self.description_["action_low"])
+        if action_names is not None and (isinstance(action_names, str)
+                                         or len(action_names) != nu):
+            given = ([action_names] if isinstance(action_names, str)
+                     else list(action_names))
+            raise UserError(f"action_names {given}: give a list of {nu} name(s), one per "
+                            "action of this model")
         lines = self.model_.dynamics.equations(precision)
         return name_actions(lines, list(action_names or self.description_.get("action_names")
                                         or []))
@@ -294,39 +341,42 @@ class LatentSINDy:
     # ------------------------------------------------------------------ files and control
     def save(self, path: str | os.PathLike) -> Path:
         """Write the fitted model as a run folder (config.json, model.pt) that every command
-        (``equations``, ``control`` where its world allows) and :meth:`load` read."""
+        (``equations``, ``control`` where its world allows) and :meth:`load` read; the folder
+        is locked while written (a `latent-sindy train` into it is refused meanwhile, and one
+        that holds it refuses this save) and must hold no run."""
         self._check_fitted()
-        if self.record_ is None:
-            raise UserError("this model was loaded from a run folder: it is saved there")
         from latent_sindy.training.core import to_cpu
         from latent_sindy.version import __version__
 
         run = RunDir(path)
         if run.path.exists() and not run.path.is_dir():
             raise UserError(f"{run.path} is a file: save to a folder")
-        if run.finished:
-            raise UserError(f"{run.path} already holds a trained model: choose another folder")
-        run.path.mkdir(parents=True, exist_ok=True)
-        run.write_record(self.record_)
-        run.write_metrics(self.metrics_ or [])
-        run.save_torch(run.MODEL, {"epoch": self.kept_["epoch"],
-                                   "epochs": self.record_["train"]["epochs"],
-                                   "selection": self.kept_["selection"],
-                                   "model": to_cpu(self.model_.state_dict()),
-                                   "model_config": self.record_["model"],
-                                   "normalizer": self.record_["normalizer"],
-                                   "package_version": __version__})
+        with exclusive(run.path, "run folder", "folder"):
+            held = [name for name in run.FILES if (run / name).exists()]
+            if held:
+                raise UserError(f"save {run.path}: the folder already holds a run "
+                                f"({', '.join(held)}): choose another folder, or delete it "
+                                "first")
+            run.path.mkdir(parents=True, exist_ok=True)
+            run.write_record(self.record_)
+            run.write_metrics(self.metrics_ or [])
+            run.save_torch(run.MODEL, {
+                "epoch": self.kept_["epoch"], "epochs": self.record_["train"]["epochs"],
+                "selection": self.kept_["selection"], "model": to_cpu(self.model_.state_dict()),
+                "model_config": self.record_["model"], "normalizer": self.record_["normalizer"],
+                "package_version": __version__})
         return run.path
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LatentSINDy:
         """The model of a run folder (``save``'s, ``latent-sindy train``'s or the study's);
         weights are read with ``torch.load(weights_only=True)``."""
-        run = RunDir(path).load()
+        folder = RunDir(path)
+        run = folder.load()
         cfg = run.config
         est = cls(run.model.config.observation.latent_dim, model=run.model.config,
                   settings=cfg, loss=cfg.loss, seed=cfg.seed, device="cpu")
-        return est._adopt(run)
+        return est._adopt(folder)
 
     def planner(self, mppi: MPPIConfig | None = None, space: Literal["latent", "image"]
                 = "latent", seed: int = 0) -> ImagePlanner:
@@ -334,7 +384,8 @@ class LatentSINDy:
         self._check_fitted()
         d = self.description_
         return ImagePlanner(self.model_, self.normalizer_, mppi or MPPIConfig(),
-                            d["action_low"], d["action_high"], space=space, seed=seed)
+                            d["action_low"], d["action_high"], space=space, seed=seed,
+                            pixel_dtype=d.get("pixel_dtype", "uint8"))
 
     def __repr__(self) -> str:
         state = "fitted" if hasattr(self, "model_") else "not fitted"

@@ -275,6 +275,17 @@ class Reproduce:
         print(f"report: {report}")
 
 
+def _how_to_continue(argv: list[str] | None) -> str:
+    """How to continue an interrupted command: ``train`` resumes only when told to."""
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["train"] and "--resume" not in args and "--overwrite" not in args:
+        return "to continue the run, re-run the same command with --resume added"
+    if args[:1] == ["train"] and "--overwrite" in args:
+        return ("to continue the run, re-run the same command with --resume in place of "
+                "--overwrite")
+    return "re-run the same command to resume"
+
+
 COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train,
             "equations": Equations, "control": Control, "reproduce": Reproduce}
 
@@ -307,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
               "permissions (and free disk space)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("latent-sindy: interrupted; re-run the same command to resume", file=sys.stderr)
+        print(f"latent-sindy: interrupted; {_how_to_continue(argv)}", file=sys.stderr)
         return 130
     return 0
 

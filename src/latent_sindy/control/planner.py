@@ -20,6 +20,7 @@ import torch
 
 from latent_sindy.control.costs import ImageCost, LatentCost, StateCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
+from latent_sindy.data.sequence import check_pixels
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 
@@ -32,7 +33,8 @@ class ImagePlanner:
     def __init__(self, model: torch.nn.Module, normalizer: Normalizer, mppi: MPPIConfig,
                  action_low: Sequence[float], action_high: Sequence[float],
                  space: Literal["latent", "image"] = "latent",
-                 Q: float | Sequence[float] | torch.Tensor = 1.0, seed: int = 0) -> None:
+                 Q: float | Sequence[float] | torch.Tensor = 1.0, seed: int = 0,
+                 pixel_dtype: str | None = None) -> None:
         if space not in ("latent", "image"):
             raise UserError(f"space {space!r}: plan in 'latent' or 'image' space")
         if len(action_low) == 0:
@@ -40,20 +42,38 @@ class ImagePlanner:
         self.model, self.normalizer, self.settings = model.eval(), normalizer, mppi
         self.box = (tuple(action_low), tuple(action_high))
         self.space, self.Q, self.seed = space, Q, seed
+        self.pixel_dtype = pixel_dtype  # (None: images of any pixel type are taken)
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         self.mppi: MPPI | None = None
         self._goal: np.ndarray | None = None
         self.last: MPPIInfo | None = None
 
+    def _check(self, image: np.ndarray, name: str) -> np.ndarray:
+        """``image`` as an array; UserError unless it is one observation of the model: an
+        image (C, H, W) of its size (and of its pixel type, where known)."""
+        x = np.asarray(image)
+        obs = self.model.config.observation
+        if obs.kind != "image":
+            return x
+        size = obs.image_size
+        shape = (obs.channels, *(size if isinstance(size, list | tuple) else (size, size)))
+        if x.shape != tuple(shape):
+            raise UserError(f"{name} of shape {x.shape}: the planner takes one image (C, H, W) "
+                            f"= {tuple(shape)} of this model")
+        if self.pixel_dtype is not None:
+            check_pixels(x, self.pixel_dtype, name)
+        return x
+
     @torch.no_grad()
     def encode(self, image: np.ndarray) -> torch.Tensor:
         """An image (C, H, W) in the data's pixel scale -> latent (nz,)."""
-        return self.model.encode(self.normalizer.normalize(np.asarray(image))[None])[0]
+        x = self._check(image, "image")
+        return self.model.encode(self.normalizer.normalize(x)[None])[0]
 
     @torch.no_grad()
     def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
         """Plan toward ``goal_image`` from now on (a fresh nominal plan)."""
-        goal = self.normalizer.normalize(np.asarray(goal_image))
+        goal = self.normalizer.normalize(self._check(goal_image, "goal_image"))
         cost: StateCost
         if self.space == "latent":
             cost = LatentCost(self.model.encode(goal[None])[0], self.Q)
@@ -65,12 +85,13 @@ class ImagePlanner:
 
     def act(self, image: np.ndarray, goal_image: np.ndarray | None = None) -> np.ndarray:
         """The action (nu,) to take at ``image``; a new ``goal_image`` resets the plan."""
+        z = self.encode(image)  # (checks the image before a new goal resets the plan)
         if goal_image is not None and (self._goal is None or self._goal.shape != np.shape(
                 goal_image) or not np.array_equal(self._goal, goal_image)):
             self.reset(goal_image)
         if self.mppi is None:
             raise UserError("give the planner a goal image first: act(image, goal_image)")
-        action, self.last = self.mppi.command(self.encode(image))
+        action, self.last = self.mppi.command(z)
         return action.numpy()
 
 

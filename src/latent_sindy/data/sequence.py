@@ -28,7 +28,7 @@ import numpy as np
 
 from latent_sindy.errors import UserError
 
-__all__ = ["SPLITS", "SequenceData", "seeded_split"]
+__all__ = ["SPLITS", "SequenceData", "check_pixels", "seeded_split"]
 
 SPLITS = ("train", "val", "test")
 _SLACK = 1e-4
@@ -44,6 +44,22 @@ def seeded_split(n: int, seed: int = 0, val: float = 0.1, test: float = 0.1) -> 
     labels[order[:n_val]] = 1
     labels[order[n_val:n_val + n_test]] = 2
     return labels
+
+
+def check_pixels(images: np.ndarray, pixel_dtype: str, name: str = "images") -> None:
+    """UserError unless ``images`` are of the pixel type a model was trained on
+    (``pixel_dtype``, a data description's): uint8 pixels (0..255) and floating-point ones
+    (0..1) differ by a factor 255, so one passed for the other would give another latent."""
+    dtype = np.asarray(images).dtype
+    if pixel_dtype == "uint8":
+        if not np.issubdtype(dtype, np.integer):
+            raise UserError(f"{name} are {dtype} but this model was trained on uint8 pixels "
+                            f"(0..255): pass np.round({name} * 255).astype(np.uint8) for "
+                            "pixels in [0, 1]")
+    elif not np.issubdtype(dtype, np.floating):
+        raise UserError(f"{name} are {dtype} but this model was trained on {pixel_dtype} "
+                        f"pixels in [0, 1]: pass {name}.astype(np.float32) / 255 for uint8 "
+                        "pixels")
 
 
 def _names(given: Sequence[str] | None, n: int, stem: str, what: str, where: str) -> tuple:
@@ -116,6 +132,9 @@ class SequenceData:
         if c < 1:
             raise UserError(f"{where}: images need at least one channel (axis 2), shape "
                             f"{images.shape}")
+        if min(images.shape[3:]) < 1:
+            raise UserError(f"{where}: images need at least one pixel of height and width "
+                            f"(axes 3 and 4), shape {images.shape}")
         if t1 < 2:
             raise UserError(f"{where}: sequences need at least one step, images have {t1} "
                             "frame(s)")
@@ -184,9 +203,11 @@ class SequenceData:
         periods = (None,) * ns if self.state_periods is None else tuple(
             None if p is None or (isinstance(p, float) and math.isnan(p)) else float(p)
             for p in self.state_periods)
-        if len(periods) != ns or any(p is not None and not p > 0 for p in periods):
+        if len(periods) != ns or any(p is not None and not (math.isfinite(p) and p > 0)
+                                     for p in periods):
             raise UserError(f"{where}: state_periods needs {ns} value(s), each a positive "
-                            f"period or None, got {self.state_periods}")
+                            f"finite period or None (NaN in a file), got "
+                            f"{list(self.state_periods)}")
         self.state_periods = periods
 
     def _check_extras(self, n: int, t1: int, where: str) -> None:
@@ -265,6 +286,20 @@ class SequenceData:
             a = np.ascontiguousarray(arr)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(a.tobytes())
+        return h.hexdigest()
+
+    def extras_fingerprint(self) -> str:
+        """SHA-256 of the optional arrays :meth:`fingerprint` leaves out: the exact
+        derivatives (``images_dot``, ``images_ddot``) and which actions were ``executed``
+        (the time step and the action box are compared as they are)."""
+        h = hashlib.sha256()
+        for name in ("images_dot", "images_ddot", "executed"):
+            arr = getattr(self, name)
+            h.update(f"{name}:".encode())
+            if arr is not None:
+                a = np.ascontiguousarray(arr)
+                h.update(f"{a.dtype.str}{a.shape}".encode())
+                h.update(a.tobytes())
         return h.hexdigest()
 
     def pixel_stats(self) -> tuple[float, float]:

@@ -41,7 +41,8 @@ from latent_sindy.atomic import atomic_path, check_memory
 from latent_sindy.data.sequence import SPLITS, SequenceData
 from latent_sindy.errors import UserError
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "LEGACY_FORMAT", "read_sequences", "write_sequences"]
+__all__ = ["DATASETS", "FORMAT", "FORMAT_VERSION", "LEGACY_FORMAT", "read_sequences",
+           "write_sequences"]
 
 FORMAT = "latent-sindy-sequences"
 FORMAT_VERSION = 2
@@ -103,13 +104,37 @@ def _strings(value: Any) -> list[str] | None:
     return [v.decode() if isinstance(v, bytes) else str(v) for v in np.asarray(value).ravel()]
 
 
+#: The datasets a data file may hold; anything else in it (a group of the user's own
+#: metadata, another dataset) is left alone.
+DATASETS = ("images", "actions", "states", "poses", "split", "images_dot", "images_ddot",
+            "executed")
+
+
 def _check_sizes(f: h5py.File, path: Path) -> None:
     """Refuse from the shapes alone what would not fit in memory (before reading a byte)."""
-    total = sum(int(np.prod(f[k].shape)) * f[k].dtype.itemsize
-                for k in ("images", "actions", "states", "poses", "split", "images_dot",
-                           "images_ddot", "executed") if k in f)
-    check_memory(total, f"{path} ({', '.join(f'{k} {f[k].shape}' for k in f)})",
+    ours = [k for k in DATASETS if k in f]
+    for k in ours:
+        if not isinstance(f[k], h5py.Dataset):
+            raise UserError(f"{path}: /{k} is an HDF5 group, not a dataset: write the array "
+                            "itself under that name (docs/data.md)")
+    total = sum(int(np.prod(f[k].shape)) * f[k].dtype.itemsize for k in ours)
+    check_memory(total, f"{path} ({', '.join(f'{k} {f[k].shape}' for k in ours)})",
                  "use a smaller data set")
+
+
+def _executed(f: h5py.File, path: Path) -> np.ndarray | None:
+    """/executed as bools: stored as bools, or as integers 0 and 1; anything else refused
+    (a 7 is no answer to whether an action was carried out)."""
+    if "executed" not in f:
+        return None
+    arr = f["executed"][()]
+    if arr.dtype == np.bool_:
+        return arr
+    if np.issubdtype(arr.dtype, np.integer) and np.all((arr == 0) | (arr == 1)):
+        return arr.astype(bool)
+    found = np.unique(arr)[:5].tolist() if arr.size else []
+    raise UserError(f"{path}: /executed must hold booleans (or 0 and 1), got {arr.dtype} "
+                    f"values {found}: write it as a bool array")
 
 
 def _read(f: h5py.File, path: Path) -> SequenceData:
@@ -147,7 +172,7 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
         split=f["split"][()] if "split" in f else None,
         images_dot=f["images_dot"][()] if "images_dot" in f else None,
         images_ddot=f["images_ddot"][()] if "images_ddot" in f else None,
-        executed=f["executed"][()].astype(bool) if "executed" in f else None,
+        executed=_executed(f, path),
         dt=float(a["dt"]) if "dt" in a else None,
         world=_strings(a.get("world"))[0] if "world" in a else None,
         record=record, seed=None if seed < 0 else seed, source=str(path))
@@ -156,6 +181,9 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
 def read_sequences(path: str | os.PathLike) -> SequenceData:
     """Open and validate a data file; every problem is a one-line UserError."""
     path = Path(path)
+    if not path.exists() and path.is_symlink():  # (exists() follows the link)
+        raise UserError(f"{path} is a symbolic link that leads to no file (a loop, or its "
+                        "target is gone): point it at a data file or give the file itself")
     if not path.exists():
         raise UserError(f"{path} does not exist: collect data first with "
                         f"`latent-sindy collect --out {path}`, or write one (docs/data.md)")

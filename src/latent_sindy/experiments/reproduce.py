@@ -169,6 +169,7 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     # One study per folder at a time. Its workers do not lock it: they write into it only
     # while this process holds it, and die with this process (latent_sindy.executors).
     with exclusive(out, "study folder"):
+        _check_study_folder(out, config.world if config.study_world is not None else "push")
         created = not out.exists()
         try:
             if config.study_world is not None:
@@ -178,6 +179,23 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
             if created and out.is_dir() and not any(out.iterdir()):
                 out.rmdir()  # a study refused before it wrote anything leaves no folder
             raise
+
+
+def _check_study_folder(out: Path, study: str) -> None:
+    """UserError if ``out`` holds the results of another study (its summary.json names the
+    world: a world study's at its top, the push study's in its config): the study would
+    write its summary.json, report.html and table.md over them."""
+    path = out / "summary.json"
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return  # no summary (yet), or one no study can have written: nothing to keep apart
+    if not isinstance(summary, dict):
+        return
+    held = summary.get("world") or ("push" if "config" in summary else None)
+    if held is not None and held != study:
+        raise UserError(f"--out {out} holds the {held} study (its summary.json): choose "
+                        f"another --out for the {study} study")
 
 
 def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path:

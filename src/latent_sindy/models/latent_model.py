@@ -117,10 +117,9 @@ class ModelConfig:
     unused), instead of being updated like the others: a turn of any size is one equation."""
 
     def __post_init__(self) -> None:
-        least = 0 if self.dynamics.kind == "continuous" else 1  # (continuous: autonomous too)
-        if self.action_dim is not None and self.action_dim < least:
-            raise UserError(f"model action_dim {self.action_dim}: use {least} or more, or leave "
-                            "it unset to use the data's")
+        if self.action_dim is not None and self.action_dim < 0:  # 0: an autonomous system
+            raise UserError(f"model action_dim {self.action_dim}: use 0 (no actions) or more, "
+                            "or leave it unset to use the data's")
         if self.pose_head not in ("none", *POSE_HEADS):
             raise UserError(f"--pose-head {self.pose_head!r}: use none, "
                             + ", ".join(POSE_HEADS))

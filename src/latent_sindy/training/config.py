@@ -9,11 +9,13 @@ weights; on the command line every field is a flag named like the field.
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 import tyro
@@ -21,8 +23,9 @@ import tyro
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 
-__all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "RESUMABLE", "TrainConfig", "default_threads",
-           "resolve_batching", "resolve_device", "resolve_parallel"]
+__all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "PRUNINGS", "RESUMABLE", "TrainConfig",
+           "auto_batch_size", "check_fit_settings", "default_threads", "resolve_batching",
+           "resolve_device", "resolve_parallel", "resolve_prune"]
 
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
@@ -34,6 +37,14 @@ BATCHINGS = ("auto", "trajectories", "windows")
 
 #: Values of :attr:`TrainConfig.parallel`.
 PARALLELS = ("auto", "ops", "batch")
+
+#: Values of :attr:`TrainConfig.prune`.
+PRUNINGS = ("auto", "relative", "absolute")
+
+#: Mini-batch updates an epoch aims at where the batch size is chosen from the data.
+UPDATES_PER_EPOCH = 16
+#: The batch sizes (windows) that choice stays within.
+AUTO_BATCH = (16, 500)
 
 #: Values of :attr:`TrainConfig.device`.
 DEVICES = ("auto", "cpu", "cuda")
@@ -55,9 +66,12 @@ class TrainConfig:
     """Pushes per training window H (1: the paper's single-step model)."""
     epochs: int = 300
     """Passes over the training windows (the paper: 3000; 300 trains in minutes on a CPU)."""
-    batch_size: int = 500
+    batch_size: int | None = None
     """Windows per mini-batch (the paper: 500); trajectory batches hold batch_size // (T-H+1)
-    whole trajectories (at least one), T the pushes per trajectory."""
+    whole trajectories (at least one), T the pushes per trajectory. None: a sixteenth of the
+    training windows, 16 to 500, so that every epoch makes about 16 updates however small the
+    data (a batch of 500 gives a set of 50 trajectories one update an epoch, too few to learn
+    anything in 300 epochs)."""
     batching: Literal["auto", "trajectories", "windows"] = "auto"
     """Mini-batches of "windows" (drawn from all trajectories; each window encodes and decodes
     its own frames) or of whole "trajectories" (each frame encoded and reconstructed once:
@@ -78,7 +92,14 @@ class TrainConfig:
     weight_decay: float = 0.01
     """AdamW decoupled weight decay (PyTorch's default, which the paper kept)."""
     threshold: float = 1e-3
-    """SINDy: prune coefficients with |Ψ| below this (the paper: 1e-3)."""
+    """SINDy: prune the coefficients below this, as --prune measures them (the paper: |Ψ|
+    below 1e-3)."""
+    prune: Literal["auto", "relative", "absolute"] = "auto"
+    """SINDy: how --threshold measures a coefficient. "relative": its term's share of its
+    state's update, |Ψ_kj| rms(Θ_k) / rms(Θ Ψ_j) over the encoded training transitions, the
+    same whatever the scales of the latent, the actions and the library's columns;
+    "absolute": |Ψ_kj| (the paper), which prunes every term of a latent whose steps are
+    small; "auto": relative for discrete-time SINDy, absolute for continuous time."""
     threshold_every: int = 30
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
     refine_epochs: int = 0
@@ -137,7 +158,10 @@ class TrainConfig:
         checks = (
             (self.epochs >= 1, f"--epochs {self.epochs}: train for at least 1 epoch"),
             (self.window >= 1, f"--window {self.window}: windows need at least 1 push"),
-            (self.batch_size >= 1, f"--batch-size {self.batch_size}: use 1 or more"),
+            (self.batch_size is None or self.batch_size >= 1,
+             f"--batch-size {self.batch_size}: use 1 or more (or None: chosen from the data)"),
+            (self.prune in PRUNINGS,
+             f"--prune {self.prune!r} is unknown: use one of {', '.join(PRUNINGS)}"),
             (self.lr > 0 and finite(self.lr), f"--lr {self.lr}: use a finite positive number"),
             (len(self.betas) == 2 and all(0 <= b < 1 for b in self.betas),
              f"--betas {self.betas}: use two numbers in [0, 1)"),
@@ -192,6 +216,9 @@ class TrainConfig:
             raise UserError("--parallel batch splits a batch over threads, which the "
                             "forward-mode derivatives of continuous-time dynamics cannot run "
                             "in: use --parallel auto or ops")
+        if continuous and self.prune == "relative":
+            raise UserError("--prune relative measures a term's share of a discrete step; "
+                            "continuous-time dynamics prune |Ξ|: use --prune auto or absolute")
         if not continuous and self.derivatives != "auto":
             raise UserError(f"--derivatives {self.derivatives} is for continuous-time "
                             "dynamics (latent-sindy train continuous ...): drop it")
@@ -199,6 +226,21 @@ class TrainConfig:
             raise UserError(f"--lambda-pose {self.loss.lambda_pose} weights a pose head the "
                             "model does not have: add --pose-head linear or coordinates "
                             "(image models)")
+
+
+def resolve_prune(cfg: TrainConfig) -> str:
+    """What :attr:`TrainConfig.prune` measures for ``cfg``'s model: "relative" or
+    "absolute"."""
+    if cfg.prune == "auto":
+        return "absolute" if cfg.model.dynamics.kind == "continuous" else "relative"
+    return cfg.prune
+
+
+def auto_batch_size(windows: int) -> int:
+    """The batch size (windows) a fit on ``windows`` training windows takes when none is
+    given: about :data:`UPDATES_PER_EPOCH` updates an epoch, within :data:`AUTO_BATCH`."""
+    low, high = AUTO_BATCH
+    return int(min(high, max(low, math.ceil(windows / UPDATES_PER_EPOCH))))
 
 
 def resolve_batching(cfg: TrainConfig) -> str:
@@ -232,3 +274,26 @@ def default_threads() -> int:
     """torch CPU threads for training: one per core this process may run on, at most torch's
     own default (which honours OMP_NUM_THREADS)."""
     return max(1, min(torch.get_num_threads(), len(os.sched_getaffinity(0))))
+
+
+#: TrainConfig fields that ``fit`` sets itself: the estimator's settings, or its ``out``.
+FIT_OWN_SETTINGS = {"model": "LatentSINDy(model=...)", "loss": "LatentSINDy(loss=...)",
+                 "seed": "LatentSINDy(seed=...)", "device": "LatentSINDy(device=...)",
+                 "data": "fit(data)", "out": "fit(data, out=...)"}
+
+
+def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
+    """UserError naming a keyword of ``fit`` that is no training setting, or one that the
+    estimator or ``fit`` sets elsewhere."""
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    for key in settings:
+        if key in FIT_OWN_SETTINGS:
+            raise UserError(f"fit(..., {key}=...): {key} is set by {FIT_OWN_SETTINGS[key]}, not "
+                            "as a training setting")
+        if key not in fields:
+            close = difflib.get_close_matches(key, sorted(fields), n=1)
+            raise UserError(f"fit(..., {key}=...): no such training setting"
+                            + (f" (did you mean {close[0]}?)" if close else "")
+                            + "; the settings are TrainConfig's fields")
+        if key in ("resume", "overwrite") and out is None:
+            raise UserError(f"fit(..., {key}=...) is for a run folder: add out=FOLDER")

@@ -30,11 +30,11 @@ import torch
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights
-from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.config import TrainConfig, resolve_prune
 from latent_sindy.training.metrics import METRIC_COLUMNS
 
 __all__ = ["BestValidation", "FitResult", "Gradients", "TrainingDiverged", "evaluate", "fit",
-           "keep_freed_memory", "prune", "to_cpu"]
+           "keep_freed_memory", "prune", "share_scale", "to_cpu"]
 
 #: (x, u, s): sequences (N, T+1, ...) or windows (W, H+1, ...), their actions (N, T, nu),
 #: and their true state features (privileged data of a pose head) or None.
@@ -77,6 +77,7 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
     x, u, s = train
     sparse = model.dynamics.sparse
     pruning = sparse and cfg.threshold_every > 0
+    relative = pruning and resolve_prune(cfg) == "relative"
     refine_after = cfg.epochs - cfg.refine_epochs  # the epochs after this one refine
     refining = dataclasses.replace(cfg.loss, lambda_l1=0.0)
     grads = Gradients(model, parts)
@@ -91,7 +92,8 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
                                 weights=refining if refine else None)
             row.update({f"train/{k}": v for k, v in terms.items()})
             if pruning and not refine and epoch % cfg.threshold_every == 0:
-                row["sindy/pruned"] = prune(model, opt, cfg.threshold)
+                scale = share_scale(model, x, u) if relative else None
+                row["sindy/pruned"] = prune(model, opt, cfg.threshold, scale)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
             if val is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
@@ -223,11 +225,38 @@ def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
     return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
 
 
+#: Sequences whose encoded transitions measure the terms' shares for a relative pruning.
+SHARE_SEQUENCES = 256
+
+
 @torch.no_grad()
-def prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float) -> int:
-    """Threshold SINDy coefficients; clear AdamW's moments of pruned entries so Ψ stays 0."""
+def share_scale(model: LatentModel, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Weights (p, nz) that turn |Ψ| into each term's share of its state's update:
+    rms(Θ_k) / rms((Θ (M ⊙ Ψ))_j), the root mean square of the term's column over that of
+    the whole update, on the encoded transitions of up to :data:`SHARE_SEQUENCES` of the
+    training sequences x (N, L, ...), u (N, L-1, nu), evenly spaced (no randomness drawn).
+    ``prune(model, opt, tau, scale)`` then drops the terms that move their state by less
+    than ``tau`` of its update, whatever the scales of z, u or the library's columns (1
+    where an update is 0 everywhere)."""
+    pick = torch.linspace(0, len(x) - 1, min(len(x), SHARE_SEQUENCES)).round().long()
+    xs, us = x[pick.to(x.device)], u[pick.to(u.device)]
+    z = model.encode(xs.flatten(0, 1)).reshape(*xs.shape[:2], -1)  # (n, L, nz)
+    nz, nu = z.shape[-1], us.shape[-1]
     dyn = model.dynamics
-    pruned = dyn.threshold(tau)
+    theta = dyn.library(z[:, :-1].reshape(-1, nz), us.reshape(-1, nu))  # (M, p)
+    column = theta.square().mean(0).sqrt()  # (p,)
+    update = (theta @ dyn.coefficients()).square().mean(0).sqrt()  # (nz,)
+    update = torch.where(update > 0, update, torch.ones_like(update))
+    return column[:, None] / update[None, :]
+
+
+@torch.no_grad()
+def prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float,
+          scale: torch.Tensor | None = None) -> int:
+    """Threshold SINDy coefficients (|Ψ| < tau, or |Ψ| · ``scale`` < tau: see
+    :func:`share_scale`); clear AdamW's moments of pruned entries so Ψ stays 0."""
+    dyn = model.dynamics
+    pruned = dyn.threshold(tau, scale)
     state = opt.state.get(dyn.psi, {})
     for key in ("exp_avg", "exp_avg_sq"):
         if key in state:

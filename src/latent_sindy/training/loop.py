@@ -46,12 +46,14 @@ from latent_sindy.training.prepare import (
     new_model,
     regression_init,
     settle_model,
+    settle_settings,
     training_tensors,
 )
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 
-__all__ = ["TrainingDiverged", "restore_finished", "run_record", "train"]
+__all__ = ["TrainingDiverged", "check_training_memory", "restore_finished", "run_record",
+           "train"]
 
 
 def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
@@ -89,15 +91,27 @@ def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str,
     return None
 
 
-def _check_model_size(model_cfg: ModelConfig, cfg: TrainConfig) -> None:
-    """Refuse, from the settings alone, latent dynamics that cannot fit in memory (an order-2
-    library on 100000 latents has 5e9 terms), before a term of it is enumerated."""
+def check_training_memory(model_cfg: ModelConfig, cfg: TrainConfig, data: SequenceData
+                          ) -> None:
+    """Refuse, from the settings and the data's shapes alone, a model whose training cannot
+    fit in memory, before anything is built or written: the latent dynamics (an order-2
+    library on 100000 latents has 5e9 terms) and the autoencoder (its weights, and its
+    activations for one mini-batch: 2048x2048 images need tens of GB). ``model_cfg`` is
+    resolved against ``data``; ``cfg.batch_size`` is settled."""
+    parts = [_dynamics_bytes(model_cfg, cfg), _autoencoder_bytes(model_cfg, cfg, data)]
+    parts = [p for p in parts if p is not None]
+    if parts:
+        _, what, fix = max(parts)
+        check_memory(sum(b for b, _, _ in parts), what, fix)
+
+
+def _dynamics_bytes(model_cfg: ModelConfig, cfg: TrainConfig) -> tuple[int, str, str] | None:
     nz, nu, dyn = model_cfg.observation.latent_dim, model_cfg.action_dim or 0, model_cfg.dynamics
     fix = "use a smaller --latent-dim"
     if dyn.kind == "sindy":  # the polynomial part alone; a preset's other terms come on top
         terms = math.comb(nz + nu + dyn.order, dyn.order)
         terms += nz * (getattr(dyn, "include_sine", False) + getattr(dyn, "include_cosine", False))
-        params, activations = terms * nz, cfg.batch_size * terms  # Ψ (p, nz); Θ (B, p)
+        params, activations = terms * nz, (cfg.batch_size or 1) * terms  # Ψ (p, nz); Θ (B, p)
         what = (f"SINDy of order {dyn.order} on --latent-dim {nz} ({terms:.3g} library terms "
                 f"x {nz} coefficients)")
         fix += " or --order"
@@ -110,10 +124,63 @@ def _check_model_size(model_cfg: ModelConfig, cfg: TrainConfig) -> None:
         activations = 0
         what = f"an MLP of {dyn.layers} x {width} on --latent-dim {nz}"
     else:
-        return
+        return None
     # float32 weights, gradients and two AdamW moments, a bool mask; the batch's activations
     # and their gradients
-    check_memory(17 * params + 8 * activations, what, fix)
+    return 17 * params + 8 * activations, what, fix
+
+
+def _autoencoder_bytes(model_cfg: ModelConfig, cfg: TrainConfig, data: SequenceData
+                       ) -> tuple[int, str, str] | None:
+    """The autoencoder's weights (with gradients and AdamW's moments) and the activations of
+    one mini-batch (with their gradients), counted on torch's meta device: shapes without
+    storage, so nothing of the size being checked is allocated."""
+    obs = model_cfg.observation
+    if obs.kind != "image":
+        return None
+    c, h, w = data.frame_shape
+    try:
+        obs = obs.resolve(c, (h, w))
+        with torch.device("meta"):
+            auto = obs.build()
+    except (RuntimeError, NotImplementedError, TypeError, ValueError):
+        return None  # an encoder that cannot be built without storage goes unchecked here
+    params = sum(p.numel() for p in auto.parameters())
+    per_frame = _activations_per_frame(auto, (c, h, w))
+    if model_cfg.dynamics.kind == "continuous":  # frames and their forward-mode tangents
+        frames = (cfg.batch_size or 1) * (1 + model_cfg.dynamics.derivative_order)
+    else:  # a window's frames, encoded and their predictions decoded
+        frames = (cfg.batch_size or 1) * (cfg.window + 1)
+    what = (f"the {obs.encoder_kind} encoder and {obs.decoder_kind} decoder on {h}x{w} images "
+            f"({params:.3g} weights, {per_frame:.3g} activations a frame, {frames} frames a "
+            "batch)")
+    return (16 * params + 8 * per_frame * frames, what,
+            "use smaller images, a smaller --batch-size, or a smaller autoencoder "
+            "(--encoder-hidden, --decoder-hidden, --conv-channels)")
+
+
+def _activations_per_frame(auto: torch.nn.Module, shape: tuple[int, int, int]) -> int:
+    """How many values the modules of ``auto`` (built on the meta device) output for one
+    frame, encoded and decoded; where its forward cannot run on the meta device (it reads a
+    value), a feature map of every convolution's width at the image's size."""
+    total = 0
+
+    def count(_module: torch.nn.Module, _inputs: Any, out: Any) -> None:
+        nonlocal total
+        outs = out if isinstance(out, tuple | list) else (out,)
+        total += sum(o.numel() for o in outs if isinstance(o, torch.Tensor))
+
+    hooks = [m.register_forward_hook(count) for m in auto.modules()]
+    try:
+        with torch.no_grad():
+            auto.decode(auto.encode(torch.empty(1, *shape, device="meta")))
+    except (RuntimeError, NotImplementedError):
+        total = sum(m.out_channels * shape[1] * shape[2] for m in auto.modules()
+                    if isinstance(m, torch.nn.Conv2d)) + 2 * math.prod(shape)
+    finally:
+        for hook in hooks:
+            hook.remove()
+    return total
 
 
 def _diverged(cfg: TrainConfig, e: TrainingDiverged, last_ckpt: int | None) -> TrainingDiverged:
@@ -168,6 +235,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     if device.type == "cpu":
         keep_freed_memory()
     data = read_sequences(cfg.data) if data is None else data
+    cfg = settle_settings(cfg, data)
     if cfg.window > data.steps:
         raise UserError(f"--window {cfg.window} is longer than the trajectories of {cfg.data} "
                         f"({data.steps} steps): use 1..{data.steps}")
@@ -179,7 +247,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     ckpt = _prepare(run, cfg, record)
     norm = Normalizer.from_dict(record["normalizer"])
     model_cfg = from_json(ModelConfig, record["model"], "model")
-    _check_model_size(model_cfg, cfg)
+    check_training_memory(model_cfg, cfg, data)
     if ckpt is None and getattr(model_cfg.observation, "order_from_data", False):
         progress.note(f"--moment-order 0: choosing the order from the data ({cfg.order_epochs} "
                       "epochs at order 2 first)")

@@ -9,7 +9,7 @@ A continuous-time model trains on single frames with their time derivatives inst
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -20,11 +20,25 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.derivatives import estimate_derivatives
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.sindy import STLSQ
-from latent_sindy.training.config import TrainConfig, resolve_batching
+from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
 from latent_sindy.training.core import Sequences
 
 __all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
-           "regression_init", "settle_model", "training_tensors"]
+           "regression_init", "settle_model", "settle_settings", "training_tensors"]
+
+
+def settle_settings(cfg: TrainConfig, data: SequenceData) -> TrainConfig:
+    """``cfg`` with what it leaves to the data chosen: the batch size (None: about
+    :data:`~latent_sindy.training.config.UPDATES_PER_EPOCH` updates an epoch over the
+    training split's windows, or a continuous-time model's frames)."""
+    if cfg.batch_size is not None:
+        return cfg
+    n = data.split("train").n
+    if cfg.model.dynamics.kind == "continuous":
+        samples = n * (data.steps + 1)
+    else:
+        samples = n * max(1, data.steps - cfg.window + 1)
+    return replace(cfg, batch_size=auto_batch_size(samples))
 
 
 def new_model(model_cfg, cfg: TrainConfig, device: torch.device
@@ -104,8 +118,6 @@ def choose_moment_order(model_cfg, data: SequenceData, norm: Normalizer, cfg: Tr
     :data:`PROVISIONAL_ORDER` (same seed, loss and batches), then the trained encoder's
     :meth:`~latent_sindy.models.encoders.MaskMomentEncoder.symmetry_order` on the training
     images; any other config as it is."""
-    from dataclasses import replace
-
     from latent_sindy.training.core import fit
 
     if not getattr(model_cfg.observation, "order_from_data", False):

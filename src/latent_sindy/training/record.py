@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -20,18 +21,37 @@ from latent_sindy.models.latent_model import ModelConfig
 from latent_sindy.plugins import get_world
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
-__all__ = ["RUN_FORMAT", "RUN_FORMAT_VERSION", "check_derivatives", "data_identity",
-           "resolve_model", "run_record"]
+__all__ = ["CONTEXT_KEYS", "PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
+           "check_derivatives", "check_description", "data_identity", "resolve_model",
+           "run_record"]
 
 RUN_FORMAT = "latent-sindy-run"
 RUN_FORMAT_VERSION = 2
 
 
+#: What :func:`data_identity` records beyond the arrays' fingerprint; runs recorded before
+#: it lack these keys (see :meth:`~latent_sindy.training.runs.RunDir.differences`).
+CONTEXT_KEYS = ("dt", "action_low", "action_high", "extras_fingerprint")
+
+
+#: The keys config.json may hold at its top ("env": runs recorded before data were generic;
+#: "kept": a finished run's).
+RECORD_KEYS = frozenset({"format", "format_version", "package_version", "created", "train",
+                         "batching", "model", "normalizer", "data", "description", "world",
+                         "kept", "env"})
+
+
 def data_identity(data: SequenceData, path: Path | None) -> dict[str, Any]:
-    """Which data a run was trained on (compared when it is resumed or reused)."""
+    """Which data a run was trained on (compared when it is resumed or reused): the arrays'
+    fingerprint, and what a model also depends on (time step, action box, exact derivatives,
+    executed actions)."""
     return {
         "path": None if path is None else str(path.resolve()),
         "fingerprint": data.fingerprint(),
+        "dt": data.dt,
+        "action_low": list(data.action_low),
+        "action_high": list(data.action_high),
+        "extras_fingerprint": data.extras_fingerprint(),
         "seed": data.seed,
         "trajectories": data.n,
         "steps": data.steps,
@@ -102,3 +122,33 @@ def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
                   "record": {k: v for k, v in data.record.items() if k != "collection"}},
     }
     return json.loads(json.dumps(record))  # as config.json will hold it
+
+
+#: The pixel types a model can have been trained on (SequenceData's images).
+PIXEL_DTYPES = ("uint8", "float16", "float32", "float64")
+
+
+def check_description(d: Mapping[str, Any], where: Path) -> None:
+    """UserError where a run's description of its data contradicts itself (an edited file):
+    a pixel type images cannot have, names of the wrong count, a malformed action box."""
+    def edited(what: str) -> UserError:
+        return UserError(f"{where}: description {what}: the file was edited; retrain the run")
+
+    low, high = d.get("action_low"), d.get("action_high")
+    if not (isinstance(low, list) and isinstance(high, list) and len(low) == len(high)
+            and all(isinstance(v, int | float) for v in low + high)):
+        raise edited(f"action_low {low!r} and action_high {high!r} are not an action box")
+    if d.get("pixel_dtype", "uint8") not in PIXEL_DTYPES:
+        raise edited(f"pixel_dtype {d.get('pixel_dtype')!r} is not one of "
+                     f"{', '.join(PIXEL_DTYPES)}")
+    counts = [("action_names", len(low), "actions")]
+    if isinstance(d.get("state_periods"), list):
+        counts.append(("state_names", len(d["state_periods"]), "states"))
+    for names, count, of in counts:
+        given = d.get(names)
+        if given is None:
+            continue
+        if not (isinstance(given, list) and all(isinstance(n, str) for n in given)):
+            raise edited(f"{names} {given!r} is not a list of names")
+        if len(given) != count:
+            raise edited(f"{names} has {len(given)} name(s) for {count} {of}")

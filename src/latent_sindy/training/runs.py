@@ -48,7 +48,13 @@ from latent_sindy.plugins import get_world
 from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
 from latent_sindy.training.metrics import METRIC_COLUMNS
 from latent_sindy.training.migrate import migrate_v1, run_description
-from latent_sindy.training.record import RUN_FORMAT, RUN_FORMAT_VERSION
+from latent_sindy.training.record import (
+    CONTEXT_KEYS,
+    RECORD_KEYS,
+    RUN_FORMAT,
+    RUN_FORMAT_VERSION,
+    check_description,
+)
 
 __all__ = ["METRIC_COLUMNS", "RUN_FORMAT", "RUN_FORMAT_VERSION", "Run", "RunDir", "load_run",
            "read_metrics"]
@@ -71,7 +77,6 @@ DERIVED: tuple[tuple[str, str, Any], ...] = (
 
 #: Parts of the model record under the names runs recorded before the renaming used.
 _OLD_PARTS = {"observation": "encoder"}
-
 
 class Run(NamedTuple):
     """What :meth:`RunDir.load` rebuilds from a run folder: the model, its normaliser, its
@@ -144,6 +149,9 @@ class RunDir:
 
     def check_folder(self) -> None:
         """UserError unless the path is a run folder with a config.json."""
+        if not self.path.exists() and self.path.is_symlink():  # (exists() follows the link)
+            raise UserError(f"{self.path} is a symbolic link that leads to no folder (a loop, "
+                            "or its target is gone): point it at a run folder")
         if not self.path.exists():
             raise UserError(f"run folder {self.path} does not exist: train one with "
                             f"`latent-sindy train --out {self.path}`")
@@ -172,6 +180,10 @@ class RunDir:
             raise UserError(f"{path} is damaged ({e}); retrain the run") from e
         if not isinstance(record, dict) or record.get("format") != RUN_FORMAT:
             raise UserError(f"{path} is not a latent-sindy run config")
+        unknown = sorted(set(record) - RECORD_KEYS)
+        if unknown:
+            raise UserError(f"{path}: unknown key {unknown[0]!r} at the top (the file was "
+                            "edited): remove it, or retrain the run")
         version = record.get("format_version")
         if version == 1:
             record = migrate_v1(record)
@@ -182,6 +194,10 @@ class RunDir:
         if isinstance(train, dict) and "batching" not in train:
             # recorded before the setting existed, when every run was batched by windows
             record = {**record, "train": {**train, "batching": "windows"}}
+            train = record["train"]
+        if isinstance(train, dict) and "prune" not in train:
+            # recorded before the setting existed, when every threshold compared |Ψ|
+            record = {**record, "train": {**train, "prune": "absolute"}}
         return record
 
     def write_record(self, record: Mapping[str, Any]) -> None:
@@ -276,6 +292,7 @@ class RunDir:
         if not model_cfg.resolved:
             raise UserError(f"{where}: the model's image shape or action size is missing; "
                             "retrain the run")
+        check_description(description, where)
         enc = model_cfg.observation
         c, h, w = description["frame_shape"]
         size = getattr(enc, "image_size", h)
@@ -326,6 +343,17 @@ class RunDir:
         was, now = flat(old), flat(record)
         if "fingerprint" not in old["data"]:  # recorded before fingerprints existed
             now.pop("data.fingerprint", None)
+        missing = [k for k in CONTEXT_KEYS if k not in old["data"]]
+        if missing:
+            # recorded before the data's context was: the time step and the action box are
+            # in the run's description; the exact derivatives and the executed flags were
+            # not recorded, so they go unchecked
+            described, _ = run_description(old, self.path / self.CONFIG)
+            for k in missing:
+                if k in described:
+                    was[f"data.{k}"] = described[k]
+                else:
+                    now.pop(f"data.{k}", None)
         return [f"{k.removeprefix('train.')} (run {was.get(k)!r}, now {now.get(k)!r})"
                 for k in sorted(set(was) | set(now))
                 if k.removeprefix("train.") not in ignore and was.get(k) != now.get(k)]

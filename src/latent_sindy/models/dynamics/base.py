@@ -200,8 +200,9 @@ class SparseDynamics(LatentDynamics):
         """The effective coefficients M ⊙ Ψ: (p, nz)."""
         raise NotImplementedError
 
-    def threshold(self, tau: float) -> int:
-        """Prune active coefficients with ``|Ψ| < tau``; return how many were newly pruned."""
+    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
+        """Prune active coefficients with ``|Ψ| < tau`` (``|Ψ| · scale < tau`` with weights
+        ``scale`` (p, nz)); return how many were newly pruned."""
         raise NotImplementedError
 
     def set_coefficients(self, coef: torch.Tensor, mask: torch.Tensor | None = None

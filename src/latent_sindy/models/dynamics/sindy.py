@@ -126,15 +126,17 @@ class SindyDynamics(SparseDynamics):
         return z + theta @ self.coefficients()  # (K, nz)
 
     @torch.no_grad()
-    def threshold(self, tau: float) -> int:
-        """Prune active coefficients with ``|Ψ| < tau``; return how many were newly pruned.
+    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
+        """Prune active coefficients with ``|Ψ| < tau`` (with weights ``scale`` (p, nz):
+        ``|Ψ| · scale < tau``); return how many were newly pruned.
 
         Compares magnitudes, so negative coefficients are judged like positive ones. The mask
         only goes from on to off; pruned entries of Ψ are set to 0.
         """
         if tau < 0 or math.isnan(tau):
             raise ValueError(f"threshold tau must be a non-negative number, got {tau}")
-        newly = self.mask & (self.psi.abs() < tau)
+        size = self.psi.abs() if scale is None else self.psi.abs() * scale
+        newly = self.mask & (size < tau)
         self.mask &= ~newly
         self.psi.masked_fill_(~self.mask, 0.0)
         return int(newly.sum())

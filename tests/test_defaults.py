@@ -1,0 +1,95 @@
+"""The estimator's defaults on data nobody tuned them to: the batch size follows the data's
+size, and pruning is scale-free (a term's share of its state's update, not |Ψ|), so a small
+action term that moves the latent is kept however small its coefficient."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
+from latent_sindy.models.dynamics.sindy import SindyDynamics
+from latent_sindy.models.latent_model import ModelConfig
+from latent_sindy.training.config import AUTO_BATCH, TrainConfig, resolve_prune
+from latent_sindy.training.core import prune, share_scale
+from latent_sindy.training.prepare import settle_settings
+
+
+def _data(n: int, steps: int) -> SequenceData:
+    images = np.zeros((n, steps + 1, 1, 4, 4), np.uint8)
+    return SequenceData(images, np.zeros((n, steps, 1), np.float32), [-1], [1])
+
+
+@pytest.mark.parametrize("n, steps, window", [(10, 8, 1), (60, 8, 1), (200, 8, 1),
+                                              (200, 8, 3), (5000, 20, 1)])
+def test_the_batch_size_gives_every_epoch_about_16_updates(n, steps, window) -> None:
+    data = _data(n, steps)
+    cfg = settle_settings(TrainConfig(window=window), data)
+    windows = data.split("train").n * (steps - window + 1)
+    updates = math.ceil(windows / cfg.batch_size)
+    low, high = AUTO_BATCH
+    assert low <= cfg.batch_size <= high
+    assert updates >= 16 or cfg.batch_size == low   # small data: batches of the least size
+    assert updates <= 17 or cfg.batch_size == high  # large data: batches of the most
+
+
+def test_a_given_batch_size_is_kept() -> None:
+    assert settle_settings(TrainConfig(batch_size=7), _data(60, 8)).batch_size == 7
+
+
+def _identity_model(dyn: SindyDynamics) -> SimpleNamespace:
+    return SimpleNamespace(encode=lambda x: x, dynamics=dyn)
+
+
+def _small_action_model() -> tuple[SimpleNamespace, torch.Tensor, torch.Tensor]:
+    """z[t+1] = z + 5e-4 u with u of unit size: the action moves z by ~5e-4 a step, all of its
+    update; z's own term (1e-5 z) moves it by a fiftieth of that."""
+    dyn = SindyDynamics(1, 1, order=1, include_sine=False, seed=0)
+    names = list(dyn.library.names)
+    coef = torch.zeros_like(dyn.psi)
+    coef[names.index("u0"), 0] = 5e-4
+    coef[names.index("z0"), 0] = 1e-5
+    dyn.set_coefficients(coef)
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(8, 5, 1, generator=g)      # 8 sequences of 5 latents (the "frames")
+    u = torch.randn(8, 4, 1, generator=g)
+    return _identity_model(dyn), x, u
+
+
+def test_relative_pruning_keeps_a_small_action_term_that_moves_the_state() -> None:
+    model, x, u = _small_action_model()
+    opt = torch.optim.AdamW([model.dynamics.psi])
+    prune(model, opt, 0.05, share_scale(model, x, u))
+    kept = dict(zip(model.dynamics.library.names, model.dynamics.mask[:, 0].tolist(),
+                    strict=True))
+    assert kept["u0"] and not kept["z0"]  # u kept; z, a fiftieth of the update, pruned
+
+
+def test_absolute_pruning_kills_the_same_action_term() -> None:
+    model, _, _ = _small_action_model()
+    prune(model, torch.optim.AdamW([model.dynamics.psi]), 1e-3)
+    assert not model.dynamics.mask.any()
+
+
+def test_the_share_does_not_depend_on_the_scale_of_the_latent() -> None:
+    model, x, u = _small_action_model()
+    base = share_scale(model, x, u) * model.dynamics.coefficients().abs()
+    model.dynamics.set_coefficients(model.dynamics.coefficients() * 1000)
+    scaled = share_scale(model, x, u) * model.dynamics.coefficients().abs()
+    assert torch.allclose(base, scaled, rtol=1e-4)
+
+
+def test_continuous_time_prunes_absolute_and_refuses_relative() -> None:
+    continuous = ModelConfig(dynamics=ContinuousSindyConfig())
+    assert resolve_prune(TrainConfig(model=continuous)) == "absolute"
+    assert resolve_prune(TrainConfig()) == "relative"
+    with pytest.raises(UserError, match="--prune relative"):
+        TrainConfig(model=continuous, prune="relative")
+    with pytest.raises(UserError, match="--prune"):
+        TrainConfig(prune="sometimes")
