@@ -13,7 +13,7 @@ import numpy as np
 from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
 from latent_sindy.experiments.evaluation import aggregate
 from latent_sindy.experiments.results import CONTROL_METRICS, Baselines, Evaluations, Study
-from latent_sindy.worlds.push.episodes import wilson_interval
+from latent_sindy.stats import wilson_interval
 
 
 def _control(rng: np.random.Generator, episodes: int) -> dict[str, float]:

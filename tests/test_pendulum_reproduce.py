@@ -13,9 +13,9 @@ import pytest
 
 from latent_sindy.cli import main
 from latent_sindy.locks import exclusive
+from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.pendulum import VIDEO, WORLD, video_pca, video_study
 from latent_sindy.worlds.pendulum import study as study_module
-from latent_sindy.worlds.pendulum.study import wilson_interval
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

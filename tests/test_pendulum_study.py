@@ -11,6 +11,7 @@ import torch
 
 from latent_sindy.control.costs import LatentCost
 from latent_sindy.errors import UserError
+from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.pendulum import PendulumConfig, PendulumWorld, physics
 from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost, graph_distances
 from latent_sindy.worlds.pendulum.render import observe
@@ -20,7 +21,6 @@ from latent_sindy.worlds.pendulum.study import (
     StudyConfig,
     fit_image_model,
     run_study,
-    wilson_interval,
 )
 
 
@@ -129,3 +129,9 @@ def test_the_tabulated_graph_cost_reads_like_the_exact_one():
     assert float(table.distance(far)) > float(table.distance(torch.tensor([[1.2, 0, 0]])))
     bad = torch.tensor([[float("nan"), 0.0, 0.0], [float("inf"), 0.0, 0.0]])
     assert torch.isinf(table.distance(bad)).all()  # diverged rollouts cost inf
+
+
+def test_one_wilson_interval_and_no_rate_without_trials():
+    assert all(math.isnan(end) for end in wilson_interval(0, 0))
+    with pytest.raises(UserError, match="0 <= successes <= trials"):
+        wilson_interval(-1, 4)

@@ -23,7 +23,7 @@ from latent_sindy.experiments import figures
 from latent_sindy.experiments.evaluation import aggregate
 from latent_sindy.experiments.overview import overview, overview_table
 from latent_sindy.experiments.study_report import write_report
-from latent_sindy.worlds.push.episodes import wilson_interval
+from latent_sindy.stats import wilson_interval
 
 WIDTH, HEIGHT = 1280, 800
 

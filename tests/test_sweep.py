@@ -15,8 +15,8 @@ from latent_sindy.experiments.reproduce import reproduce
 from latent_sindy.experiments.scales import SCALES
 from latent_sindy.experiments.sweeps import Sweep, parse_seeds
 from latent_sindy.experiments.table import sweep_rows
+from latent_sindy.stats import wilson_interval
 from latent_sindy.training import RunDir
-from latent_sindy.worlds.push.episodes import wilson_interval
 
 
 @pytest.mark.parametrize(("args", "seeds"), [

@@ -19,7 +19,7 @@ from latent_sindy.experiments.catalogue import ModelSpec
 from latent_sindy.experiments.evaluation import Stat
 from latent_sindy.experiments.results import Study
 from latent_sindy.experiments.table import format_stat, pooled_counts
-from latent_sindy.worlds.push.episodes import wilson_interval
+from latent_sindy.stats import wilson_interval
 
 __all__ = ["CONDITION", "ModelRow", "Overview", "Success", "overview", "overview_table",
            "reproduction_notes"]

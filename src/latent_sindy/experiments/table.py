@@ -19,7 +19,7 @@ from typing import IO
 
 from latent_sindy.atomic import write_atomic
 from latent_sindy.experiments.evaluation import Stat, mean_std
-from latent_sindy.worlds.push.episodes import wilson_interval
+from latent_sindy.stats import wilson_interval
 
 __all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "pooled_counts", "sweep_rows",
            "table1_rows", "write_sweep_table", "write_table1"]

@@ -284,7 +284,7 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
     there before with the same settings is read back)."""
     import torch
 
-    from latent_sindy.worlds.pendulum.study import wilson_interval
+    from latent_sindy.stats import wilson_interval
 
     seeds = tuple(seeds) if seeds else (0,)
     configs = {s: pendulum_config(scale, s, device) for s in seeds}

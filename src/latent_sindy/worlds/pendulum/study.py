@@ -34,6 +34,7 @@ from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models import LossWeights
+from latent_sindy.stats import wilson_interval
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.centroid_sindy import (
@@ -49,8 +50,7 @@ from latent_sindy.worlds.pendulum.render import observe
 from latent_sindy.worlds.pendulum.state_sindy import StateSindy
 from latent_sindy.worlds.pendulum.swing_up import StateMPPI, SwingUp, run_swing_up
 
-__all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study",
-           "wilson_interval"]
+__all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study"]
 
 MODELS = ("sindy", "mlp", "linear")
 
@@ -144,16 +144,6 @@ class StudyConfig:
     def mppi(self) -> MPPIConfig:
         return MPPIConfig(samples=self.samples, horizon=self.horizon, sigma=self.sigma,
                           lambda_=self.lambda_)
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """The 95 % Wilson score interval of ``successes`` in ``n`` (well behaved at 0 and n)."""
-    if n < 1 or not 0 <= successes <= n:
-        raise UserError(f"wilson_interval: {successes} successes in {n} trials")
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 class LatentSwingUp:

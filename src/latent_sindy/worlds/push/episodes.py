@@ -37,6 +37,7 @@ from latent_sindy.control.planner import feasible_action
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.models.state import pose_cost_weights
+from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.reach import Reach
 
@@ -265,16 +266,6 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
         plan_ms_max=float(np.max(plan_ms)) if plan_ms else 0.0,
         discarded=discarded, pushes_executed=executed, pushes_replaced=replaced,
         reach_ms_mean=float(np.mean(reach_ms)) if reach_ms else 0.0, actions=actions)
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """The 95 % Wilson score interval of a success rate (well behaved at 0 and n)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def summarize(results: list[EpisodeResult]) -> dict[str, float]:
