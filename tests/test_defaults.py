@@ -93,3 +93,68 @@ def test_continuous_time_prunes_absolute_and_refuses_relative() -> None:
         TrainConfig(model=continuous, prune="relative")
     with pytest.raises(UserError, match="--prune"):
         TrainConfig(prune="sometimes")
+
+
+# ------------------------------------------------------------------ several starts
+def _images_data(seed: int = 0) -> SequenceData:
+    rng = np.random.default_rng(seed)
+    images = rng.integers(0, 256, (12, 4, 1, 8, 8), dtype=np.uint8)
+    actions = rng.uniform(-1, 1, (12, 3, 2)).astype(np.float32)
+    return SequenceData(images, actions, [-1, -1], [1, 1])
+
+
+SMALL = {"encoder": "mlp", "decoder": "mlp", "order": 1, "include_sine": False}
+
+
+def _states_equal(a: torch.nn.Module, b: torch.nn.Module) -> None:
+    sa, sb = a.state_dict(), b.state_dict()
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        assert torch.equal(sa[k], sb[k]), k
+
+
+def test_the_start_of_lowest_objective_continues_as_if_it_were_the_only_one() -> None:
+    from latent_sindy import LatentSINDy
+
+    data = _images_data()
+    several = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=4, starts=3, start_epochs=2)
+    info = several.kept_["start"]
+    assert info["objectives"][info["chosen"]] == min(info["objectives"])
+    assert info["seeds"][0] == 0 and len(set(info["seeds"])) == 3
+    alone = LatentSINDy(2, seed=info["seeds"][info["chosen"]], **SMALL).fit(
+        data, epochs=4, starts=1)
+    _states_equal(several.model_, alone.model_)
+    assert [r["train/total"] for r in several.metrics_] == [
+        r["train/total"] for r in alone.metrics_]
+
+
+def test_one_start_is_the_seeds_run_and_several_choose_differently() -> None:
+    from latent_sindy import LatentSINDy
+
+    data = _images_data()
+    one = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=3, starts=1)
+    assert "start" not in one.kept_
+    objectives = LatentSINDy(2, seed=0, **SMALL).fit(
+        data, epochs=3, starts=4, start_epochs=1).kept_["start"]["objectives"]
+    assert len(set(objectives)) == 4  # the starts are different models
+
+
+def test_a_run_folder_with_several_starts_resumes_to_the_same_model(tmp_path) -> None:
+    from latent_sindy import LatentSINDy
+
+    data = _images_data()
+    kw = {"starts": 3, "start_epochs": 2}
+    whole = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=5, out=tmp_path / "whole", **kw)
+    LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, out=tmp_path / "cut", **kw)
+    resumed = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=5, out=tmp_path / "cut",
+                                                  resume=True, **kw)
+    _states_equal(whole.model_, resumed.model_)
+    assert resumed.kept_["start"] == whole.kept_["start"]
+    assert len(resumed.metrics_) == 5
+
+
+def test_start_settings_are_checked() -> None:
+    with pytest.raises(UserError, match="--starts 0"):
+        TrainConfig(starts=0)
+    with pytest.raises(UserError, match="--start-epochs 0"):
+        TrainConfig(start_epochs=0)

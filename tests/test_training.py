@@ -63,7 +63,7 @@ def config(data: Path, out: Path, kind: str = "sindy", **kw) -> TrainConfig:
     dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw.pop("dynamics", {})
     auto = AutoencoderConfig(**{**TINY_AE, **kw.pop("autoencoder", {})})
     model = ModelConfig(encoder=auto, dynamics=DYNAMICS_KINDS[kind](**dyn))
-    kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "threshold_every": 0, **kw}
+    kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "threshold_every": 0, "starts": 1, **kw}
     return TrainConfig(data=data, out=out, model=model, **kw)
 
 

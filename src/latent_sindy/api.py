@@ -42,17 +42,16 @@ from latent_sindy.training.config import (
     resolve_device,
     resolve_parallel,
 )
-from latent_sindy.training.core import FitResult, fit
 from latent_sindy.training.prepare import (
     fit_after,
     new_model,
     regression_init,
     settle_model,
     settle_settings,
-    training_tensors,
 )
 from latent_sindy.training.record import resolve_model, run_record
 from latent_sindy.training.runs import RunDir
+from latent_sindy.training.starts import first_start
 
 __all__ = ["LatentSINDy"]
 
@@ -170,18 +169,17 @@ class LatentSINDy:
         device = torch.device(resolve_device(cfg.device))
         norm = Normalizer.from_dict(record["normalizer"])
         model_cfg = settle_model(record, data, norm, cfg, device)
-        model, opt, gen = new_model(model_cfg, cfg, device)
-        regression = regression_init(cfg, model)
-        tensors = training_tensors(model, data, norm, cfg, device, regression=regression)
+        built = new_model(model_cfg, cfg, device)
+        regression = regression_init(cfg, built[0])
         threads = torch.get_num_threads()
-        parallel = resolve_parallel(cfg, device.type, threads)
+        parts = threads if resolve_parallel(cfg, device.type, threads) == "batch" else 1
         progress = progress or Silent()
-        progress.start(cfg.epochs, 0)
+        start = first_start(model_cfg, cfg, device, data, norm, regression, parts, progress,
+                            built)
+        model = start.model
+        progress.start(cfg.epochs, start.done)
         try:
-            result: FitResult = fit(model, opt, gen, tensors.train, tensors.val, cfg,
-                                    per_batch=tensors.per_batch,
-                                    parts=threads if parallel == "batch" else 1,
-                                    on_epoch=lambda e, row: progress.update(e, row))
+            result = start.fit(cfg, parts, lambda e, row: progress.update(e, row))
         finally:
             progress.close()
         model.load_state_dict(result.state)

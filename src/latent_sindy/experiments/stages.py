@@ -226,7 +226,7 @@ def train_config(plan: StudyPlan, spec: ModelSpec, seed: int, data: Path) -> Tra
                        epochs=scale.epochs * spec.epochs_factor,
                        batch_size=scale.batch_size, lr=scale.lr,
                        threshold=scale.threshold if spec.threshold is None else spec.threshold,
-                       prune="absolute",
+                       prune="absolute", starts=1,
                        threshold_every=scale.threshold_every * spec.epochs_factor,
                        eval_every=scale.eval_every * spec.epochs_factor,
                        sindy_init_threshold=spec.init_threshold,

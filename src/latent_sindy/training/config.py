@@ -91,6 +91,12 @@ class TrainConfig:
     """AdamW betas (the paper: 0.9, 0.999)."""
     weight_decay: float = 0.01
     """AdamW decoupled weight decay (PyTorch's default, which the paper kept)."""
+    starts: int = 4
+    """Initialisations tried (seeds derived from --seed): each trains --start-epochs, and the
+    one of lowest validation objective continues to --epochs (the paper kept the best of ten
+    runs). 1: the seed's alone. Costs (starts - 1) x start-epochs more epochs."""
+    start_epochs: int | None = None
+    """Epochs each start trains before the choice (None: a fifth of --epochs)."""
     threshold: float = 1e-3
     """SINDy: prune the coefficients below this, as --prune measures them (the paper: |Ψ|
     below 1e-3)."""
@@ -160,6 +166,10 @@ class TrainConfig:
             (self.window >= 1, f"--window {self.window}: windows need at least 1 push"),
             (self.batch_size is None or self.batch_size >= 1,
              f"--batch-size {self.batch_size}: use 1 or more (or None: chosen from the data)"),
+            (self.starts >= 1, f"--starts {self.starts}: use 1 or more"),
+            (self.start_epochs is None or self.start_epochs >= 1,
+             f"--start-epochs {self.start_epochs}: use 1 or more (or None: a fifth of "
+             "--epochs)"),
             (self.prune in PRUNINGS,
              f"--prune {self.prune!r} is unknown: use one of {', '.join(PRUNINGS)}"),
             (self.lr > 0 and finite(self.lr), f"--lr {self.lr}: use a finite positive number"),

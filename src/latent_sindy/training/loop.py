@@ -36,7 +36,6 @@ from latent_sindy.training.config import TrainConfig, resolve_device, resolve_pa
 from latent_sindy.training.core import (
     BestValidation,
     TrainingDiverged,
-    fit,
     keep_freed_memory,
     to_cpu,
 )
@@ -51,6 +50,7 @@ from latent_sindy.training.prepare import (
 )
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
+from latent_sindy.training.starts import Start, first_start
 
 __all__ = ["TrainingDiverged", "check_training_memory", "restore_finished", "run_record",
            "train"]
@@ -258,8 +258,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     regression = regression_init(cfg, model)  # (checks the settings before anything is written)
     threads = torch.get_num_threads()
     parallel = resolve_parallel(cfg, device.type, threads)
-    metrics: list[dict[str, Any]] = []
-    done, best = 0, BestValidation()
+    start = None
     if ckpt is not None:
         metrics, done, best = _resume(ckpt, run, cfg, model, opt, gen, device,
                                       (device.type, threads, parallel), progress)
@@ -267,33 +266,42 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
         run.clear()
     run.path.mkdir(parents=True, exist_ok=True)
     run.write_record(record)
-    run.write_metrics(metrics)  # drops rows logged after the checkpoint
-
-    tensors = training_tensors(model, data, norm, cfg, device, fresh=ckpt is None,
-                               regression=regression)
+    if ckpt is None:
+        start = first_start(model_cfg, cfg, device, data, norm, regression,
+                            threads if parallel == "batch" else 1, progress, (model, opt, gen))
+        model, opt, gen, tensors = start.model, start.opt, start.gen, start.tensors
+        metrics, done, best = start.metrics, start.done, start.best
+    else:
+        tensors = training_tensors(model, data, norm, cfg, device, fresh=False)
+    chosen = start.info if start is not None else ckpt.get("start")
+    run.write_metrics(metrics)  # drops rows logged after the checkpoint (or a start's probe)
     if tensors.val is None:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     last_ckpt = done or None
 
-    def on_epoch(epoch: int, row: dict[str, Any]) -> None:
+    def checkpoint(epoch: int) -> None:
         nonlocal last_ckpt
+        run.save_torch(run.CHECKPOINT, {
+            "epoch": epoch, "model": to_cpu(model.state_dict()),
+            "optimizer": to_cpu(opt.state_dict()), "generator": gen.get_state(),
+            "metrics": metrics, "best": best.to_checkpoint(), "device": device.type,
+            "threads": threads, "parallel": parallel, "start": chosen})
+        last_ckpt = epoch
+
+    if start is not None and done:  # the chosen start resumes from here, not the probes
+        checkpoint(done)
+
+    def on_epoch(epoch: int, row: dict[str, Any]) -> None:
         run.append_metrics(row)
         if epoch % cfg.checkpoint_every == 0 or epoch == cfg.epochs:
-            run.save_torch(run.CHECKPOINT, {
-                "epoch": epoch, "model": to_cpu(model.state_dict()),
-                "optimizer": to_cpu(opt.state_dict()), "generator": gen.get_state(),
-                "metrics": metrics,
-                "best": best.to_checkpoint(), "device": device.type, "threads": threads,
-                "parallel": parallel})
-            last_ckpt = epoch
+            checkpoint(epoch)
         progress.update(epoch, row)
 
     progress.start(cfg.epochs, done)
     try:
-        result = fit(model, opt, gen, tensors.train, tensors.val, cfg,
-                     per_batch=tensors.per_batch,
-                     parts=threads if parallel == "batch" else 1, done=done,
-                     metrics=metrics, best=best, on_epoch=on_epoch)
+        if start is None:  # resumed: the start was chosen before the checkpoint
+            start = Start(model, opt, gen, tensors, done, metrics, best, chosen)
+        result = start.fit(cfg, threads if parallel == "batch" else 1, on_epoch)
         kept = result.kept
         if kept["selection"] == "best validation":
             progress.note(f"kept the weights of epoch {kept['epoch']} of {cfg.epochs}: the "

@@ -75,6 +75,10 @@ DERIVED: tuple[tuple[str, str, Any], ...] = (
 )
 
 
+#: Training settings added after runs were recorded, at the values those runs had: batches
+#: of windows, |Ψ| thresholds, one start.
+SINCE_ADDED = {"batching": "windows", "prune": "absolute", "starts": 1, "start_epochs": None}
+
 #: Parts of the model record under the names runs recorded before the renaming used.
 _OLD_PARTS = {"observation": "encoder"}
 
@@ -191,13 +195,8 @@ class RunDir:
             raise UserError(f"{path} has run format version {version}; this latent-sindy "
                             f"reads versions 1 and {RUN_FORMAT_VERSION}: retrain the run")
         train = record.get("train")
-        if isinstance(train, dict) and "batching" not in train:
-            # recorded before the setting existed, when every run was batched by windows
-            record = {**record, "train": {**train, "batching": "windows"}}
-            train = record["train"]
-        if isinstance(train, dict) and "prune" not in train:
-            # recorded before the setting existed, when every threshold compared |Ψ|
-            record = {**record, "train": {**train, "prune": "absolute"}}
+        if isinstance(train, dict):  # settings older runs predate, as they were trained
+            record = {**record, "train": {**SINCE_ADDED, **train}}
         return record
 
     def write_record(self, record: Mapping[str, Any]) -> None:

@@ -248,7 +248,7 @@ class StudyResult:
 def fit_image_model(data: SequenceData, kind: str, config: StudyConfig) -> LatentSINDy:
     """One image model of the study (``kind``: sindy, mlp or linear)."""
     model = LatentSINDy(latent_dim=config.latent_dim, dynamics=kind, order=config.order,
-                        seed=config.seed, settings=TrainConfig(lr=3e-3, prune="absolute"),
+                        seed=config.seed, settings=TrainConfig(lr=3e-3, prune="absolute", starts=1),
                         device=config.device,
                         loss=LossWeights(lambda_l1=config.lambda_l1))
     return model.fit(data, epochs=config.epochs, batch_size=64, window=config.window)

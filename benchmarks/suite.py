@@ -1,0 +1,184 @@
+"""The estimator's defaults on systems nobody tuned them to: one command, one table.
+
+Each system is a small image data set written here from a seed (nothing is downloaded); every
+row fits ``LatentSINDy(latent_dim=...)`` with the library's defaults only, and measures on
+the test sequences:
+
+- one-step: the image MSE of ``predict`` over that of "nothing moves" (the next frame taken
+  to be the current one), as a ratio (> 1: better than nothing moves);
+- rollout: the same over the whole sequence, simulated from its first frame;
+- terms: active SINDy terms, and how many of them hold an action;
+- the wall time of the fit.
+
+    python benchmarks/suite.py                           # every system, seeds 0 1 2
+    python benchmarks/suite.py --systems disc --seeds 0..7
+    python benchmarks/suite.py --set batch_size=500 prune=absolute   # another setting, A/B
+
+``--set`` changes a training setting for every row (to compare against the defaults in the
+same run); the table says which. Rows run in ``--workers`` processes of one torch thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+SEQUENCES, STEPS = 60, 8
+
+
+@dataclass(frozen=True)
+class System:
+    """A data generator and the latent size a user would pick for it."""
+
+    make: object  # (seed) -> SequenceData
+    latent_dim: int
+    what: str
+
+
+def _render(centres: np.ndarray, shape: tuple[int, int], radius: float, colour: np.ndarray,
+            background: np.ndarray) -> np.ndarray:
+    """Frames (..., C, H, W) uint8 of a soft-edged disc at ``centres`` (..., 2) in pixels."""
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    d = np.hypot(xx - centres[..., 0, None, None], yy - centres[..., 1, None, None])
+    alpha = 1.0 / (1.0 + np.exp((d - radius) / 0.5))  # (..., H, W)
+    img = background[:, None, None] + alpha[..., None, :, :] * (colour - background)[:, None, None]
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def _disc(seed: int, shape=(20, 28), channels=3, speed=0.2, radius=3.0, actions=True):
+    """A disc moved by a 2-D velocity (pixels per step: ``speed`` of the image's short side
+    per unit action), or, without actions, turning on a circle at a fixed rate."""
+    from latent_sindy import SequenceData
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    colour = np.array([230, 60, 40][:channels] if channels == 3 else [220] * channels, float)
+    background = np.array([20, 30, 90][:channels] if channels == 3 else [30] * channels, float)
+    lo = np.array([radius + 1, radius + 1])
+    hi = np.array([w - radius - 2, h - radius - 2])
+    if actions:
+        u = rng.uniform(-1, 1, (SEQUENCES, STEPS, 2)).astype(np.float32)
+        p = np.empty((SEQUENCES, STEPS + 1, 2))
+        p[:, 0] = rng.uniform(lo, hi, (SEQUENCES, 2))
+        for t in range(STEPS):
+            p[:, t + 1] = np.clip(p[:, t] + speed * min(h, w) * u[:, t], lo, hi)
+        images = _render(p, shape, radius, colour, background)
+        return SequenceData(images, u, [-1, -1], [1, 1], seed=seed)
+    phase = rng.uniform(0, 2 * np.pi, SEQUENCES)[:, None] + 0.3 * np.arange(STEPS + 1)
+    r = rng.uniform(0.15, 0.3, SEQUENCES)[:, None] * min(h, w)
+    centre = np.array([w / 2, h / 2])
+    p = centre + np.stack([r * np.cos(phase), r * np.sin(phase)], -1)
+    return SequenceData(_render(p, shape, radius, colour, background), seed=seed)
+
+
+SYSTEMS: dict[str, System] = {
+    "disc": System(lambda s: _disc(s), 2, "RGB 20x28 disc, 2-D velocity, 0.2 of a side a step"),
+    "disc-gray": System(lambda s: _disc(s, (16, 16), 1, 0.1, 2.5), 2,
+                        "gray 16x16 disc, 2-D velocity, 0.1 of a side a step"),
+    "disc-slow": System(lambda s: _disc(s, (32, 32), 3, 0.05, 4.0), 2,
+                        "RGB 32x32 disc, 2-D velocity, 0.05 of a side a step"),
+    "orbit": System(lambda s: _disc(s, (24, 24), 1, actions=False), 2,
+                    "gray 24x24 disc on a circle (no actions), 0.3 rad a step"),
+}
+
+
+def _seeds(text: list[str]) -> list[int]:
+    out: list[int] = []
+    for t in text:
+        a, _, b = t.partition("..")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def _setting(text: str) -> tuple[str, object]:
+    key, _, value = text.partition("=")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def run_row(name: str, seed: int, settings: dict[str, object]) -> dict[str, object]:
+    """Fit ``name``'s data of ``seed`` with the defaults (and ``settings``) and measure it."""
+    import torch
+
+    from latent_sindy import LatentSINDy
+
+    torch.set_num_threads(1)
+    system = SYSTEMS[name]
+    data = system.make(seed)
+    t0 = time.perf_counter()
+    est = LatentSINDy(system.latent_dim, seed=seed).fit(data, **settings)
+    wall = time.perf_counter() - t0
+    test = data.split("test")
+    x = test.images.astype(np.float64)
+    nu = test.actions.shape[-1]
+    frames = test.images[:, :-1].reshape(-1, *test.frame_shape)
+    u = test.actions.reshape(len(frames), nu)
+    pred = est.predict(frames, u).astype(np.float64).reshape(x[:, 1:].shape)
+    one = float(((pred - x[:, 1:]) ** 2).mean())
+    still = float(((x[:, :-1] - x[:, 1:]) ** 2).mean())
+    rolled = np.stack([est.simulate(test.images[i, 0], test.actions[i])[1]
+                       for i in range(test.n)]).astype(np.float64)
+    roll = float(((rolled[:, 1:] - x[:, 1:]) ** 2).mean())
+    roll_still = float(((x[:, :1] - x[:, 1:]) ** 2).mean())
+    dyn = est.model_.dynamics
+    mask = dyn.mask.cpu().numpy()  # (p, nz)
+    names = list(dyn.library.names)
+    action_terms = int(sum(mask[k].sum() for k, n in enumerate(names) if "u" in n))
+    return {"system": name, "seed": seed, "one_step": still / one, "rollout": roll_still / roll,
+            "terms": int(mask.sum()), "action_terms": action_terms, "wall_s": wall,
+            "kept_epoch": est.kept_["epoch"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
+    p.add_argument("--seeds", nargs="+", default=["0..2"], help="seeds: 0 1 2 or 0..7")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="training settings for every row (TrainConfig fields)")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--json", help="also write the rows to this file")
+    args = p.parse_args(argv)
+    settings = dict(_setting(s) for s in args.set)
+    jobs = [(n, s) for n in args.systems for s in _seeds(args.seeds)]
+    print(f"{len(jobs)} fits, settings: {settings or 'the defaults'}", file=sys.stderr)
+    rows = []
+    with ProcessPoolExecutor(args.workers) as pool:
+        futures = [pool.submit(run_row, n, s, settings) for n, s in jobs]
+        for f in futures:
+            rows.append(f.result())
+            r = rows[-1]
+            print(f"  {r['system']} seed {r['seed']}: one-step {r['one_step']:.1f}x, rollout "
+                  f"{r['rollout']:.1f}x, {r['terms']} terms ({r['action_terms']} with u), "
+                  f"{r['wall_s']:.0f} s", file=sys.stderr)
+    print("\n| system | seeds | one-step vs nothing moves (min / median) | seeds >= 3x | "
+          "rollout (median) | terms (median) | action terms kept | wall s (median) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in args.systems:
+        rs = [r for r in rows if r["system"] == name]
+        one = [r["one_step"] for r in rs]
+        acted = sum(r["action_terms"] > 0 for r in rs)
+        print(f"| {name} | {len(rs)} | {min(one):.1f}x / {np.median(one):.1f}x | "
+              f"{sum(o >= 3 for o in one)} of {len(rs)} | "
+              f"{np.median([r['rollout'] for r in rs]):.1f}x | "
+              f"{np.median([r['terms'] for r in rs]):.0f} | "
+              + (f"{acted} of {len(rs)}" if SYSTEMS[name].make(0).actions.shape[-1] else "-")
+              + f" | {np.median([r['wall_s'] for r in rs]):.0f} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"settings": settings, "rows": rows}, f, indent=1)
+    bad = [r for r in rows if not math.isfinite(r["one_step"])]
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,124 @@
+"""Where training starts: a fresh model, its optimiser, generator and tensors; with several
+starts, the one of lowest validation objective after a short probe.
+
+An autoencoder and its sparse dynamics find a good model from some initialisations and not
+from others (the paper kept the best of ten runs). ``TrainConfig.starts`` candidates, seeded
+from ``--seed``, each train ``start_epochs``; the best continues to ``--epochs`` as if it had
+been the only one (its metrics from epoch 1, its optimiser and batches as they were).
+
+    start = first_start(model_cfg, cfg, device, data, norm, regression, parts, progress)
+    result = start.fit(cfg, parts, on_epoch)   # from epoch start.done + 1
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.models.latent_model import LatentModel
+from latent_sindy.progress import Progress
+from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.core import BestValidation, FitResult, TrainingDiverged, fit
+from latent_sindy.training.prepare import TrainingTensors, new_model, training_tensors
+
+__all__ = ["Start", "first_start", "start_seed"]
+
+
+@dataclass
+class Start:
+    """A model ready to train from epoch ``done`` + 1, and how it was chosen (``info``:
+    None for a single start)."""
+
+    model: LatentModel
+    opt: torch.optim.Optimizer
+    gen: torch.Generator
+    tensors: TrainingTensors
+    done: int = 0
+    metrics: list[dict[str, Any]] = field(default_factory=list)
+    best: BestValidation = field(default_factory=BestValidation)
+    info: dict[str, Any] | None = None
+
+    def fit(self, cfg: TrainConfig, parts: int = 1,
+            on_epoch: Callable[[int, dict[str, Any]], None] | None = None) -> FitResult:
+        """Train from epoch ``done`` + 1 to ``cfg.epochs``
+        (:func:`~latent_sindy.training.core.fit`); the kept weights' record says how the
+        start was chosen (``"start"``) where there were several."""
+        result = fit(self.model, self.opt, self.gen, self.tensors.train, self.tensors.val,
+                     cfg, per_batch=self.tensors.per_batch, parts=parts, done=self.done,
+                     metrics=self.metrics, best=self.best, on_epoch=on_epoch)
+        if self.info is not None:
+            result.kept["start"] = self.info
+        return result
+
+
+def start_seed(seed: int, k: int) -> int:
+    """The seed of candidate ``k`` of a run of ``seed``: the seed itself for the first (one
+    start is the run it always was), independent streams for the others."""
+    if k == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, k]).generate_state(1)[0])
+
+
+def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: SequenceData,
+                norm: Normalizer, regression: bool, parts: int, progress: Progress,
+                first: tuple[LatentModel, torch.optim.Optimizer, torch.Generator] | None = None
+                ) -> Start:
+    """The model a fresh run trains: seeded by ``cfg.seed`` where ``cfg.starts`` is 1, else
+    the candidate whose validation objective after ``cfg.start_epochs`` is lowest (ties: the
+    earlier), with its metrics, selection state and optimiser. ``first``: the seed's model,
+    optimiser and generator where the caller has built them (:func:`new_model`)."""
+    def candidate(seed: int) -> Start:
+        run_cfg = dataclasses.replace(cfg, seed=seed)
+        if seed == cfg.seed and first is not None:
+            model, opt, gen = first
+        else:
+            model, opt, gen = new_model(model_cfg, run_cfg, device)
+        tensors = training_tensors(model, data, norm, run_cfg, device, regression=regression)
+        return Start(model, opt, gen, tensors)
+
+    if cfg.starts == 1:
+        return candidate(cfg.seed)
+    probe = min(cfg.epochs, cfg.start_epochs or max(1, cfg.epochs // 5))
+    chosen: Start | None = None
+    diverged: TrainingDiverged | None = None
+    seeds, scores = [], []
+    for k in range(cfg.starts):
+        seed = start_seed(cfg.seed, k)
+        start = candidate(seed)
+        short = dataclasses.replace(cfg, seed=seed, epochs=probe, refine_epochs=0)
+        try:
+            result = fit(start.model, start.opt, start.gen, start.tensors.train,
+                         start.tensors.val, short, per_batch=start.tensors.per_batch,
+                         parts=parts)
+        except TrainingDiverged as e:
+            diverged = e
+            seeds.append(seed)
+            scores.append(math.inf)
+            progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}) diverged: {e}")
+            continue
+        last = result.metrics[-1]
+        score = last.get("val/objective")
+        if score is None:  # no validation split: the training objective
+            score = last.get("train/objective", last.get("train/total"))
+        score = float(score) if score is not None and math.isfinite(score) else math.inf
+        seeds.append(seed)
+        scores.append(score)
+        progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}): objective {score:.4g} "
+                      f"after {probe} epochs")
+        if chosen is None or score < min(scores[:-1]):
+            start.done, start.metrics, start.best = probe, result.metrics, result.best
+            chosen = start
+    if chosen is None:  # every candidate diverged
+        raise diverged
+    k = scores.index(min(scores))
+    chosen.info = {"starts": cfg.starts, "epochs": probe, "chosen": k, "seeds": seeds,
+                   "objectives": scores}
+    return chosen
