@@ -158,3 +158,13 @@ def test_start_settings_are_checked() -> None:
         TrainConfig(starts=0)
     with pytest.raises(UserError, match="--start-epochs 0"):
         TrainConfig(start_epochs=0)
+
+
+def test_an_autonomous_model_prunes_relative_and_predicts() -> None:
+    from latent_sindy import LatentSINDy
+
+    rng = np.random.default_rng(0)
+    data = SequenceData(rng.integers(0, 256, (10, 4, 1, 8, 8), dtype=np.uint8))
+    est = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, threshold_every=1, starts=1)
+    assert est.predict(data.images[:3, 0], np.zeros((3, 0))).shape == (3, 1, 8, 8)
+    assert np.isfinite(est.score(data))

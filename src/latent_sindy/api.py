@@ -249,7 +249,8 @@ class LatentSINDy:
         self._check_fitted()
         single = np.ndim(images) == 3
         x = self._observe(np.asarray(images)[None] if single else images, "images", (4,))
-        u = self._actions(actions, () if single else (len(x),)).reshape(len(x), -1)
+        nu = len(self.description_["action_low"])
+        u = self._actions(actions, () if single else (len(x),)).reshape(len(x), nu)
         z_next = self.model_.step(self.model_.encode(x), u)
         out = self._pixels(self.model_.decode(z_next))
         return out[0] if single else out
@@ -293,7 +294,7 @@ class LatentSINDy:
         if part.n == 0:
             raise UserError(f"{data.source} has no {split} sequences to score on")
         x = part.images[:, :-1].reshape(-1, *part.frame_shape)
-        u = part.actions.reshape(len(x), -1)
+        u = part.actions.reshape(len(x), part.actions.shape[-1])
         truth = part.images[:, 1:].reshape(-1, *part.frame_shape).astype(np.float64)
         pred = self.predict(x, u).astype(np.float64)
         sst = float(((truth - truth.mean(0)) ** 2).sum())

@@ -241,9 +241,8 @@ def share_scale(model: LatentModel, x: torch.Tensor, u: torch.Tensor) -> torch.T
     pick = torch.linspace(0, len(x) - 1, min(len(x), SHARE_SEQUENCES)).round().long()
     xs, us = x[pick.to(x.device)], u[pick.to(u.device)]
     z = model.encode(xs.flatten(0, 1)).reshape(*xs.shape[:2], -1)  # (n, L, nz)
-    nz, nu = z.shape[-1], us.shape[-1]
     dyn = model.dynamics
-    theta = dyn.library(z[:, :-1].reshape(-1, nz), us.reshape(-1, nu))  # (M, p)
+    theta = dyn.library(z[:, :-1].flatten(0, 1), us.flatten(0, 1))  # (M, p)
     column = theta.square().mean(0).sqrt()  # (p,)
     update = (theta @ dyn.coefficients()).square().mean(0).sqrt()  # (nz,)
     update = torch.where(update > 0, update, torch.ones_like(update))
