@@ -168,3 +168,29 @@ def test_an_autonomous_model_prunes_relative_and_predicts() -> None:
     est = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, threshold_every=1, starts=1)
     assert est.predict(data.images[:3, 0], np.zeros((3, 0))).shape == (3, 1, 8, 8)
     assert np.isfinite(est.score(data))
+
+
+def test_a_model_that_lost_every_term_says_so_in_one_line(capsys, tmp_path) -> None:
+    from latent_sindy import LatentSINDy
+    from latent_sindy.api import AllTermsPruned
+    from latent_sindy.equations import equations_report
+
+    data = _images_data()
+    kw = {"epochs": 2, "threshold": 1e9, "threshold_every": 1, "starts": 1}
+    with pytest.warns(AllTermsPruned, match="every SINDy term was pruned"):
+        est = LatentSINDy(2, seed=0, **SMALL).fit(data, **kw)
+    est.print()
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "nothing moves" in out[0]
+    with pytest.warns(AllTermsPruned):
+        LatentSINDy(2, seed=0, **SMALL).fit(data, out=tmp_path / "run", **kw)
+    report = equations_report(tmp_path / "run", export=False)
+    assert "every SINDy term was pruned" in report and "z0[t+1]" not in report
+
+
+def test_a_model_with_terms_prints_its_equations(capsys) -> None:
+    from latent_sindy import LatentSINDy
+
+    est = LatentSINDy(2, seed=0, **SMALL).fit(_images_data(), epochs=1, starts=1)
+    est.print()
+    assert capsys.readouterr().out.count("[t+1] =") == 2

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import warnings
 from pathlib import Path
 from typing import Any, Literal
 
@@ -29,8 +30,7 @@ from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.data import SequenceData
 from latent_sindy.data.inputs import check_actions, check_frames
-from latent_sindy.data.windows import Normalizer
-from latent_sindy.equations import name_actions
+from latent_sindy.equations import name_actions, pruned_note
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
@@ -39,21 +39,18 @@ from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import (
     TrainConfig,
     check_fit_settings,
-    resolve_device,
-    resolve_parallel,
 )
 from latent_sindy.training.prepare import (
-    fit_after,
-    new_model,
-    regression_init,
-    settle_model,
     settle_settings,
 )
-from latent_sindy.training.record import resolve_model, run_record
 from latent_sindy.training.runs import RunDir
-from latent_sindy.training.starts import first_start
+from latent_sindy.training.starts import train_in_memory
 
-__all__ = ["LatentSINDy"]
+__all__ = ["AllTermsPruned", "LatentSINDy"]
+
+
+class AllTermsPruned(UserWarning):
+    """A fit whose SINDy model lost every term: it predicts that nothing moves."""
 
 
 class LatentSINDy:
@@ -157,39 +154,18 @@ class LatentSINDy:
 
             cfg = self.train_config(out=Path(out), data=Path(data.source), **settings)
             train(cfg, progress, data=data)
-            return self._adopt(RunDir(out))
-        cfg = settle_settings(self.train_config(**settings), data)
-        if cfg.window > data.steps:
-            raise UserError(f"window {cfg.window} is longer than the sequences of "
-                            f"{data.source} ({data.steps} steps): use 1..{data.steps}")
-        from latent_sindy.training.loop import check_training_memory
-
-        check_training_memory(resolve_model(cfg.model, data, data.source), cfg, data)
-        record = run_record(cfg, data)
-        device = torch.device(resolve_device(cfg.device))
-        norm = Normalizer.from_dict(record["normalizer"])
-        model_cfg = settle_model(record, data, norm, cfg, device)
-        built = new_model(model_cfg, cfg, device)
-        regression = regression_init(cfg, built[0])
-        threads = torch.get_num_threads()
-        parts = threads if resolve_parallel(cfg, device.type, threads) == "batch" else 1
-        progress = progress or Silent()
-        start = first_start(model_cfg, cfg, device, data, norm, regression, parts, progress,
-                            built)
-        model = start.model
-        progress.start(cfg.epochs, start.done)
-        try:
-            result = start.fit(cfg, parts, lambda e, row: progress.update(e, row))
-        finally:
-            progress.close()
-        model.load_state_dict(result.state)
-        if cfg.sindy_fit == "after":
-            fit_after(model, data, norm, cfg, device)
-        self.model_, self.normalizer_ = model.cpu().eval(), norm
-        self.description_ = record["description"]
-        self.world_record_ = record["world"]["record"]
-        self.record_ = {**record, "kept": result.kept}
-        self.metrics_, self.kept_ = result.metrics, result.kept
+            self._adopt(RunDir(out))
+        else:
+            model, norm, record, result = train_in_memory(
+                settle_settings(self.train_config(**settings), data), data,
+                progress or Silent())
+            self.model_, self.normalizer_ = model, norm
+            self.description_ = record["description"]
+            self.world_record_ = record["world"]["record"]
+            self.record_ = {**record, "kept": result.kept}
+            self.metrics_, self.kept_ = result.metrics, result.kept
+        if note := pruned_note(self.model_.dynamics):
+            warnings.warn(note, AllTermsPruned, stacklevel=2)
         return self
 
     def _adopt(self, folder: RunDir) -> LatentSINDy:
@@ -317,8 +293,11 @@ class LatentSINDy:
                                         or []))
 
     def print(self, action_names: list[str] | None = None, precision: int = 3) -> None:
-        """Print :meth:`equations` (with the data's action names unless others are given)."""
-        print("\n".join(self.equations(precision, action_names)))
+        """Print :meth:`equations` (with the data's action names unless others are given), or
+        one line where every SINDy term was pruned."""
+        self._check_fitted()
+        note = pruned_note(self.model_.dynamics)
+        print(note or "\n".join(self.equations(precision, action_names)))
 
     def coefficients(self) -> np.ndarray:
         """The coefficient matrix (candidate terms × latent states) with pruned entries 0

@@ -21,11 +21,12 @@ import json
 import os
 import re
 from collections.abc import Sequence
+from typing import Any
 
 from latent_sindy.atomic import write_atomic
 from latent_sindy.training.runs import RunDir
 
-__all__ = ["equations_report", "name_actions"]
+__all__ = ["equations_report", "name_actions", "pruned_note"]
 
 
 def name_actions(lines: list[str], names: Sequence[str]) -> list[str]:
@@ -52,6 +53,15 @@ def _export(run: RunDir, kind: str, rows: list[tuple[str, str, float]], extra: d
                  binary=False)
 
 
+def pruned_note(dynamics: Any) -> str | None:
+    """One line saying that sparse ``dynamics`` lost every term (their equations would be
+    identities, z[t+1] = z: nothing moves), with what to try; None where a term is left."""
+    if not getattr(dynamics, "sparse", False) or dynamics.n_active() > 0:
+        return None
+    return ("every SINDy term was pruned: the model predicts that nothing moves (z[t+1] = z); "
+            "lower the threshold, train longer, or try more starts")
+
+
 def equations_report(run_dir: str | os.PathLike, export: bool = True, precision: int = 3) -> str:
     """The latent equations of a run as text; writes the coefficient files when ``export``.
 
@@ -65,7 +75,9 @@ def equations_report(run_dir: str | os.PathLike, export: bool = True, precision:
     lines = [f"{run.path}: {head[0]}", *head[1:]]
     if rows is None:
         return "\n".join([*lines, "nothing exported"])
-    lines += name_actions(dyn.equations(precision), loaded.description.get("action_names", []))
+    note = pruned_note(dyn)
+    lines += [note] if note else name_actions(dyn.equations(precision),
+                                              loaded.description.get("action_names", []))
     if export:
         _export(run, dyn.kind, rows, dyn.export_info())
         lines.append(f"wrote {run / run.COEFFICIENTS_CSV} and {run / run.COEFFICIENTS_JSON}")

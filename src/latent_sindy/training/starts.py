@@ -23,13 +23,23 @@ import torch
 
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer
+from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.progress import Progress
-from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
 from latent_sindy.training.core import BestValidation, FitResult, TrainingDiverged, fit
-from latent_sindy.training.prepare import TrainingTensors, new_model, training_tensors
+from latent_sindy.training.memory import check_training_memory
+from latent_sindy.training.prepare import (
+    TrainingTensors,
+    fit_after,
+    new_model,
+    regression_init,
+    settle_model,
+    training_tensors,
+)
+from latent_sindy.training.record import resolve_model, run_record
 
-__all__ = ["Start", "first_start", "start_seed"]
+__all__ = ["Start", "first_start", "start_seed", "train_in_memory"]
 
 
 @dataclass
@@ -122,3 +132,33 @@ def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: Se
     chosen.info = {"starts": cfg.starts, "epochs": probe, "chosen": k, "seeds": seeds,
                    "objectives": scores}
     return chosen
+
+
+def train_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress
+                    ) -> tuple[LatentModel, Normalizer, dict[str, Any], FitResult]:
+    """Train ``cfg``'s model on ``data`` without a run folder (``cfg.batch_size`` settled):
+    the trained model (the kept weights, on the CPU), its normaliser, the record a run folder
+    would hold, and the fit's result."""
+    if cfg.window > data.steps:
+        raise UserError(f"window {cfg.window} is longer than the sequences of "
+                        f"{data.source} ({data.steps} steps): use 1..{data.steps}")
+    check_training_memory(resolve_model(cfg.model, data, data.source), cfg, data)
+    record = run_record(cfg, data)
+    device = torch.device(resolve_device(cfg.device))
+    norm = Normalizer.from_dict(record["normalizer"])
+    model_cfg = settle_model(record, data, norm, cfg, device)
+    built = new_model(model_cfg, cfg, device)
+    regression = regression_init(cfg, built[0])
+    threads = torch.get_num_threads()
+    parts = threads if resolve_parallel(cfg, device.type, threads) == "batch" else 1
+    start = first_start(model_cfg, cfg, device, data, norm, regression, parts, progress, built)
+    progress.start(cfg.epochs, start.done)
+    try:
+        result = start.fit(cfg, parts, lambda e, row: progress.update(e, row))
+    finally:
+        progress.close()
+    model = start.model
+    model.load_state_dict(result.state)
+    if cfg.sindy_fit == "after":
+        fit_after(model, data, norm, cfg, device)
+    return model.cpu().eval(), norm, record, result
