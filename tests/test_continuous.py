@@ -190,7 +190,7 @@ def test_a_short_fit_recovers_the_oscillator() -> None:
     seeds found the linear equation alone."""
     est = estimator(seed=0).fit(oscillator(), epochs=120)
     names = est.model_.dynamics.names
-    coef = est.coefficients()[:, 0]
+    coef = est.coefficients()[0]
     assert {names[i] for i in np.flatnonzero(coef)} == {"z0"}, est.equations()
     assert coef[names.index("z0")] == pytest.approx(-1.0, abs=0.05)
     last = est.metrics_[-1]

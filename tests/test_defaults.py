@@ -194,3 +194,30 @@ def test_a_model_with_terms_prints_its_equations(capsys) -> None:
     est = LatentSINDy(2, seed=0, **SMALL).fit(_images_data(), epochs=1, starts=1)
     est.print()
     assert capsys.readouterr().out.count("[t+1] =") == 2
+
+
+# ------------------------------------------------------------------ pysindy's conventions
+def test_coefficients_are_states_by_terms_named_by_get_feature_names() -> None:
+    from latent_sindy import LatentSINDy
+
+    est = LatentSINDy(2, seed=0, **SMALL).fit(_images_data(), epochs=1, starts=1)
+    coef, names = est.coefficients(), est.get_feature_names()
+    assert coef.shape == (2, len(names)) and "u1" in names
+    psi = est.model_.dynamics.coefficients().detach().numpy()
+    np.testing.assert_array_equal(coef, psi.T)
+    linear = LatentSINDy(2, dynamics="linear", seed=0, **{k: SMALL[k] for k in ("encoder",
+                         "decoder")}).fit(_images_data(), epochs=1, starts=1)
+    assert linear.coefficients().shape == (2, len(linear.get_feature_names()))
+
+
+def test_simulate_on_a_batch_equals_one_image_at_a_time() -> None:
+    from latent_sindy import LatentSINDy
+
+    data = _images_data()
+    est = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=1, starts=1)
+    z, frames = est.simulate(data.images[:3, 0], data.actions[:3])
+    assert z.shape == (3, 4, 2) and frames.shape == (3, 4, 1, 8, 8)
+    for i in range(3):
+        zi, fi = est.simulate(data.images[i, 0], data.actions[i])
+        np.testing.assert_allclose(z[i], zi, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(frames[i], fi, rtol=1e-4, atol=1e-3)

@@ -132,8 +132,10 @@ def test_misused_methods_name_the_argument(fitted) -> None:
         model.predict(x[0], np.zeros(3))
     with pytest.raises(UserError, match="NaN"):
         model.predict(x[0], np.array([np.nan, 0.0]))
-    with pytest.raises(UserError, match="one image"):
+    with pytest.raises(UserError, match=r"\(N, T, nu\) with N = 6"):
         model.simulate(x, data.actions[0])
+    with pytest.raises(UserError, match=r"an image \(C, H, W\) or a batch"):
+        model.simulate(x[0, 0], data.actions[0])
     with pytest.raises(UserError, match=r"\(T, 2\)"):
         model.simulate(x[0], data.actions[0, 0])
     with pytest.raises(UserError, match="bogus"):

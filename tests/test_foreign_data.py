@@ -90,7 +90,7 @@ def test_equations_name_the_given_actions(fitted, capsys):
     model.print()
     text = capsys.readouterr().out
     assert "vx" in text and "vy" in text and "u0" not in text
-    assert model.coefficients().shape[1] == 2
+    assert model.coefficients().shape[0] == 2
     assert "speed" in "\n".join(model.equations(action_names=["speed", "turn"]))
 
 

@@ -73,7 +73,7 @@ def test_after_the_autoencoder_the_coefficients_are_the_regression_of_its_latent
     again = SindyConfig(order=1).build(4, 3)
     again.fit_state_data(z[:, :-1].reshape(-1, 4), u.reshape(-1, 3), z[:, 1:].reshape(-1, 4),
                          optimizer=STLSQ(threshold=0.1))
-    got, want = est.coefficients(), again.coefficients().detach().numpy()
+    got, want = est.coefficients(), again.coefficients().detach().numpy().T
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
     assert 0 < (got != 0).sum() < got.size  # the threshold dropped some terms, not all
     joint = LatentSINDy(model=est.model_config, settings=TrainConfig(batch_size=20),

@@ -235,33 +235,38 @@ class LatentSINDy:
     def simulate(self, image: np.ndarray, actions: np.ndarray | int
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Roll the model out from ``image`` (C, H, W) under ``actions`` (T, nu): the latents
-        (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale. A model
-        without actions (an autonomous system) takes the number of steps T instead (or
-        actions of shape (T, 0)); a continuous-time model steps dt apart."""
+        (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale; from a
+        batch of images (N, C, H, W) under actions (N, T, nu), (N, T+1, nz) and
+        (N, T+1, C, H, W). A model without actions (an autonomous system) takes the number of
+        steps T instead; a continuous-time model steps dt apart."""
         self._check_fitted()
-        if np.ndim(image) != 3:
-            raise UserError(f"simulate rolls out one image (C, H, W), got shape "
-                            f"{np.shape(image)}: call it once per image")
-        dyn = self.model_.dynamics
-        if getattr(dyn, "derivative_order", 1) != 1:
+        if np.ndim(image) not in (3, 4):
+            raise UserError(f"simulate rolls out an image (C, H, W) or a batch (N, C, H, W), "
+                            f"got shape {np.shape(image)}")
+        single = np.ndim(image) == 3
+        if getattr(self.model_.dynamics, "derivative_order", 1) != 1:
             raise UserError("a second-order continuous-time model needs the latent's velocity "
-                            "as well as the image to roll out, which one image does not give: "
+                            "as well as the image to roll out, which an image does not give: "
                             "use predict, or a first-order model")
-        nu = len(self.description_["action_low"])
-        if nu == 0 and isinstance(actions, int | np.integer) and not isinstance(actions, bool):
+        nu, n = len(self.description_["action_low"]), 1 if single else len(image)
+        if isinstance(actions, int | np.integer) and not isinstance(actions, bool):
+            if nu:
+                raise UserError(f"simulate: this model takes {nu} action(s) a step: give the "
+                                f"actions (T, {nu}), not a number of steps")
             if actions < 0:
                 raise UserError(f"simulate: {actions} steps: use 0 or more")
-            actions = np.zeros((int(actions), 0), np.float32)
-        elif isinstance(actions, int | np.integer):
-            raise UserError(f"simulate: this model takes {nu} action(s) a step: give the "
-                            f"actions (T, {nu}), not a number of steps")
-        if np.ndim(actions) != 2:
-            raise UserError(f"actions of shape {np.shape(actions)}: give (T, {nu}), the "
-                            "actions of each step")
-        u = self._actions(actions, (len(actions),))[None]  # (1, T, nu)
-        x = self._observe(np.asarray(image)[None], "image", (4,))
-        z = self.model_.rollout_latent(self.model_.encode(x), u)[0]  # (T+1, nz)
-        return z.numpy(), self._pixels(self.model_.decode(z))
+            actions = np.zeros((int(actions), 0) if single else (n, int(actions), 0))
+        want = f"(T, {nu})" if single else f"(N, T, nu) with N = {n}, nu = {nu}"
+        if np.ndim(actions) != (2 if single else 3) or (not single and len(actions) != n):
+            raise UserError(f"actions of shape {np.shape(actions)}: give {want}, the actions "
+                            "of each step")
+        lead = np.shape(actions)[:-1]
+        u = self._actions(actions, lead).reshape(n, lead[-1], nu)  # (N, T, nu)
+        x = self._observe(np.asarray(image)[None] if single else image, "image", (4,))
+        z = self.model_.rollout_latent(self.model_.encode(x), u)  # (N, T+1, nz)
+        frames = self._pixels(self.model_.decode(z.flatten(0, 1))).reshape(
+            *z.shape[:2], *x.shape[1:])
+        return (z[0].numpy(), frames[0]) if single else (z.numpy(), frames)
 
     def score(self, data: SequenceData, split: str = "test") -> float:
         """R² of the one-step image prediction on ``data``'s ``split`` (1: perfect; 0: no
@@ -300,21 +305,30 @@ class LatentSINDy:
         print(note or "\n".join(self.equations(precision, action_names)))
 
     def coefficients(self) -> np.ndarray:
-        """The coefficient matrix (candidate terms × latent states) with pruned entries 0
-        (SINDy); the stacked [A | B | c]ᵀ for the linear model; UserError for an MLP."""
+        """The coefficients as pysindy gives them, (latent states × candidate terms), pruned
+        entries 0 (SINDy); [A | B | c] for the linear model; UserError for an MLP. Column k
+        is the term ``get_feature_names()[k]``."""
+        return self._table()[1].T
+
+    def get_feature_names(self) -> list[str]:
+        """The candidate terms, in the order of :meth:`coefficients`' columns (pysindy's
+        name): "1", "z0", "u1", "z0 u1", "sin(z0)", ..."""
+        return self._table()[0]
+
+    def _table(self) -> tuple[list[str], np.ndarray]:
         self._check_fitted()
         dyn = self.model_.dynamics
         rows = dyn.coefficient_rows()
         if rows is None:
             raise UserError(f"{dyn.kind} dynamics have no coefficients to show")
         if hasattr(dyn, "coefficients"):
-            return dyn.coefficients().detach().numpy().copy()
+            return list(dyn.names), dyn.coefficients().detach().numpy().copy()
         states = sorted({s for s, _, _ in rows}, key=_natural)
         terms = list(dict.fromkeys(t for _, t, _ in rows))
         out = np.zeros((len(terms), len(states)))
         for s, t, v in rows:
             out[terms.index(t), states.index(s)] = v
-        return out
+        return terms, out
 
     # ------------------------------------------------------------------ files and control
     def save(self, path: str | os.PathLike) -> Path:
