@@ -79,6 +79,49 @@ def _disc(seed: int, shape=(20, 28), channels=3, speed=0.2, radius=3.0, actions=
     return SequenceData(_render(p, shape, radius, colour, background), seed=seed)
 
 
+def _lorenz(seed: int, dt: float = 0.02):
+    """Lorenz (σ 10, ρ 28, β 8/3) seen through a fixed spatial embedding, the SINDy
+    autoencoder paper's set-up: x(y) = Σ_i u_i(y) z_i + Σ_i u_{3+i}(y) z_i³ with the Legendre
+    polynomials u_1..u_6 on 128 points, shown as a float image (1, 8, 16) in [0, 1]; starts
+    on the attractor, no actions."""
+    from latent_sindy import SequenceData
+
+    rng = np.random.default_rng(seed)
+
+    def rhs(z):
+        return np.stack([10 * (z[:, 1] - z[:, 0]), z[:, 0] * (28 - z[:, 2]) - z[:, 1],
+                         z[:, 0] * z[:, 1] - 8 / 3 * z[:, 2]], 1)
+
+    def rk4(z, h):
+        k1 = rhs(z)
+        k2 = rhs(z + h / 2 * k1)
+        k3 = rhs(z + h / 2 * k2)
+        return z + h / 6 * (k1 + 2 * k2 + 2 * k3 + rhs(z + h * k3))
+
+    z = rng.normal(0, 10, (SEQUENCES, 3)) + [0, 0, 25]
+    for _ in range(500):  # onto the attractor
+        z = rk4(z, 0.01)
+    path = [z]
+    for _ in range(STEPS):
+        for _ in range(4):
+            z = rk4(z, dt / 4)
+        path.append(z)
+    z = np.stack(path, 1) / 20  # (N, T+1, 3), about unit size
+    y = np.linspace(-1, 1, 128)
+    modes = np.stack([np.polynomial.legendre.Legendre.basis(i)(y) for i in range(6)])
+    x = z @ modes[:3] + z ** 3 @ modes[3:]  # (N, T+1, 128)
+    x = (x - x.min()) / (x.max() - x.min())
+    return SequenceData(x.reshape(SEQUENCES, STEPS + 1, 1, 8, 16).astype(np.float32),
+                        seed=seed, dt=dt)
+
+
+def _pendulum(seed: int):
+    """The controlled pendulum's images (two stacked 48x48 frames) under random torques."""
+    from latent_sindy.plugins import get_world
+
+    return get_world("pendulum").collect(SEQUENCES, STEPS, seed=seed)
+
+
 SYSTEMS: dict[str, System] = {
     "disc": System(lambda s: _disc(s), 2, "RGB 20x28 disc, 2-D velocity, 0.2 of a side a step"),
     "disc-gray": System(lambda s: _disc(s, (16, 16), 1, 0.1, 2.5), 2,
@@ -87,6 +130,8 @@ SYSTEMS: dict[str, System] = {
                         "RGB 32x32 disc, 2-D velocity, 0.05 of a side a step"),
     "orbit": System(lambda s: _disc(s, (24, 24), 1, actions=False), 2,
                     "gray 24x24 disc on a circle (no actions), 0.3 rad a step"),
+    "lorenz": System(_lorenz, 3, "Lorenz through a fixed 128-point embedding (no actions)"),
+    "pendulum": System(_pendulum, 3, "controlled pendulum, two stacked 48x48 frames"),
 }
 
 
