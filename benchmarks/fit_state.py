@@ -36,7 +36,11 @@ import torch
 from scipy.signal import savgol_filter
 
 from latent_sindy.sindy import STLSQ, EnsembleSTLSQ
-from latent_sindy.sindy.fit import library_regression_data, window_regression_data
+from latent_sindy.sindy.fit import (
+    fit_trajectory_data,
+    library_regression_data,
+    window_regression_data,
+)
 from latent_sindy.sindy.systems import KnownSystem, duffing_forced, lorenz_control
 
 SYSTEMS: dict[str, Callable[..., KnownSystem]] = {
@@ -169,6 +173,8 @@ def noisy_table(args: argparse.Namespace) -> None:
             "windows", lambda th, tg, s: ours_ens(seed=s, z_min=0).fit(th, tg).coef_.numpy()),
         f"ours EnsembleSTLSQ(n_models={k}), windows": (
             "windows", lambda th, tg, s: ours_ens(seed=s).fit(th, tg).coef_.numpy()),
+        "ours fit_trajectory_data(library, X, U), defaults": (
+            "trajectories", lambda lib, xu, s: fit_trajectory_data(lib, *xu).coef_.numpy()),
     }  # fmt: skip
     for t in (args.ps_threshold, 3 * args.ps_threshold):
         methods[f"ps STLSQ({t:g})"] = (
@@ -196,6 +202,7 @@ def noisy_table(args: argparse.Namespace) -> None:
                 "windows": window_regression_data(system.library, X, U, w),
             }
             problems = {key: (a.numpy(), b.numpy()) for key, (a, b) in problems.items()}
+            problems["trajectories"] = (system.library, (X, U))  # the fit as users call it
             for method, (form, fit) in methods.items():
                 t0 = time.perf_counter()
                 with warnings.catch_warnings():

@@ -98,7 +98,7 @@ def _lorenz(seed: int, dt: float = 0.02):
         k3 = rhs(z + h / 2 * k2)
         return z + h / 6 * (k1 + 2 * k2 + 2 * k3 + rhs(z + h * k3))
 
-    z = rng.normal(0, 10, (SEQUENCES, 3)) + [0, 0, 25]
+    z = rng.normal(0, 10, (SEQUENCES, 3)) + np.array([0.0, 0.0, 25.0])
     for _ in range(500):  # onto the attractor
         z = rk4(z, 0.01)
     path = [z]

@@ -19,7 +19,7 @@ This package does not import :mod:`latent_sindy.models` (which imports it).
     >>> lib = CandidateLibrary(n_state=3, n_control=1, order=2)
     >>> opt = fit_state_data(lib, Z, U, Znext)  # Z (N, 3), U (N, 1), Znext (N, 3)
     >>> opt.coef_.shape, int(opt.mask_.sum())  # (p, nz), active coefficients
-    >>> opt = fit_trajectory_data(lib, X, U, window=10, optimizer=EnsembleSTLSQ(seed=0))
+    >>> opt = fit_trajectory_data(lib, X, U)  # windows of 10 steps, bagged STLSQ
     >>> # X (B, T+1, 3) measured trajectories, U (B, T, 1) their inputs
 """
 
@@ -136,19 +136,31 @@ def window_regression_data(
     return theta.reshape(-1, p), target.reshape(-1, nz)
 
 
+#: Steps a window of :func:`fit_trajectory_data` sums by default (fewer where the
+#: trajectories are shorter).
+DEFAULT_WINDOW = 10
+
+
 def fit_trajectory_data(
     library: SindyLibrary,
     X: torch.Tensor,
     U: torch.Tensor,
-    window: int = 1,
+    window: int | None = None,
     optimizer: Sparsifier | None = None,
     mask: torch.Tensor | None = None,
 ) -> Sparsifier:
     """Sparse regression of trajectories in the windowed form (:func:`window_regression_data`).
 
-    X (B, T+1, nz), U (B, T, nu); ``optimizer`` (default ``STLSQ()``) is fitted in place and
-    returned, with ``coef_`` (p, nz) the one-step Ψ, as :func:`fit_state_data` gives.
-    With ``window=1`` this is :func:`fit_state_data` on the trajectories' transitions.
+    X (B, T+1, nz), U (B, T, nu); ``optimizer`` is fitted in place and returned, with
+    ``coef_`` (p, nz) the one-step Ψ, as :func:`fit_state_data` gives. The defaults are the
+    fit that recovers noisy systems: windows of :data:`DEFAULT_WINDOW` steps (T where the
+    trajectories are shorter) and ``EnsembleSTLSQ(seed=0)`` (bagged STLSQ); on noise-free
+    data they find what STLSQ on the transitions finds. ``window=1`` with
+    ``optimizer=STLSQ()`` is :func:`fit_state_data` on the trajectories' transitions.
     """
+    from latent_sindy.sindy.ensemble import EnsembleSTLSQ
+
+    if window is None:
+        window = max(1, min(DEFAULT_WINDOW, X.shape[1] - 1))
     theta, target = window_regression_data(library, X, U, window)
-    return (STLSQ() if optimizer is None else optimizer).fit(theta, target, mask)
+    return (EnsembleSTLSQ(seed=0) if optimizer is None else optimizer).fit(theta, target, mask)
