@@ -82,7 +82,7 @@ def _disc(seed: int, shape=(20, 28), channels=3, speed=0.2, radius=3.0, actions=
 def _lorenz(seed: int, dt: float = 0.02):
     """Lorenz (σ 10, ρ 28, β 8/3) seen through a fixed spatial embedding, the SINDy
     autoencoder paper's set-up: x(y) = Σ_i u_i(y) z_i + Σ_i u_{3+i}(y) z_i³ with the Legendre
-    polynomials u_1..u_6 on 128 points, shown as a float image (1, 8, 16) in [0, 1]; starts
+    polynomials u_1..u_6 on 256 points, shown as a float image (1, 16, 16) in [0, 1]; starts
     on the attractor, no actions."""
     from latent_sindy import SequenceData
 
@@ -107,11 +107,11 @@ def _lorenz(seed: int, dt: float = 0.02):
             z = rk4(z, dt / 4)
         path.append(z)
     z = np.stack(path, 1) / 20  # (N, T+1, 3), about unit size
-    y = np.linspace(-1, 1, 128)
+    y = np.linspace(-1, 1, 256)
     modes = np.stack([np.polynomial.legendre.Legendre.basis(i)(y) for i in range(6)])
-    x = z @ modes[:3] + z ** 3 @ modes[3:]  # (N, T+1, 128)
+    x = z @ modes[:3] + z ** 3 @ modes[3:]  # (N, T+1, 256)
     x = (x - x.min()) / (x.max() - x.min())
-    return SequenceData(x.reshape(SEQUENCES, STEPS + 1, 1, 8, 16).astype(np.float32),
+    return SequenceData(x.reshape(SEQUENCES, STEPS + 1, 1, 16, 16).astype(np.float32),
                         seed=seed, dt=dt)
 
 
@@ -130,7 +130,7 @@ SYSTEMS: dict[str, System] = {
                         "RGB 32x32 disc, 2-D velocity, 0.05 of a side a step"),
     "orbit": System(lambda s: _disc(s, (24, 24), 1, actions=False), 2,
                     "gray 24x24 disc on a circle (no actions), 0.3 rad a step"),
-    "lorenz": System(_lorenz, 3, "Lorenz through a fixed 128-point embedding (no actions)"),
+    "lorenz": System(_lorenz, 3, "Lorenz through a fixed 256-point embedding (no actions)"),
     "pendulum": System(_pendulum, 3, "controlled pendulum, two stacked 48x48 frames"),
 }
 
@@ -152,7 +152,17 @@ def _setting(text: str) -> tuple[str, object]:
 
 
 def run_row(name: str, seed: int, settings: dict[str, object]) -> dict[str, object]:
-    """Fit ``name``'s data of ``seed`` with the defaults (and ``settings``) and measure it."""
+    """Fit ``name``'s data of ``seed`` with the defaults (and ``settings``) and measure it; a
+    fit that fails is a row with its error (and a failing benchmark)."""
+    try:
+        return _measure(name, seed, settings)
+    except Exception as e:  # (the table shows it; the other rows go on)
+        return {"system": name, "seed": seed, "error": f"{type(e).__name__}: {e}",
+                "one_step": math.nan, "rollout": math.nan, "terms": 0, "action_terms": 0,
+                "wall_s": math.nan, "kept_epoch": None}
+
+
+def _measure(name: str, seed: int, settings: dict[str, object]) -> dict[str, object]:
     import torch
 
     from latent_sindy import LatentSINDy
@@ -202,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
         for f in futures:
             rows.append(f.result())
             r = rows[-1]
+            if "error" in r:
+                print(f"  {r['system']} seed {r['seed']}: FAILED {r['error']}", file=sys.stderr)
+                continue
             print(f"  {r['system']} seed {r['seed']}: one-step {r['one_step']:.1f}x, rollout "
                   f"{r['rollout']:.1f}x, {r['terms']} terms ({r['action_terms']} with u), "
                   f"{r['wall_s']:.0f} s", file=sys.stderr)
