@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 from latent_sindy import LatentSINDy
-from latent_sindy.control import run_closed_loop, success_rates
+from latent_sindy.control import ImagePolicy, run_closed_loop, success_rates
 from latent_sindy.data import read_sequences
 from latent_sindy.plugins import get_world
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
@@ -48,7 +48,7 @@ def main() -> None:
 
     # ------------------------------------------------------------------------- 3. control
     planner = model.planner(world.planner())  # the planner this world's study uses
-    results = run_closed_loop(world, planner, episodes=args.episodes,
+    results = run_closed_loop(world, ImagePolicy(planner), episodes=args.episodes,
                               max_steps=args.max_steps, seed=0, until="course")
     for name, rate in success_rates(results).items():
         print(f"{name} criterion met in {rate:.0%} of {len(results)} random tasks")

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from latent_sindy.control.costs import LatentCost
+from latent_sindy.control.episodes import Observation
 from latent_sindy.errors import UserError
 from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.pendulum import PendulumConfig, PendulumWorld, physics
@@ -111,8 +112,8 @@ def test_the_latent_policy_reads_the_image_only(one_torch_thread):
     data = PendulumWorld(PendulumConfig(start="random", image_size=16)).collect(8, 2, seed=0)
     model = fit_image_model(data, "sindy", cfg)
     policy = LatentSwingUp(model, model.encode(data.images.reshape(-1, 2, 16, 16)), cfg)
-    policy.reset(observe(0.0, 0.0, 16), seed=0)
-    u = policy.act(observe(math.pi, 0.0, 16), state=None)  # no state to read
+    policy.reset(Observation(observe(0.0, 0.0, 16)), seed=0)
+    u = policy.act(Observation(observe(math.pi, 0.0, 16)))  # no state to read
     assert u.shape == (1,) and abs(float(u[0])) <= 2
 
 

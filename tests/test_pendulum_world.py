@@ -125,10 +125,10 @@ def test_the_generic_closed_loop_runs_in_the_pendulum():
     """Without torque a hanging pendulum stays hanging; near upright it counts at once."""
 
     class Still:
-        def reset(self, goal_image, seed=None):
-            assert goal_image.shape == (2, 48, 48)
+        def reset(self, goal, seed=None):
+            assert goal.image.shape == (2, 48, 48)
 
-        def act(self, image):
+        def act(self, observation):
             return np.zeros(1, np.float32)
 
     (episode,) = run_closed_loop(WORLD, Still(), episodes=1, max_steps=30, seed=0)

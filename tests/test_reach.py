@@ -162,6 +162,7 @@ def test_the_planner_replaces_a_push_out_of_reach_by_the_best_within_it(seed):
 
 
 def test_the_controller_asks_the_world_at_the_true_pose():
+    from latent_sindy.control.episodes import Observation
     from latent_sindy.data.windows import Normalizer
     from latent_sindy.models.latent_model import LatentModel, ModelConfig
     from latent_sindy.worlds.push.episodes import ControlConfig, Controller
@@ -175,10 +176,10 @@ def test_the_controller_asks_the_world_at_the_true_pose():
         return np.asarray(actions)[:, 1] > 0  # only pushes with psi > 0 are within reach
 
     ctl.reach = reach
-    ctl.start(np.zeros((1, 32, 32), np.uint8), np.zeros(3), seed=0)
+    ctl.reset(Observation(np.zeros((1, 32, 32), np.uint8), np.zeros(3)), seed=0)
     pose = np.array([0.5, 0.1, 0.2])
     for _ in range(5):
-        action, _, _, _ = ctl.act(np.zeros((1, 32, 32), np.uint8), pose)
-        assert action[1] > 0
+        action = ctl.act(Observation(np.zeros((1, 32, 32), np.uint8), pose))
+        assert action[1] > 0 and ctl.last.plan.seconds >= 0
     assert all(np.array_equal(p, pose) for p in asked)
     assert ControlConfig(reach=False).reach is False

@@ -10,7 +10,7 @@ import pytest
 from latent_sindy import LatentSINDy
 from latent_sindy.control import MPPIConfig
 from latent_sindy.control.collect import collect_random
-from latent_sindy.control.episodes import run_closed_loop, success_rates
+from latent_sindy.control.episodes import ImagePolicy, run_closed_loop, success_rates
 from latent_sindy.control.world import Task, World
 from latent_sindy.training import TrainConfig
 
@@ -86,7 +86,7 @@ def test_closed_loop_reaches_goals_with_a_fitted_model(world, one_torch_thread):
     model = LatentSINDy(latent_dim=2, order=1, include_sine=False, seed=0,
                         settings=TrainConfig(lr=3e-3)).fit(data, epochs=60, batch_size=12)
     planner = model.planner(MPPIConfig(samples=200, horizon=4, sigma=0.5))
-    results = run_closed_loop(world, planner, episodes=6, max_steps=15, seed=3)
+    results = run_closed_loop(world, ImagePolicy(planner), episodes=6, max_steps=15, seed=3)
     rates = success_rates(results)
     start = [np.linalg.norm(r.task.start - r.task.goal) for r in results]
     end = [np.linalg.norm(r.final_state - r.task.goal) for r in results]
@@ -103,10 +103,10 @@ def test_the_pushing_world_is_a_world_found_by_name():
     assert isinstance(push, World) and push.action_names == ("p", "psi", "ell")
 
     class Still:
-        def reset(self, goal_image, seed=None):
-            assert goal_image.shape == (1, 32, 32)
+        def reset(self, goal, seed=None):
+            assert goal.image.shape == (1, 32, 32)
 
-        def act(self, image):
+        def act(self, observation):
             return np.zeros(3, np.float32)
 
     (episode,) = run_closed_loop(push, Still(), episodes=1, max_steps=2, seed=0)

@@ -1,5 +1,6 @@
 """Control in latent space: MPPI over any latent model's batched ``step``, its costs, a planner
-toward goal images, the world interface and the closed loop over any world.
+toward goal images, the world interface and the one closed loop every world runs through
+(policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`).
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
 >>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
@@ -8,7 +9,16 @@ toward goal images, the world interface and the closed loop over any world.
 
 from latent_sindy.control.collect import collect_random
 from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
-from latent_sindy.control.episodes import Episode, run_closed_loop, run_episode, success_rates
+from latent_sindy.control.episodes import (
+    Episode,
+    ImagePolicy,
+    Observation,
+    Policy,
+    run_closed_loop,
+    run_episode,
+    run_loop,
+    success_rates,
+)
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.control.sindy_step import SparseSindyStep
@@ -20,9 +30,12 @@ __all__ = [
     "Episode",
     "ImageCost",
     "ImagePlanner",
+    "ImagePolicy",
     "LatentCost",
     "MPPIConfig",
     "MPPIInfo",
+    "Observation",
+    "Policy",
     "PoseCost",
     "SparseSindyStep",
     "StateCost",
@@ -32,5 +45,6 @@ __all__ = [
     "latent_step",
     "run_closed_loop",
     "run_episode",
+    "run_loop",
     "success_rates",
 ]

@@ -3,8 +3,8 @@
 :class:`ImagePlanner` joins a latent model, the normaliser of its data and MPPI. ``act(image,
 goal_image)`` encodes both images and returns the first action of the plan that drives the
 latent state toward the goal's (``space="latent"``) or the decoded prediction toward the goal
-image (``space="image"``). It is what :meth:`latent_sindy.LatentSINDy.planner` returns and what
-the generic closed loop (:mod:`latent_sindy.control.episodes`) drives.
+image (``space="image"``). It is what :meth:`latent_sindy.LatentSINDy.planner` returns; the
+closed loop (:mod:`latent_sindy.control.episodes`) drives it as ``ImagePolicy(planner)``.
 
     planner = ImagePlanner(model, normalizer, MPPIConfig(), action_low, action_high)
     u = planner.act(image, goal_image)      # (nu,) numpy

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from latent_sindy.api import LatentSINDy
+from latent_sindy.control.episodes import Observation
 from latent_sindy.control.mppi import MPPI, MPPIConfig
 from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.render import observe
@@ -57,9 +58,9 @@ class TrueDynamicsImageCost:
         self.mppi = MPPI(physics.feature_step, table_cost, mppi, (-physics.MAX_TORQUE,),
                          (physics.MAX_TORQUE,))
 
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
+    def reset(self, goal: Observation, seed: int | None = None) -> None:
         self.mppi.reset(seed)
 
-    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
-        x = torch.tensor(physics.features(state), dtype=torch.float32)  # (3,)
+    def act(self, observation: Observation) -> np.ndarray:
+        x = torch.tensor(physics.features(observation.state), dtype=torch.float32)  # (3,)
         return self.mppi.command(x)[0].numpy()

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from latent_sindy.api import LatentSINDy
+from latent_sindy.control.episodes import Observation
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
@@ -174,13 +175,13 @@ class LatentSwingUp:
             self._costs[goal.tobytes()] = cost
         return self._costs[goal.tobytes()]
 
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
+    def reset(self, goal: Observation, seed: int | None = None) -> None:
         cfg = self.config
-        self.mppi = MPPI(self.step, self.cost(goal_image), cfg.mppi(), (-physics.MAX_TORQUE,),
+        self.mppi = MPPI(self.step, self.cost(goal.image), cfg.mppi(), (-physics.MAX_TORQUE,),
                          (physics.MAX_TORQUE,), seed=cfg.seed if seed is None else seed)
 
-    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
-        z = torch.as_tensor(np.asarray(self.encode(image)))  # the image only, not the state
+    def act(self, observation: Observation) -> np.ndarray:
+        z = torch.as_tensor(np.asarray(self.encode(observation.image)))  # not the state
         return self.mppi.command(z)[0].numpy()
 
 

@@ -1,7 +1,9 @@
 """Swing-up episodes: a fixed number of steps from a task's start, scored by the time spent
 upright (E2C's measure) and by whether the pendulum stays upright to the end.
 
-The loop hands a policy both the image and the true state; an image planner reads the image
+They run through the project's one closed loop (``run_closed_loop`` of
+:mod:`latent_sindy.control.episodes`, the criteria only recorded), which shows a policy the
+image and the true state (``act(observation)``); an image planner reads the image
 (:class:`ImagePolicy` around ``LatentSINDy.planner()``), the oracle :class:`StateMPPI` reads
 the state and plans with the true dynamics, to show what the task asks is achievable.
 
@@ -13,11 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 import numpy as np
 import torch
 
+from latent_sindy.control.episodes import ImagePolicy, Observation, Policy, run_closed_loop
 from latent_sindy.control.mppi import MPPI, MPPIConfig
 from latent_sindy.control.world import Task
 from latent_sindy.errors import UserError
@@ -25,13 +27,7 @@ from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.criteria import swing_up_success, upright_fraction
 from latent_sindy.worlds.pendulum.plugin import PendulumWorld
 
-__all__ = ["ImagePolicy", "StateMPPI", "SwingUp", "SwingUpPolicy", "run_swing_up"]
-
-
-class SwingUpPolicy(Protocol):
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None: ...
-
-    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray: ...
+__all__ = ["ImagePolicy", "StateMPPI", "SwingUp", "run_swing_up"]
 
 
 @dataclass
@@ -44,20 +40,6 @@ class SwingUp:
     actions: np.ndarray
     upright_fraction: float
     success: bool
-
-
-class ImagePolicy:
-    """A planner that sees images only (``reset(goal_image, seed)``, ``act(image)``, such as
-    ``LatentSINDy.planner()``), as a swing-up policy."""
-
-    def __init__(self, planner: Any) -> None:
-        self.planner = planner
-
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
-        self.planner.reset(goal_image, seed)
-
-    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
-        return self.planner.act(image)
 
 
 def upright_cost(x: torch.Tensor, rate_weight: float = 0.1) -> torch.Tensor:
@@ -81,37 +63,23 @@ class StateMPPI:
         self.mppi = MPPI(dynamics or physics.feature_step, upright_cost, self.config,
                          (-physics.MAX_TORQUE,), (physics.MAX_TORQUE,))
 
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
+    def reset(self, goal: Observation, seed: int | None = None) -> None:
         self.mppi.reset(seed)
 
-    def act(self, image: np.ndarray, state: np.ndarray) -> np.ndarray:
-        x = torch.tensor(physics.features(state), dtype=torch.float32)  # (3,)
+    def act(self, observation: Observation) -> np.ndarray:
+        x = torch.tensor(physics.features(observation.state), dtype=torch.float32)  # (3,)
         return self.mppi.command(x)[0].numpy()
 
 
-def run_swing_up(world: PendulumWorld, policy: SwingUpPolicy, episodes: int = 10,
+def run_swing_up(world: PendulumWorld, policy: Policy, episodes: int = 10,
                  steps: int = 100, seed: int = 0, last: int = 20) -> list[SwingUp]:
     """``episodes`` episodes of exactly ``steps`` actions on tasks the world samples with
     ``seed``; success: upright over each of the ``last`` steps."""
     if not 1 <= last <= steps:
         raise UserError(f"run_swing_up: last {last} must lie in 1..steps ({steps})")
-    env = world.make_env()
-    rng = np.random.default_rng(seed)
     results = []
-    try:
-        for i in range(episodes):
-            task = world.sample_task(rng)
-            image = world.reset(env, task, seed * 1000 + i)
-            policy.reset(world.goal_image(env, task), seed * 1000 + i)
-            states, actions = [world.state(env)], []
-            for _ in range(steps):
-                u = np.asarray(policy.act(image, states[-1]), np.float32).reshape(1)
-                image = world.image(env.step(u)[0])
-                states.append(world.state(env))
-                actions.append(u)
-            xs = np.stack(states)
-            results.append(SwingUp(task, xs, np.stack(actions), upright_fraction(xs[1:]),
-                                   swing_up_success(xs[1:], last)))
-    finally:
-        env.close()
+    for episode in run_closed_loop(world, policy, episodes, steps, seed, stop=False):
+        xs = np.stack(episode.states)
+        results.append(SwingUp(episode.task, xs, np.asarray(episode.actions, np.float32),
+                               upright_fraction(xs[1:]), swing_up_success(xs[1:], last)))
     return results

@@ -5,7 +5,10 @@ every step encodes the current image, asks MPPI for a push in latent space (or i
 space: the cost decodes every predicted latent and compares it with the goal image; or in
 pose space: a model's pose head reads the block's pose from every predicted latent and from
 the encoded goal image, :data:`COSTS`), executes it in the PyBullet world and looks again,
-until the block is at the goal or the step limit is reached.
+until the block is at the goal or the step limit is reached: the project's one closed loop
+(:func:`~latent_sindy.control.episodes.run_loop`), with the :class:`Controller` as its policy
+(``act(observation)``: the camera image and the block's true pose) and this world's record of
+each push (:class:`_Pushes`).
 
     latent-sindy control runs/sindy2 --task paper --episodes 1
     latent-sindy control runs/sindy2 --task random --episodes 20 --space image --max-steps 30
@@ -15,11 +18,9 @@ until the block is at the goal or the step limit is reached.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import math
 import os
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,15 +32,13 @@ import tyro
 
 from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, write_atomic
 from latent_sindy.configs import to_json
-from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
-from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
-from latent_sindy.control.planner import feasible_action
-from latent_sindy.data.windows import OBSERVATIONS, Normalizer
+from latent_sindy.control.episodes import Observation, run_loop
+from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
-from latent_sindy.models.state import pose_cost_weights
 from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.push.config import PushEnvConfig
-from latent_sindy.worlds.push.reach import Reach
+from latent_sindy.worlds.push.controller import COSTS, Controller, check_space
 
 
 @dataclass(frozen=True)
@@ -86,41 +85,6 @@ class ControlConfig:
             raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
 
 
-def _latent_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
-    return LatentCost(controller.model.encode(goal[None])[0],
-                      controller.model.autoencoder.cost_weights(controller.period))
-
-
-def _image_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
-    return ImageCost(controller.model.decode, goal)
-
-
-def _pose_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
-    head = controller.model.pose_head
-    return PoseCost(head, head(controller.model.encode(goal[None])[0]),
-                    pose_cost_weights(controller.period))
-
-
-def check_space(model, space: str) -> None:
-    """UserError unless ``model`` can compute the cost of planning ``space``: image space
-    compares decoded images (an image model's), pose space reads a pose head."""
-    kind = model.config.observation.kind
-    if space == "image" and kind != "image":
-        raise UserError(f"--space image compares decoded images with the goal image; this "
-                        f"{kind} model decodes no images (it would plan on the raw {kind} "
-                        "distance): use --space latent")
-    if space == "pose" and model.pose_head is None:
-        raise UserError("--space pose needs a model trained with a pose head (latent-sindy "
-                        "train ... --pose-head linear --lambda-pose 10); this one has none: use "
-                        "--space latent")
-
-
-#: Planning space -> the cost MPPI minimises, built from the controller and the goal as the
-#: model observes it (normalised goal image, or encoded goal pose for a state model).
-COSTS: dict[str, Callable[[Controller, torch.Tensor], StateCost]] = {
-    "latent": _latent_cost, "image": _image_cost, "pose": _pose_cost}
-
-
 @dataclass
 class EpisodeResult:
     """What one episode did; errors in metres and degrees, times in milliseconds."""
@@ -152,63 +116,6 @@ class EpisodeResult:
     actions: list[list[float]] = field(default_factory=list)
 
 
-class Controller:
-    """A trained model with its MPPI, ready to push: ``act(image, pose) -> action``.
-
-    The model takes from each observation what its encoder sees (the image, or the true
-    pose for a state-space reference model). Building it runs the dynamics step once, so a
-    one-time compilation (numba's, for SINDy) is not counted as planning: ``warmup_s``.
-    """
-
-    def __init__(self, model, normalizer: Normalizer, settings: ControlConfig,
-                 env_config: PushEnvConfig) -> None:
-        self.model = model.eval()
-        self.normalizer = normalizer
-        self.settings = settings
-        self.box = (env_config.action_low, env_config.action_high)
-        self._observe = OBSERVATIONS[model.config.observation.kind].one
-        self.period = env_config.angle_period
-        check_space(model, settings.space)  # its error, before any episode
-        self._cost = COSTS[settings.space]
-        self.step = latent_step(model.dynamics)  # active SINDy terms only
-        self.reach = Reach(env_config) if settings.reach else None
-        t0 = time.perf_counter()
-        MPPI(self.step, torch.zeros(model.config.observation.latent_dim),
-             dataclasses.replace(settings.mppi, samples=2, horizon=2), *self.box).command(
-            torch.zeros(model.config.observation.latent_dim))
-        self.warmup_s = time.perf_counter() - t0
-
-    def observe(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
-        """What the model sees of an observation (normalised image or encoded pose)."""
-        return self._observe(image, pose, self.normalizer, self.period)
-
-    @torch.no_grad()
-    def encode(self, image: np.ndarray, pose: np.ndarray) -> torch.Tensor:
-        """An observation -> latent (nz,)."""
-        return self.model.encode(self.observe(image, pose)[None])[0]
-
-    @torch.no_grad()
-    def start(self, goal_image: np.ndarray, goal_pose: np.ndarray, seed: int) -> None:
-        cost = self._cost(self, self.observe(goal_image, goal_pose))
-        self.mppi = MPPI(self.step, cost, self.settings.mppi, *self.box, seed=seed)
-
-    def act(self, image: np.ndarray, pose: np.ndarray):
-        """MPPI's push from this observation, or (with ``reach``) the lowest-cost sampled
-        push the arm can make from the true ``pose`` when MPPI's is out of its reach.
-        Returns (action, MPPI's info, replaced, seconds asking the reach)."""
-        action, info = self.mppi.command(self.encode(image, pose))
-        action = action.numpy()
-        if self.reach is None:
-            return action, info, False, 0.0
-        t0 = time.perf_counter()
-        action, replaced = feasible_action(action, self.mppi, lambda a: self.reach(pose, a))
-        return action, info, replaced, time.perf_counter() - t0
-
-    def close(self) -> None:
-        if self.reach is not None:
-            self.reach.close()
-
-
 def _episode_options(env, settings: ControlConfig, seed: int) -> tuple[int, dict]:
     """The reset seed and options of an episode; random tasks never start at the goal."""
     if settings.task == "paper":
@@ -221,6 +128,46 @@ def _episode_options(env, settings: ControlConfig, seed: int) -> tuple[int, dict
     raise RuntimeError("could not draw a random task whose start is away from the goal")
 
 
+class _Pushes:
+    """An episode in the PyBullet world as the closed loop steps it: carries out each push
+    and keeps what the results record (criteria met, plan and reach times, pushes executed
+    and replaced, frames)."""
+
+    def __init__(self, env, controller: Controller, info: dict, until: str,
+                 frames: list | None) -> None:
+        self.env, self.controller, self.info, self.frames = env, controller, info, frames
+        self.key = "is_success" if until == "course" else "is_success_strict"
+        self.steps_goal = 0 if info["is_success"] else None
+        self.steps_strict = 0 if info["is_success_strict"] else None
+        self.plan_ms: list[float] = []
+        self.reach_ms: list[float] = []
+        self.actions: list[list[float]] = []
+        self.discarded = self.steps = self.executed = self.replaced = 0
+        self.left = False
+
+    def done(self) -> bool:
+        return bool(self.info[self.key])
+
+    def step(self, action: np.ndarray) -> tuple[Observation, bool]:
+        push = self.controller.last
+        self.plan_ms.append(push.plan.seconds * 1e3)
+        self.reach_ms.append(push.reach_s * 1e3)
+        self.replaced += push.replaced
+        self.discarded += push.plan.discarded
+        self.actions.append([float(a) for a in action])
+        obs, _, terminated, _, info = self.env.step(action)
+        self.info, self.steps = info, self.steps + 1
+        self.executed += bool(info["push_executed"])
+        if self.frames is not None:
+            self.frames.append(self.env.render())
+        if info["is_success"] and self.steps_goal is None:
+            self.steps_goal = self.steps
+        if info["is_success_strict"] and self.steps_strict is None:
+            self.steps_strict = self.steps
+        self.left = bool(terminated)
+        return Observation(obs, info["pose"]), self.left
+
+
 def run_episode(env, controller: Controller, episode: int, settings: ControlConfig,
                 frames: list | None = None) -> EpisodeResult:
     """One closed-loop episode in `env` (a PandaPushEnv); appends rendered frames if asked."""
@@ -228,44 +175,24 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
     reset_seed, options = _episode_options(env, settings, seed)
     obs, info = env.reset(seed=reset_seed, options=options)
     start, goal = info["pose"].tolist(), info["goal"].tolist()
-    controller.start(env.goal_observation(), info["goal"], seed)
-    key = "is_success" if settings.until == "course" else "is_success_strict"
+    goal_view = Observation(env.goal_observation(), info["goal"])
     if frames is not None:
         frames.append(env.render())
-    steps_goal = 0 if info["is_success"] else None
-    steps_strict = 0 if info["is_success_strict"] else None
-    plan_ms, reach_ms, actions, discarded, left = [], [], [], 0, False
-    steps = executed = replaced = 0
-    while steps < settings.max_steps and not info[key]:
-        action, plan, swapped, reach_s = controller.act(obs, info["pose"])
-        plan_ms.append(plan.seconds * 1e3)
-        reach_ms.append(reach_s * 1e3)
-        replaced += swapped
-        discarded += plan.discarded
-        actions.append([float(a) for a in action])
-        obs, _, terminated, _, info = env.step(action)
-        steps += 1
-        executed += bool(info["push_executed"])
-        if frames is not None:
-            frames.append(env.render())
-        if info["is_success"] and steps_goal is None:
-            steps_goal = steps
-        if info["is_success_strict"] and steps_strict is None:
-            steps_strict = steps
-        if terminated:
-            left = True
-            break
+    run = _Pushes(env, controller, info, settings.until, frames)
+    run_loop(controller, run, Observation(obs, info["pose"]), goal_view, settings.max_steps,
+             seed)
+    info, plan_ms, reach_ms = run.info, run.plan_ms, run.reach_ms
     return EpisodeResult(
         episode=episode, seed=reset_seed, start=start, goal=goal,
-        success=steps_goal is not None, steps_to_goal=steps_goal,
-        strict_success=steps_strict is not None, steps_to_strict=steps_strict, steps=steps,
-        final_distance=float(info["distance"]),
+        success=run.steps_goal is not None, steps_to_goal=run.steps_goal,
+        strict_success=run.steps_strict is not None, steps_to_strict=run.steps_strict,
+        steps=run.steps, final_distance=float(info["distance"]),
         final_angle_error_deg=float(math.degrees(info["angle_error"])),
-        left_workspace=left,
+        left_workspace=run.left,
         plan_ms_mean=float(np.mean(plan_ms)) if plan_ms else 0.0,
         plan_ms_max=float(np.max(plan_ms)) if plan_ms else 0.0,
-        discarded=discarded, pushes_executed=executed, pushes_replaced=replaced,
-        reach_ms_mean=float(np.mean(reach_ms)) if reach_ms else 0.0, actions=actions)
+        discarded=run.discarded, pushes_executed=run.executed, pushes_replaced=run.replaced,
+        reach_ms_mean=float(np.mean(reach_ms)) if reach_ms else 0.0, actions=run.actions)
 
 
 def summarize(results: list[EpisodeResult]) -> dict[str, float]:

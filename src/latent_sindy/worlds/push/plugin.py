@@ -7,7 +7,7 @@ goal image, state, success criteria). The simulator loads only when an environme
 
     from latent_sindy.plugins import get_world
     world = get_world("push")              # or PushWorld(PushEnvConfig.named("paper"))
-    results = run_closed_loop(world, planner, episodes=10, max_steps=20)
+    results = run_closed_loop(world, ImagePolicy(planner), episodes=10, max_steps=20)
 """
 
 from __future__ import annotations
