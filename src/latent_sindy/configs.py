@@ -8,9 +8,9 @@ A field typed as a union of dataclasses that carry a ``kind`` class variable (a 
 union*, like the latent dynamics configs) is written with its ``kind`` and read back as the
 class of that kind.
 
-    >>> from latent_sindy.worlds.push.config import PushEnvConfig
-    >>> d = to_json(PushEnvConfig(channels=3))
-    >>> from_json(PushEnvConfig, d, "environment") == PushEnvConfig(channels=3)
+    >>> from latent_sindy.training.config import TrainConfig
+    >>> d = to_json(TrainConfig(epochs=60))
+    >>> from_json(TrainConfig, d, "training") == TrainConfig(epochs=60)
     True
 
 Why not a library: the rules we need (tagged unions by a class variable, tuples, paths,

@@ -4,7 +4,7 @@ The core never imports a world. A world package declares itself in its distribut
 metadata, as this project does for its own worlds in ``pyproject.toml``::
 
     [project.entry-points."latent_sindy.worlds"]
-    push = "latent_sindy.worlds.push.plugin:WORLD"
+    mine = "my_package.world:WORLD"
 
 Loading a plug-in runs its module, which may register what the core looks up by name:
 library presets and derived library variables (:mod:`latent_sindy.sindy`), encoders. The core
@@ -18,15 +18,72 @@ that names a world's library loads without the user importing the world first.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import cache
 from importlib.metadata import entry_points
-from typing import Any
+from typing import Any, Protocol
 
 from latent_sindy.errors import UserError
 
 GROUP = "latent_sindy.worlds"
 
-__all__ = ["GROUP", "get_world", "load_plugins", "world_names"]
+__all__ = ["GROUP", "HOOKS", "WorldPlugin", "get_world", "hook", "legacy_world", "load_plugins",
+           "world_names"]
+
+
+class WorldPlugin(Protocol):
+    """The whole contract of a world plug-in: what the core reads of the object a plug-in's
+    entry point names. A world for closed-loop control has the members of
+    :class:`~latent_sindy.control.world.World` (``make_env``, ``sample_task``, ``reset``,
+    ``image``, ``goal_image``, ``state``, ``success``) besides these; a world that only
+    describes data (a study of recorded video) may have none of them. Everything else is an
+    optional hook named in :data:`HOOKS` and read through :func:`hook`, which refuses any
+    other name: the contract cannot grow unseen."""
+
+    name: str
+    action_low: Sequence[float]
+    action_high: Sequence[float]
+    action_names: Sequence[str]
+    config: Any
+    """The world's settings (a frozen dataclass), where it has any."""
+
+
+#: The optional hooks of a world plug-in, with what the core does with each; where a world
+#: lacks one the core does without (the default in brackets).
+HOOKS: dict[str, str] = {
+    "config_from_record": "(record, where) -> the world's settings, from the record its data "
+                          "or runs carry [no settings: data and runs of the world are refused]",
+    "check_data": "(data) -> None: UserError unless the data fit the world [any data]",
+    "read_legacy": "(h5 file, path) -> SequenceData of the world's data files older than the "
+                   "generic format [none]",
+    "prepare_model": "(model config, data) -> the model config the world adjusts to its data, "
+                     "e.g. a library preset's parameters [as given]",
+    "feasible": "(states, actions) -> bool per action: which the world can carry out [all]",
+    "planner": "() -> the MPPI settings control uses in this world [MPPIConfig()]",
+    "collect": "(sequences, steps, seed) -> SequenceData of random actions [collect_random]",
+    "about": "a line on the world's own study, for --help [none]",
+    "scales": "{scale: what it runs} of the world's own study [no study of its own]",
+    "reproduce": "(scale, out, seeds, device, say) -> the world's own study [none]",
+    "data": "(**settings) -> SequenceData the world's study is made of [none]",
+}
+
+
+def legacy_world() -> Any:
+    """The world whose data files and runs predate the generic formats (they name no world):
+    the one installed plug-in with a ``read_legacy`` hook. UserError where there is none."""
+    found = [w for w in (get_world(n) for n in world_names()) if hook(w, "read_legacy")]
+    if len(found) != 1:
+        raise UserError("a data file or run of the format before worlds were plug-ins needs "
+                        "the world that wrote it: install it (it reads them: read_legacy)")
+    return found[0]
+
+
+def hook(world: Any, name: str) -> Any | None:
+    """The optional hook ``name`` of ``world`` (:data:`HOOKS`), or None where the world has
+    none. A name outside :data:`HOOKS` is a programming error (KeyError): declare it there."""
+    if name not in HOOKS:
+        raise KeyError(f"{name!r} is not a declared world hook: add it to plugins.HOOKS")
+    return getattr(world, name, None)
 
 
 def world_names() -> list[str]:

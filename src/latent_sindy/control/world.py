@@ -31,6 +31,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from latent_sindy.plugins import hook
+
 __all__ = ["Task", "World", "feasible"]
 
 
@@ -77,7 +79,7 @@ def feasible(world: World, states: np.ndarray, actions: np.ndarray) -> np.ndarra
     """(K,) bool: which ``actions`` (K, nu) ``world`` can carry out from ``states`` (K, ns)
     or one state (ns,); all of them for a world without a ``feasible`` method."""
     actions = np.asarray(actions)
-    answer = getattr(world, "feasible", None)
+    answer = hook(world, "feasible")
     if answer is None:
         return np.ones(len(actions), dtype=bool)
     return np.asarray(answer(states, actions), dtype=bool).reshape(len(actions))

@@ -144,9 +144,9 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
         if version != 1:
             raise UserError(f"{path} has format version {version}; this latent-sindy reads "
                             f"{LEGACY_FORMAT} version 1: re-collect it")
-        from latent_sindy.plugins import get_world
+        from latent_sindy.plugins import legacy_world
 
-        return get_world("push").read_legacy(f, str(path))
+        return legacy_world().read_legacy(f, str(path))
     if fmt is not None and fmt != FORMAT:
         raise UserError(f"{path} is an HDF5 file but not a latent-sindy data file (format "
                         f"attribute {fmt!r}); see docs/data.md for the layout")
@@ -200,9 +200,9 @@ def read_sequences(path: str | os.PathLike) -> SequenceData:
     except (OSError, KeyError, ValueError, TypeError) as e:
         raise UserError(f"{path} is damaged ({type(e).__name__}: {e}); re-collect it") from e
     if data.world is not None:
-        from latent_sindy.plugins import get_world
+        from latent_sindy.plugins import get_world, hook
 
-        world = get_world(data.world)
-        if hasattr(world, "check_data"):
-            world.check_data(data)
+        check = hook(get_world(data.world), "check_data")
+        if check is not None:
+            check(data)
     return data

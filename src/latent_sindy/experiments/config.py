@@ -29,7 +29,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.experiments.catalogue import SINGLE_STEP, ModelSpec, study_specs
 from latent_sindy.experiments.scales import SCALES, Scale
 from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
-from latent_sindy.plugins import get_world, world_names
+from latent_sindy.plugins import get_world, hook, world_names
 from latent_sindy.training.config import resolve_device
 from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT, PushEnvConfig
 
@@ -44,13 +44,13 @@ def study_worlds() -> dict[str, Any]:
             world = get_world(name)
         except Exception:  # a broken plug-in must not break the other commands (asked for
             continue       # by name, get_world raises its error)
-        if callable(getattr(world, "reproduce", None)) and hasattr(world, "scales"):
+        if callable(hook(world, "reproduce")) and hook(world, "scales") is not None:
             found[name] = world
     return found
 
 
 def _world_help() -> str:
-    studies = "; ".join(f"{name}: {getattr(w, 'about', 'its own study')}"
+    studies = "; ".join(f"{name}: {hook(w, 'about') or 'its own study'}"
                         for name, w in study_worlds().items())
     push = "; ".join(f"{name} ({WORLD_ABOUT.get(name, 'a pushing world')})"
                      for name in ENV_PRESETS)

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from latent_sindy.plugins import get_world
+from latent_sindy.plugins import legacy_world
 from latent_sindy.training.record import RUN_FORMAT_VERSION
 
 __all__ = ["migrate_v1", "run_description"]
@@ -16,18 +16,20 @@ __all__ = ["migrate_v1", "run_description"]
 
 def run_description(record: Mapping[str, Any], where: Path) -> tuple[dict, dict]:
     """The data description and world record of a run; runs recorded before data were
-    generic (an "env" record: the pushing world's) get theirs from that world."""
+    generic (an "env" record) get theirs from the world that wrote them
+    (:func:`~latent_sindy.plugins.legacy_world`)."""
     if "description" in record:
         world = record.get("world") or {}
         return dict(record["description"]), dict(world.get("record") or {})
     world_record = {"env_config": record["env"]}
-    env = get_world("push").config_from_record(world_record, str(where))
+    world = legacy_world()
+    env = world.config_from_record(world_record, str(where))
     description = {"frame_shape": [env.channels, env.image_size, env.image_size],
                    "pixel_dtype": "uint8", "action_low": list(env.action_low),
                    "action_high": list(env.action_high),
                    "action_names": list(env.action_names), "state_names": ["x", "y", "θ"],
                    "state_periods": [None, None, env.angle_period], "dt": None,
-                   "world": "push"}
+                   "world": world.name}
     return description, world_record
 
 

@@ -18,7 +18,7 @@ from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import OBSERVATIONS
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import ModelConfig
-from latent_sindy.plugins import get_world
+from latent_sindy.plugins import get_world, hook
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
 __all__ = ["CONTEXT_KEYS", "PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
@@ -68,7 +68,7 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     if dyn.kind == "continuous" and dyn.dt is None and data.dt is not None:
         cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(dyn, dt=data.dt))
     world = get_world(data.world) if data.world is not None else None
-    prepare = getattr(world, "prepare_model", None)
+    prepare = hook(world, "prepare_model")
     if prepare is not None:
         return prepare(cfg, data, where)
     return cfg
