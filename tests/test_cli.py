@@ -166,3 +166,26 @@ def test_ray_executor_without_ray_names_the_extra(tmp_path, capsys, monkeypatch)
     line = main_error(capsys, "reproduce", "--scale", "tiny", "--out", str(tmp_path / "s"),
                       "--executor", "ray")
     assert "--executor ray needs Ray" in line and "pip install 'latent-sindy[ray]'" in line
+
+
+def test_collect_from_another_world_through_its_hook(tmp_path, capsys) -> None:
+    from latent_sindy.data import read_sequences
+
+    out = tmp_path / "pendulum.h5"
+    assert main(["collect", "--world", "pendulum", "--trajectories", "4", "--steps", "3",
+                 "--seed", "1", "--out", str(out)]) == 0
+    data = read_sequences(out)
+    assert (data.world, data.n, data.steps, data.seed) == ("pendulum", 4, 3, 1)
+    assert main(["collect", "--world", "pendulum", "--out", str(out)]) == 2  # no overwrite
+    assert "exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--world", "pendulum", "--image-size", "64"], "push world's: drop them"),
+    (["--world", "pendulum-video"], "does not collect data"),
+    (["--world", "nope"], "is not installed"),
+])
+def test_collect_refuses_what_a_world_cannot_take(tmp_path, capsys, args, says) -> None:
+    out = tmp_path / "x.h5"
+    assert main(["collect", *args, "--out", str(out)]) == 2
+    assert says in capsys.readouterr().err and not out.exists()

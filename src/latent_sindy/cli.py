@@ -61,8 +61,12 @@ def _bar(desc: str, unit: str):
 
 @dataclass
 class Collect:
-    """Collect random-push trajectories into an HDF5 file (resumable: re-run to finish)."""
+    """Collect random-push trajectories into an HDF5 file (resumable: re-run to finish); with
+    --world, random-action sequences of any world that collects (its collect hook)."""
 
+    world: str = "push"
+    """The world to collect from: push (the options below), or another installed world with
+    a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed only."""
     out: Path = Path("data/push.h5")
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
     plan: Annotated[CollectionPlan, tyro.conf.arg(name=""), Flat] = field(
@@ -73,6 +77,9 @@ class Collect:
     """Show a progress bar."""
 
     def run(self) -> None:
+        if self.world != "push":
+            self._collect_world()
+            return
         from latent_sindy.worlds.push.collect import collect
 
         plan = self.plan
@@ -85,6 +92,31 @@ class Collect:
         else:
             print(f"wrote {path} ({plan.trajectories} trajectories x {plan.steps} pushes, "
                   f"splits {plan.split_counts()}) in {time.perf_counter() - t0:.1f} s")
+
+
+    def _collect_world(self) -> None:
+        from latent_sindy.data.store import write_sequences
+        from latent_sindy.plugins import get_world, hook
+
+        world = get_world(self.world)
+        make = hook(world, "collect")
+        if make is None:
+            raise UserError(f"--world {self.world} does not collect data (no collect hook): "
+                            "use a world that does, e.g. pendulum")
+        default = CollectionPlan()
+        if replace(self.plan, trajectories=default.trajectories, steps=default.steps,
+                   seed=default.seed) != default:
+            raise UserError(f"--world {self.world} takes --trajectories, --steps and --seed; "
+                            "the other collection options are the push world's: drop them")
+        out = check_output_file(self.out, "--out", (".h5",))
+        if out.exists():
+            raise UserError(f"--out {out} exists: choose another file or delete it first")
+        p = self.plan
+        t0 = time.perf_counter()
+        data = make(p.trajectories, p.steps, p.seed)
+        write_sequences(out, data)
+        print(f"wrote {out} ({data.n} sequences x {data.steps} steps of {self.world}, splits "
+              f"{data.split_counts()}) in {time.perf_counter() - t0:.1f} s")
 
 
 @dataclass
