@@ -189,3 +189,24 @@ def test_collect_refuses_what_a_world_cannot_take(tmp_path, capsys, args, says) 
     out = tmp_path / "x.h5"
     assert main(["collect", *args, "--out", str(out)]) == 2
     assert says in capsys.readouterr().err and not out.exists()
+
+
+def test_control_runs_another_worlds_closed_loop(tmp_path, capsys) -> None:
+    import json
+
+    from latent_sindy import LatentSINDy
+    from latent_sindy.data import read_sequences
+
+    data_file, run = tmp_path / "p.h5", tmp_path / "run"
+    assert main(["collect", "--world", "pendulum", "--trajectories", "8", "--steps", "4",
+                 "--out", str(data_file)]) == 0
+    LatentSINDy(3, seed=0, encoder="mlp", decoder="mlp", order=1, include_sine=False).fit(
+        read_sequences(data_file), epochs=1, starts=1, out=run)
+    assert main(["control", str(run), "--episodes", "2", "--max-steps", "3", "--samples",
+                 "10", "--horizon", "2"]) == 0
+    record = json.loads((run / "control-latent" / "results.json").read_text())
+    assert record["world"] == "pendulum" and len(record["results"]) == 2
+    assert all(len(r["actions"]) == 3 for r in record["results"])  # no criterion met early
+    assert "upright" in record["success"]
+    assert main(["control", str(run), "--task", "random"]) == 2
+    assert "the push world's" in capsys.readouterr().err

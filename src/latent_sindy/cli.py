@@ -229,7 +229,8 @@ class Equations:
 
 @dataclass
 class Control:
-    """Push the block to a goal with MPPI in a trained run's latent space (closed loop).
+    """Push the block to a goal with MPPI in a trained run's latent space (closed loop); a run
+    of another world (e.g. the pendulum) plays that world's tasks, results in RUN/control-SPACE.
 
     Writes RUN/control-TASK-SPACE/results.json, results.csv and episode GIFs, and prints a
     summary: success rates (course and strict criteria), steps to goal, planning time. Without
@@ -263,6 +264,10 @@ class Control:
         run_dir = RunDir(self.run_dir)
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
+        if run.world is not None and run.world != "push":
+            self._control_world(run, s, check_output_dir(
+                self.out or run_dir.path / f"control-{s.space}", "--out"))
+            return
         check_space(run.model, s.space)  # before the planner's note: the refusal alone
         if s.mppi == MPPIConfig():  # no planner option given: the planner of the run's world
             s = replace(s, mppi=world_planner(run.env_config))
@@ -276,6 +281,41 @@ class Control:
                                       f"{s.task} task, {s.space}-space MPPI:"))
         print(f"wrote {out}/results.json, results.csv"
               + (", episode GIFs" if s.gif_episodes else ""))
+
+
+    def _control_world(self, run, s: ControlConfig, out: Path) -> None:
+        """Another world's closed loop: its own tasks and criteria, MPPI in the run's space."""
+        import json
+
+        from latent_sindy.api import LatentSINDy
+        from latent_sindy.atomic import write_atomic
+        from latent_sindy.control import ImagePolicy, run_closed_loop, success_rates
+        from latent_sindy.control.mppi import MPPIConfig
+        from latent_sindy.plugins import get_world, hook
+
+        default = ControlConfig()
+        push_only = [f"--{k.replace('_', '-')}" for k in ("task", "until", "gif_episodes")
+                     if getattr(s, k) != getattr(default, k)] + (["--no-reach"] * (not s.reach))
+        if push_only or s.space == "pose":
+            raise UserError(f"{', '.join(push_only) or '--space pose'}: the push world's; a "
+                            f"{run.world} run takes --episodes, --max-steps, --seed, --space "
+                            "latent or image and the planner's options")
+        world = type(get_world(run.world))(run.world_config)
+        mppi = world.planner() if s.mppi == MPPIConfig() and hook(world, "planner") else s.mppi
+        planner = LatentSINDy.load(self.run_dir).planner(mppi, space=s.space, seed=s.seed)
+        results = run_closed_loop(world, ImagePolicy(planner), s.episodes, s.max_steps, s.seed)
+        rates = success_rates(results)
+        out.mkdir(parents=True, exist_ok=True)
+        record = {"world": run.world, **{k: getattr(s, k) for k in ("episodes", "max_steps",
+                  "seed", "space")}, "success": rates,
+                  "results": [{"steps": r.steps, "reached": r.reached, "actions": r.actions}
+                              for r in results]}
+        write_atomic(out / "results.json", lambda f: f.write(json.dumps(record, indent=1)),
+                     binary=False)
+        print(f"{self.run_dir} in the {run.world} world, {s.episodes} episode(s) of at most "
+              f"{s.max_steps} steps, {s.space}-space MPPI: "
+              + ", ".join(f"{k} {100 * v:.0f} %" for k, v in rates.items()))
+        print(f"wrote {out}/results.json")
 
 
 @dataclass
