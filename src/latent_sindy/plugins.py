@@ -63,7 +63,8 @@ HOOKS: dict[str, str] = {
     "collect": "(sequences, steps, seed) -> SequenceData of random actions [collect_random]",
     "about": "a line on the world's own study, for --help [none]",
     "scales": "{scale: what it runs} of the world's own study [no study of its own]",
-    "reproduce": "(scale, out, seeds, device, say) -> the world's own study [none]",
+    "reproduce": "(scale, out, seeds, device, say) -> the world's own study, a "
+                 "latent_sindy.world_study.WorldStudy [none]",
     "data": "(**settings) -> SequenceData the world's study is made of [none]",
 }
 

@@ -79,6 +79,7 @@ from latent_sindy.experiments.stages import (
 from latent_sindy.experiments.study_report import write_report
 from latent_sindy.locks import exclusive
 from latent_sindy.progress import say_stderr
+from latent_sindy.world_study import WorldStudy
 
 __all__ = ["reproduce", "summary_record", "versions", "world_study"]
 
@@ -267,6 +268,9 @@ def world_study(config: ReproduceConfig, say: Say, t_start: float | None = None
     world = config.study_world
     study = world.reproduce(config.scale, out, config.seeds, config.device,
                             config.threads, say)
+    if not isinstance(study, WorldStudy):
+        raise TypeError(f"the {config.world} world's reproduce returned "
+                        f"{type(study).__name__}, not a latent_sindy.world_study.WorldStudy")
     t_study = time.perf_counter() - t_start
     files = []
     for name, text in study.equations.items():

@@ -92,7 +92,7 @@ class PendulumWorld:
                   device: str = "auto", threads: int = 1,
                   say: Callable[[str], None] = print) -> Any:
         """The swing-up study at ``scale`` in ``out``: a
-        :class:`~latent_sindy.worlds.pendulum.reproduce.WorldStudy` for the report."""
+        :class:`~latent_sindy.world_study.WorldStudy` for the report."""
         from latent_sindy.worlds.pendulum.reproduce import reproduce_pendulum
 
         return reproduce_pendulum(scale, out, seeds, device, threads, say)
@@ -149,7 +149,7 @@ class PendulumVideo:
                   device: str = "auto", threads: int = 1,
                   say: Callable[[str], None] = print) -> Any:
         """The recovery study at ``scale`` in ``out`` (finished seeds reused): a
-        :class:`~latent_sindy.worlds.pendulum.reproduce.WorldStudy` for the report."""
+        :class:`~latent_sindy.world_study.WorldStudy` for the report."""
         from latent_sindy.worlds.pendulum.reproduce import reproduce_video
 
         return reproduce_video(scale, out, seeds, device, threads, say)

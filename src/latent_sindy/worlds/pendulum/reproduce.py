@@ -17,7 +17,6 @@ import dataclasses
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +26,7 @@ from latent_sindy.atomic import atomic_path, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.training.config import resolve_device
+from latent_sindy.world_study import Table, WorldStudy
 
 __all__ = ["PENDULUM_SCALES", "VIDEO_SCALES", "Table", "WorldStudy", "pendulum_config",
            "reproduce_pendulum", "reproduce_video", "video_config"]
@@ -55,34 +55,6 @@ PENDULUM_SCALES = {
                      "of training on a CPU): the state row and the centroid-latent rows, "
                      "about 10 minutes a seed on a CPU core",
 }
-
-
-@dataclass
-class Table:
-    """One table of the report: a heading, its header and rows (cells as shown)."""
-
-    heading: str
-    header: list[str]
-    rows: list[list[str]]
-    note: str = ""
-
-
-@dataclass
-class WorldStudy:
-    """What a world's study hands to ``reproduce``: written there in the common format."""
-
-    title: str
-    settings: dict[str, Any]
-    """The study's own settings (JSON values)."""
-    seeds: list[int]
-    numbers: dict[str, Any]
-    """Every number of the study (JSON values; NaN allowed, made null on writing)."""
-    findings: list[str]
-    tables: list[Table]
-    figures: list[tuple[Path, str]] = field(default_factory=list)
-    """PNGs already written inside the study's folder, with captions."""
-    equations: dict[str, str] = field(default_factory=dict)
-    """Name -> text, written as equations_<name>.txt."""
 
 
 def _scale(scale: str, scales: dict[str, str], world: str) -> None:

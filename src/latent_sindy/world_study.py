@@ -1,0 +1,44 @@
+"""What a world's own study hands to ``latent-sindy reproduce``: its tables, figures,
+equations and every number, which the command writes in the common format (summary.json,
+table.md, report.html, equations_*.txt). It knows no world: a world plug-in's ``reproduce``
+hook (:data:`latent_sindy.plugins.HOOKS`) returns one.
+
+    study = WorldStudy(title="...", settings={...}, seeds=[0], numbers={...},
+                       findings=["..."], tables=[Table("heading", ["a", "b"], [["1", "2"]])])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Table", "WorldStudy"]
+
+
+@dataclass
+class Table:
+    """One table of the report: a heading, its header and rows (cells as shown)."""
+
+    heading: str
+    header: list[str]
+    rows: list[list[str]]
+    note: str = ""
+
+
+@dataclass
+class WorldStudy:
+    """What a world's study hands to ``reproduce``: written there in the common format."""
+
+    title: str
+    settings: dict[str, Any]
+    """The study's own settings (JSON values)."""
+    seeds: list[int]
+    numbers: dict[str, Any]
+    """Every number of the study (JSON values; NaN allowed, made null on writing)."""
+    findings: list[str]
+    tables: list[Table]
+    figures: list[tuple[Path, str]] = field(default_factory=list)
+    """PNGs already written inside the study's folder, with captions."""
+    equations: dict[str, str] = field(default_factory=dict)
+    """Name -> text, written as equations_<name>.txt."""
