@@ -210,3 +210,15 @@ def test_control_runs_another_worlds_closed_loop(tmp_path, capsys) -> None:
     assert "upright" in record["success"]
     assert main(["control", str(run), "--task", "random"]) == 2
     assert "the push world's" in capsys.readouterr().err
+
+
+def test_control_refuses_a_world_without_a_closed_loop(tmp_path, capsys) -> None:
+    from latent_sindy import LatentSINDy
+    from latent_sindy.worlds.pendulum import pendulum_video
+
+    data = pendulum_video(n_train=4, n_val=1, n_test=1, steps=6, size=16)
+    run = tmp_path / "run"
+    LatentSINDy(1, seed=0, encoder="mlp", decoder="mlp", order=1, include_sine=False).fit(
+        data, epochs=1, starts=1, out=run)
+    assert main(["control", str(run)]) == 2
+    assert "has no closed loop" in capsys.readouterr().err

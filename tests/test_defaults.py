@@ -221,3 +221,17 @@ def test_simulate_on_a_batch_equals_one_image_at_a_time() -> None:
         zi, fi = est.simulate(data.images[i, 0], data.actions[i])
         np.testing.assert_allclose(z[i], zi, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(frames[i], fi, rtol=1e-4, atol=1e-3)
+
+
+def test_refinement_begins_at_the_same_epoch_whether_or_not_starts_are_probed() -> None:
+    """--refine-epochs reaching into the probe: the chosen start refines from the same epoch
+    as the run it continues (its model equals that seed's single start)."""
+    from latent_sindy import LatentSINDy
+
+    data = _images_data()
+    kw = {"epochs": 4, "refine_epochs": 3, "threshold_every": 1}
+    several = LatentSINDy(2, seed=0, **SMALL).fit(data, starts=2, start_epochs=2, **kw)
+    info = several.kept_["start"]
+    alone = LatentSINDy(2, seed=info["seeds"][info["chosen"]], **SMALL).fit(
+        data, starts=1, **kw)
+    _states_equal(several.model_, alone.model_)

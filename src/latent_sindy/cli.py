@@ -293,14 +293,15 @@ class Control:
         from latent_sindy.control.mppi import MPPIConfig
         from latent_sindy.plugins import get_world, hook
 
-        default = ControlConfig()
-        push_only = [f"--{k.replace('_', '-')}" for k in ("task", "until", "gif_episodes")
-                     if getattr(s, k) != getattr(default, k)] + (["--no-reach"] * (not s.reach))
+        push_only = [f"--{k.replace('_', '-')}" for k in ("task", "until", "gif_episodes",
+                     "reach") if getattr(s, k) != getattr(ControlConfig(), k)]
         if push_only or s.space == "pose":
             raise UserError(f"{', '.join(push_only) or '--space pose'}: the push world's; a "
                             f"{run.world} run takes --episodes, --max-steps, --seed, --space "
                             "latent or image and the planner's options")
-        world = type(get_world(run.world))(run.world_config)
+        if not callable(getattr(plugin := get_world(run.world), "make_env", None)):
+            raise UserError(f"the {run.world} world has no closed loop: plan with the estimator")
+        world = type(plugin)(run.world_config)
         mppi = world.planner() if s.mppi == MPPIConfig() and hook(world, "planner") else s.mppi
         planner = LatentSINDy.load(self.run_dir).planner(mppi, space=s.space, seed=s.seed)
         results = run_closed_loop(world, ImagePolicy(planner), s.episodes, s.max_steps, s.seed)

@@ -103,7 +103,9 @@ def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: Se
     for k in range(cfg.starts):
         seed = start_seed(cfg.seed, k)
         start = candidate(seed)
-        short = dataclasses.replace(cfg, seed=seed, epochs=probe, refine_epochs=0)
+        # (refinement begins at the same epoch as in the whole run, if within the probe)
+        short = dataclasses.replace(cfg, seed=seed, epochs=probe, refine_epochs=max(
+            0, cfg.refine_epochs - (cfg.epochs - probe)))
         try:
             result = fit(start.model, start.opt, start.gen, start.tensors.train,
                          start.tensors.val, short, per_batch=start.tensors.per_batch,
@@ -115,8 +117,10 @@ def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: Se
             progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}) diverged: {e}")
             continue
         last = result.metrics[-1]
-        score = last.get("val/objective")
-        if score is None:  # no validation split: the training objective
+        score = last.get("val/objective")  # (with a pose head's reading, as the kept weights)
+        if score is not None:
+            score += cfg.loss.lambda_pose * (last.get("val/pose") or 0.0)
+        else:  # no validation split: the training objective
             score = last.get("train/objective", last.get("train/total"))
         score = float(score) if score is not None and math.isfinite(score) else math.inf
         seeds.append(seed)
@@ -130,7 +134,7 @@ def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: Se
         raise diverged
     k = scores.index(min(scores))
     chosen.info = {"starts": cfg.starts, "epochs": probe, "chosen": k, "seeds": seeds,
-                   "objectives": scores}
+                   "objectives": [s if math.isfinite(s) else None for s in scores]}
     return chosen
 
 
