@@ -240,7 +240,9 @@ def share_scale(model: LatentModel, x: torch.Tensor, u: torch.Tensor) -> torch.T
     where an update is 0 everywhere)."""
     pick = torch.linspace(0, len(x) - 1, min(len(x), SHARE_SEQUENCES)).round().long()
     xs, us = x[pick.to(x.device)], u[pick.to(u.device)]
-    z = model.encode(xs.flatten(0, 1)).reshape(*xs.shape[:2], -1)  # (n, L, nz)
+    frames = xs.flatten(0, 1)
+    z = torch.cat([model.encode(frames[i:i + 2048]) for i in range(0, len(frames), 2048)]
+                  ).reshape(*xs.shape[:2], -1)  # (n, L, nz), encoded 2048 frames at a time
     dyn = model.dynamics
     theta = dyn.library(z[:, :-1].flatten(0, 1), us.flatten(0, 1))  # (M, p)
     column = theta.square().mean(0).sqrt()  # (p,)
