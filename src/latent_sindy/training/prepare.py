@@ -9,6 +9,7 @@ A continuous-time model trains on single frames with their time derivatives inst
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -62,6 +63,9 @@ class TrainingTensors:
     train: Sequences
     val: Sequences | None
     per_batch: int
+    prime: Callable[[LatentModel], None] | None = None
+    """Give another fresh model of the same config what these tensors gave theirs (its data
+    statistics, its SINDy start), without building the tensors again (several starts)."""
 
 
 def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
@@ -177,10 +181,14 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
         x, u = derivative_samples(data.split("train"), norm, order, cfg)
         val = data.split("val")
         xv, uv = derivative_samples(val, norm, order, cfg) if val.n else (None, None)
+        def prime_continuous(m: LatentModel) -> None:
+            m.fit_statistics(x[:, 0].to(device), None)
+
         if fresh:
-            model.fit_statistics(x[:, 0].to(device), None)
+            prime_continuous(model)
         return TrainingTensors((x.to(device), u.to(device), None), None if xv is None else
-                               (xv.to(device), uv.to(device), None), cfg.batch_size)
+                               (xv.to(device), uv.to(device), None), cfg.batch_size,
+                               prime_continuous)
     kind = model.config.observation.kind
     train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
     by_trajectory = resolve_batching(cfg) == "trajectories"
@@ -198,12 +206,15 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
     if model.pose_head is not None:
         s = (train_windows.poses if by_trajectory else train_windows.pose_tensors()).to(device)
         sv = val_windows.pose_tensors().to(device) if val_windows else None
-    if fresh:  # a resumed model has its statistics in its state
-        model.fit_statistics(train_windows.images.to(device),
-                             train_windows.poses if model.pose_head is not None else None)
+    def prime(m: LatentModel) -> None:
+        m.fit_statistics(train_windows.images.to(device),
+                         train_windows.poses if m.pose_head is not None else None)
         if regression:
-            fit_dynamics(model, *train_windows.trajectories(), device, cfg.sindy_init_threshold)
-    return TrainingTensors((x, u, s), None if xv is None else (xv, uv, sv), per_batch)
+            fit_dynamics(m, *train_windows.trajectories(), device, cfg.sindy_init_threshold)
+
+    if fresh:  # a resumed model has its statistics in its state
+        prime(model)
+    return TrainingTensors((x, u, s), None if xv is None else (xv, uv, sv), per_batch, prime)
 
 
 def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: TrainConfig

@@ -85,14 +85,20 @@ def first_start(model_cfg: Any, cfg: TrainConfig, device: torch.device, data: Se
     the candidate whose validation objective after ``cfg.start_epochs`` is lowest (ties: the
     earlier), with its metrics, selection state and optimiser. ``first``: the seed's model,
     optimiser and generator where the caller has built them (:func:`new_model`)."""
+    shared: list[TrainingTensors] = []  # built once: the data are the same for every start
+
     def candidate(seed: int) -> Start:
         run_cfg = dataclasses.replace(cfg, seed=seed)
         if seed == cfg.seed and first is not None:
             model, opt, gen = first
         else:
             model, opt, gen = new_model(model_cfg, run_cfg, device)
-        tensors = training_tensors(model, data, norm, run_cfg, device, regression=regression)
-        return Start(model, opt, gen, tensors)
+        if shared and shared[0].prime is not None:
+            shared[0].prime(model)
+        else:
+            shared[:] = [training_tensors(model, data, norm, run_cfg, device,
+                                          regression=regression)]
+        return Start(model, opt, gen, shared[0])
 
     if cfg.starts == 1:
         return candidate(cfg.seed)
