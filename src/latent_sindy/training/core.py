@@ -225,6 +225,8 @@ def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
     return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
 
 
+#: Frames encoded at once where a whole split is encoded (bounds the encoder's activations).
+ENCODE_CHUNK = 2048
 #: Sequences whose encoded transitions measure the terms' shares for a relative pruning.
 SHARE_SEQUENCES = 256
 
@@ -241,8 +243,8 @@ def share_scale(model: LatentModel, x: torch.Tensor, u: torch.Tensor) -> torch.T
     pick = torch.linspace(0, len(x) - 1, min(len(x), SHARE_SEQUENCES)).round().long()
     xs, us = x[pick.to(x.device)], u[pick.to(u.device)]
     frames = xs.flatten(0, 1)
-    z = torch.cat([model.encode(frames[i:i + 2048]) for i in range(0, len(frames), 2048)]
-                  ).reshape(*xs.shape[:2], -1)  # (n, L, nz), encoded 2048 frames at a time
+    z = torch.cat([model.encode(frames[i:i + ENCODE_CHUNK])
+                   for i in range(0, len(frames), ENCODE_CHUNK)]).reshape(*xs.shape[:2], -1)
     dyn = model.dynamics
     theta = dyn.library(z[:, :-1].flatten(0, 1), us.flatten(0, 1))  # (M, p)
     column = theta.square().mean(0).sqrt()  # (p,)

@@ -52,8 +52,7 @@ from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.starts import Start, first_start
 
-__all__ = ["TrainingDiverged", "check_training_memory", "restore_finished", "run_record",
-           "train"]
+__all__ = ["TrainingDiverged", "restore_finished", "run_record", "train"]
 
 
 def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
@@ -143,10 +142,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     if device.type == "cpu":
         keep_freed_memory()
     data = read_sequences(cfg.data) if data is None else data
-    cfg = settle_settings(cfg, data)
-    if cfg.window > data.steps:
-        raise UserError(f"--window {cfg.window} is longer than the trajectories of {cfg.data} "
-                        f"({data.steps} steps): use 1..{data.steps}")
+    cfg = settle_settings(cfg, data)  # (refuses a window longer than the sequences)
     record = run_record(cfg, data)
     n_windows = data.n * (data.steps - cfg.window + 1)
     check_memory(4 * n_windows * (cfg.window + 1) * data.images[0, 0].size * 3,

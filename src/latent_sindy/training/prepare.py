@@ -22,7 +22,7 @@ from latent_sindy.models.derivatives import estimate_derivatives
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
-from latent_sindy.training.core import Sequences
+from latent_sindy.training.core import ENCODE_CHUNK, Sequences
 
 __all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
            "regression_init", "settle_model", "settle_settings", "training_tensors"]
@@ -31,7 +31,11 @@ __all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
 def settle_settings(cfg: TrainConfig, data: SequenceData) -> TrainConfig:
     """``cfg`` with what it leaves to the data chosen: the batch size (None: about
     :data:`~latent_sindy.training.config.UPDATES_PER_EPOCH` updates an epoch over the
-    training split's windows, or a continuous-time model's frames)."""
+    training split's windows, or a continuous-time model's frames); UserError where the
+    window is longer than the sequences."""
+    if cfg.window > data.steps:
+        raise UserError(f"--window {cfg.window} is longer than the sequences of {data.source} "
+                        f"({data.steps} steps): use 1..{data.steps}")
     if cfg.batch_size is not None:
         return cfg
     n = data.split("train").n
@@ -109,8 +113,6 @@ def fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
                                   z[:, 1:].reshape(-1, nz), optimizer=STLSQ(threshold=threshold))
 
 
-#: Frames encoded at once where a whole split is encoded (bounds the encoder's activations).
-ENCODE_CHUNK = 2048
 #: The moment order a mask_moments encoder is first fitted at when the data chooses it.
 PROVISIONAL_ORDER = 2
 

@@ -23,7 +23,6 @@ import torch
 
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.progress import Progress
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
@@ -149,9 +148,6 @@ def train_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress
     """Train ``cfg``'s model on ``data`` without a run folder (``cfg.batch_size`` settled):
     the trained model (the kept weights, on the CPU), its normaliser, the record a run folder
     would hold, and the fit's result."""
-    if cfg.window > data.steps:
-        raise UserError(f"window {cfg.window} is longer than the sequences of "
-                        f"{data.source} ({data.steps} steps): use 1..{data.steps}")
     check_training_memory(resolve_model(cfg.model, data, data.source), cfg, data)
     record = run_record(cfg, data)
     device = torch.device(resolve_device(cfg.device))
