@@ -17,19 +17,21 @@ __all__ = ["collect_random"]
 
 def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> SequenceData:
     """``sequences`` episodes of ``steps`` actions drawn uniformly from the world's box, from
-    the starts of tasks the world samples; images, actions and true states."""
+    the starts of tasks the world samples; images, actions, true states and the rewards the
+    environment's ``step`` returned (left out where any of them is not a finite number)."""
     rng = np.random.default_rng(seed)
     low, high = np.asarray(world.action_low, float), np.asarray(world.action_high, float)
     env = world.make_env()
-    images, actions, states = [], [], []
+    images, actions, states, rewards = [], [], [], []
     try:
         for i in range(sequences):
             task = world.sample_task(rng)
             frames, us, xs = [world.reset(env, task, seed * 100_003 + i)], [], [world.state(env)]
             for _ in range(steps):
                 u = rng.uniform(low, high).astype(np.float32)
-                obs, *_ = env.step(u)
+                obs, reward, *_ = env.step(u)
                 frames.append(world.image(obs))
+                rewards.append(reward)
                 us.append(u)
                 xs.append(world.state(env))
             images.append(np.stack(frames))
@@ -40,5 +42,15 @@ def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> S
             env.close()
     return SequenceData(np.stack(images), np.stack(actions), action_low=low, action_high=high,
                         action_names=tuple(world.action_names),
-                        states=np.stack(states).astype(np.float32), seed=seed,
+                        states=np.stack(states).astype(np.float32),
+                        rewards=_rewards(rewards, sequences, steps), seed=seed,
                         source=f"<random actions in {world.name}>", split_seed=seed)
+
+
+def _rewards(values: list, sequences: int, steps: int) -> np.ndarray | None:
+    """The rewards (N, T) float32, or None where an environment gave something else."""
+    if not all(isinstance(r, int | float | np.number) and not isinstance(r, bool)
+               for r in values):
+        return None
+    out = np.asarray(values, np.float64).reshape(sequences, steps)
+    return out.astype(np.float32) if np.all(np.isfinite(out)) else None

@@ -3,8 +3,9 @@
 A data set is N sequences of T+1 camera frames x_0..x_T and the T actions u_0..u_{T-1}
 between them, with the box the actions live in. Everything else is optional: true states
 (reference rows, probes, privileged heads) with their names, which of them are angles
-(``state_periods``), split labels (else a seeded split), the time step, and the record of the
-world that produced the data (metadata that world's plug-in owns and reads).
+(``state_periods``), the reward each action earned, split labels (else a seeded split), the
+time step, and the record of the world that produced the data (metadata that world's plug-in
+owns and reads).
 
     >>> import numpy as np
     >>> from latent_sindy import SequenceData
@@ -99,6 +100,8 @@ class SequenceData:
     shape, floating point, in the images' pixel scale per unit time) for continuous-time models.
     ``executed`` (N, T) bool says whether each action was carried out (a world may skip one it
     cannot make, e.g. out of a robot's reach); absent means all were.
+    ``rewards`` (N, T) float: the reward the world gave for each action (the sum over an
+    action repeat), for models that learn to predict it; absent where the world gives none.
     ``world`` names the world plug-in whose ``record`` travels with the data.
     """
 
@@ -116,6 +119,7 @@ class SequenceData:
     images_dot: np.ndarray | None = None
     images_ddot: np.ndarray | None = None
     executed: np.ndarray | None = None
+    rewards: np.ndarray | None = None
     record: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
     source: str = "<memory>"
@@ -229,6 +233,16 @@ class SequenceData:
                                 f"{(n, t1 - 1)} (one flag per action), got {arr.dtype} "
                                 f"{arr.shape}")
             self.executed = arr
+        if self.rewards is not None:
+            arr = np.asarray(self.rewards)
+            if arr.shape != (n, t1 - 1) or not np.issubdtype(arr.dtype, np.floating):
+                raise UserError(f"{where}: rewards must be a floating-point array of shape "
+                                f"{(n, t1 - 1)} (one reward per action), got {arr.dtype} "
+                                f"{arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                i = int(np.argwhere(~np.isfinite(arr))[0][0])
+                raise UserError(f"{where}: rewards of sequence {i} contain NaN or inf values")
+            self.rewards = arr
 
     # ------------------------------------------------------------------ views
 
@@ -265,7 +279,7 @@ class SequenceData:
         return self.replace(images=self.images[keep], actions=self.actions[keep],
                             states=part(self.states), images_dot=part(self.images_dot),
                             images_ddot=part(self.images_ddot), executed=part(self.executed),
-                            split=self.split_ids[keep])
+                            rewards=part(self.rewards), split=self.split_ids[keep])
 
     def split(self, name: str) -> SequenceData:  # noqa: F811  (the constructor takes split=)
         """The sequences of one split ('train', 'val' or 'test')."""
@@ -290,10 +304,12 @@ class SequenceData:
 
     def extras_fingerprint(self) -> str:
         """SHA-256 of the optional arrays :meth:`fingerprint` leaves out: the exact
-        derivatives (``images_dot``, ``images_ddot``) and which actions were ``executed``
-        (the time step and the action box are compared as they are)."""
+        derivatives (``images_dot``, ``images_ddot``), which actions were ``executed`` and,
+        where there are any, the ``rewards`` (data without rewards print as they did before
+        rewards existed; the time step and the action box are compared as they are)."""
         h = hashlib.sha256()
-        for name in ("images_dot", "images_ddot", "executed"):
+        names = ("images_dot", "images_ddot", "executed")
+        for name in names + (("rewards",) if self.rewards is not None else ()):
             arr = getattr(self, name)
             h.update(f"{name}:".encode())
             if arr is not None:

@@ -6,6 +6,7 @@ Layout (what a user writes; docs/data.md)::
     /actions  (N, T, nu)         float                         actions u_0..u_{T-1}
     /states   (N, T+1, ns)       float      optional           true states (reference, probes)
     /split    (N,)               uint8      optional           0 train, 1 validation, 2 test
+    /rewards  (N, T)             float      optional           the reward of each action
     attributes: action_low, action_high (nu floats; required when nu > 0);
                 optional action_names, state_names (strings), state_periods (the period of
                 an angle state, NaN for other states), dt (float)
@@ -67,6 +68,8 @@ def write_sequences(path: str | os.PathLike, data: SequenceData) -> None:
                                  chunks=(1, *data.images.shape[1:]), compression="gzip")
         if data.executed is not None:
             f.create_dataset("executed", data=data.executed)
+        if data.rewards is not None:
+            f.create_dataset("rewards", data=data.rewards.astype(np.float32))
         f.create_dataset("split", data=data.split_ids.astype(np.uint8))
         f["split"].attrs["names"] = json.dumps(SPLITS)
         attrs: dict[str, Any] = {
@@ -107,7 +110,7 @@ def _strings(value: Any) -> list[str] | None:
 #: The datasets a data file may hold; anything else in it (a group of the user's own
 #: metadata, another dataset) is left alone.
 DATASETS = ("images", "actions", "states", "poses", "split", "images_dot", "images_ddot",
-            "executed")
+            "executed", "rewards")
 
 
 def _check_sizes(f: h5py.File, path: Path) -> None:
@@ -173,6 +176,7 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
         images_dot=f["images_dot"][()] if "images_dot" in f else None,
         images_ddot=f["images_ddot"][()] if "images_ddot" in f else None,
         executed=_executed(f, path),
+        rewards=f["rewards"][()] if "rewards" in f else None,
         dt=float(a["dt"]) if "dt" in a else None,
         world=_strings(a.get("world"))[0] if "world" in a else None,
         record=record, seed=None if seed < 0 else seed, source=str(path))
