@@ -40,11 +40,8 @@ from latent_sindy.training.config import (
     TrainConfig,
     check_fit_settings,
 )
-from latent_sindy.training.prepare import (
-    settle_settings,
-)
 from latent_sindy.training.runs import RunDir
-from latent_sindy.training.starts import train_in_memory
+from latent_sindy.training.session import prepare
 
 __all__ = ["AllTermsPruned", "LatentSINDy"]
 
@@ -156,10 +153,15 @@ class LatentSINDy:
             train(cfg, progress, data=data)
             self._adopt(RunDir(out))
         else:
-            model, norm, record, result = train_in_memory(
-                settle_settings(self.train_config(**settings), data), data,
-                progress or Silent())
-            self.model_, self.normalizer_ = model, norm
+            progress = progress or Silent()
+            session = prepare(self.train_config(**settings), data, progress=progress)
+            progress.start(session.cfg.epochs, session.done)
+            try:
+                result = session.fit(on_epoch=progress.update)
+            finally:
+                progress.close()
+            model, record = session.finish(result).cpu().eval(), session.record
+            self.model_, self.normalizer_ = model, session.norm
             self.description_ = record["description"]
             self.world_record_ = record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}

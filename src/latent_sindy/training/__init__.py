@@ -1,6 +1,8 @@
 """Training a latent model: the one gradient loop and the run folder around it.
 
-``core`` holds the loop (:func:`~latent_sindy.training.core.fit`, in memory), ``prepare`` the
+``core`` holds the loop (:func:`~latent_sindy.training.core.fit`, in memory), ``session`` the
+one set-up every training goes through (:func:`~latent_sindy.training.session.prepare`, a
+:class:`~latent_sindy.training.session.Session` trained whole or by phases), ``prepare`` the
 tensors it trains on and the model's start, ``record`` what config.json records, ``runs`` the
 run folder (:class:`RunDir`: every file name, reading and writing them), ``loop`` training into
 a run folder with resume and checkpoints (:func:`train`), ``config`` the settings.

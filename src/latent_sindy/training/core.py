@@ -5,10 +5,10 @@ the training sequences, every ``threshold_every`` epochs the SINDy coefficients 
 |Ψ| < ``threshold`` pruned for good (the optimiser's moments of pruned entries cleared), in
 the last ``refine_epochs`` neither pruning nor the L1 term (a refinement on the fixed mask), the
 validation loss every ``eval_every`` epochs, and the weights of the best validated epoch since
-the last pruning that removed a term kept (:class:`BestValidation`). It works in memory; the
+the last pruning that removed a term kept (:class:`BestValidation`). It works in memory;
+every training reaches it through a :class:`~latent_sindy.training.session.Session`, and the
 run folder (checkpoints, resume, metrics file, progress) wraps it through ``on_epoch``
-(:mod:`latent_sindy.training.loop`), and the estimator (:class:`latent_sindy.LatentSINDy`)
-calls it directly.
+(:mod:`latent_sindy.training.loop`).
 
     result = fit(model, opt, gen, (x, u, None), (xv, uv, None), settings)
     model.load_state_dict(result.state)

@@ -22,13 +22,10 @@ from typing import Any
 
 import torch
 
-from latent_sindy.atomic import check_memory
-from latent_sindy.configs import from_json
 from latent_sindy.data import SequenceData, read_sequences
-from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
-from latent_sindy.models.latent_model import LatentModel, ModelConfig
+from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
@@ -38,24 +35,16 @@ from latent_sindy.training.core import (
     keep_freed_memory,
     to_cpu,
 )
-from latent_sindy.training.memory import check_training_memory
 from latent_sindy.training.metrics import METRIC_COLUMNS
-from latent_sindy.training.prepare import (
-    fit_after,
-    new_model,
-    regression_init,
-    settle_model,
-    settle_settings,
-    training_tensors,
-)
+from latent_sindy.training.prepare import settle_settings
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import RunDir
-from latent_sindy.training.starts import Start, first_start
+from latent_sindy.training.session import prepare
 
 __all__ = ["TrainingDiverged", "restore_finished", "run_record", "train"]
 
 
-def _prepare(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
+def _check_folder(run: RunDir, cfg: TrainConfig, record: dict[str, Any]) -> dict[str, Any] | None:
     """Check the run folder against the resume/overwrite flags, before anything is touched;
     returns the checkpoint to resume from. Nothing is removed here (see :func:`train`)."""
     if run.path.exists() and not run.path.is_dir():
@@ -144,42 +133,31 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
     data = read_sequences(cfg.data) if data is None else data
     cfg = settle_settings(cfg, data)  # (refuses a window longer than the sequences)
     record = run_record(cfg, data)
-    n_windows = data.n * (data.steps - cfg.window + 1)
-    check_memory(4 * n_windows * (cfg.window + 1) * data.images[0, 0].size * 3,
-                 f"training windows of {cfg.window} steps", "use a smaller --window")
     run = RunDir(cfg.out)
-    ckpt = _prepare(run, cfg, record)
-    norm = Normalizer.from_dict(record["normalizer"])
-    model_cfg = from_json(ModelConfig, record["model"], "model")
-    check_training_memory(model_cfg, cfg, data)
-    if ckpt is None and getattr(model_cfg.observation, "order_from_data", False):
-        progress.note(f"--moment-order 0: choosing the order from the data ({cfg.order_epochs} "
-                      "epochs at order 2 first)")
-    model_cfg = settle_model(record, data, norm, cfg, device,
-                             run.read_record() if ckpt is not None else None)
+    ckpt = _check_folder(run, cfg, record)
 
-    model, opt, gen = new_model(model_cfg, cfg, device)
-    regression = regression_init(cfg, model)  # (checks the settings before anything is written)
-    threads = torch.get_num_threads()
-    parallel = resolve_parallel(cfg, device.type, threads)
-    start = None
-    if ckpt is not None:
-        metrics, done, best = _resume(ckpt, run, cfg, model, opt, gen, device,
-                                      (device.type, threads, parallel), progress)
-    if cfg.overwrite:
-        run.clear()
-    run.path.mkdir(parents=True, exist_ok=True)
-    run.write_record(record)
-    if ckpt is None:
-        start = first_start(model_cfg, cfg, device, data, norm, regression,
-                            threads if parallel == "batch" else 1, progress, (model, opt, gen))
-        model, opt, gen, tensors = start.model, start.opt, start.gen, start.tensors
-        metrics, done, best = start.metrics, start.done, start.best
+    def ready() -> None:  # every setting checked: the folder changes now
+        if cfg.overwrite:
+            run.clear()
+        run.path.mkdir(parents=True, exist_ok=True)
+        run.write_record(record)
+
+    if ckpt is not None:  # (the old model is loaded into the session before the folder changes)
+        session = prepare(cfg, data, device, record=record, resumed=True,
+                          earlier=run.read_record(), progress=progress)
     else:
-        tensors = training_tensors(model, data, norm, cfg, device, fresh=False)
-    chosen = start.info if start is not None else ckpt.get("start")
+        session = prepare(cfg, data, device, record=record, progress=progress, ready=ready)
+    model, opt, gen = session.model, session.opt, session.gen
+    threads, parallel = torch.get_num_threads(), resolve_parallel(cfg, device.type,
+                                                                  torch.get_num_threads())
+    if ckpt is not None:
+        session.metrics, session.done, session.best = _resume(
+            ckpt, run, cfg, model, opt, gen, device, (device.type, threads, parallel), progress)
+        session.info = ckpt.get("start")  # the start was chosen before the checkpoint
+        ready()
+    metrics, best, done = session.metrics, session.best, session.done
     run.write_metrics(metrics)  # drops rows logged after the checkpoint (or a start's probe)
-    if tensors.val is None:
+    if session.tensors.val is None:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
     last_ckpt = done or None
 
@@ -189,10 +167,10 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
             "epoch": epoch, "model": to_cpu(model.state_dict()),
             "optimizer": to_cpu(opt.state_dict()), "generator": gen.get_state(),
             "metrics": metrics, "best": best.to_checkpoint(), "device": device.type,
-            "threads": threads, "parallel": parallel, "start": chosen})
+            "threads": threads, "parallel": parallel, "start": session.info})
         last_ckpt = epoch
 
-    if start is not None and done:  # the chosen start resumes from here, not the probes
+    if ckpt is None and done:  # the chosen start resumes from here, not the probes
         checkpoint(done)
 
     def on_epoch(epoch: int, row: dict[str, Any]) -> None:
@@ -203,9 +181,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
 
     progress.start(cfg.epochs, done)
     try:
-        if start is None:  # resumed: the start was chosen before the checkpoint
-            start = Start(model, opt, gen, tensors, done, metrics, best, chosen)
-        result = start.fit(cfg, threads if parallel == "batch" else 1, on_epoch)
+        result = session.fit(on_epoch=on_epoch)
         kept = result.kept
         if kept["selection"] == "best validation":
             progress.note(f"kept the weights of epoch {kept['epoch']} of {cfg.epochs}: the "
@@ -217,10 +193,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
         raise _diverged(cfg, e, last_ckpt) from None
     finally:
         progress.close()
-    if cfg.sindy_fit == "after":
-        model.load_state_dict(result.state)
-        fit_after(model, data, norm, cfg, device)
-        result.state = to_cpu(model.state_dict())
+    session.finish(result)  # (the kept weights; --sindy-fit after fits them)
     from latent_sindy.version import __version__
 
     # both before model.pt, which marks the run finished: a finished run lacks neither

@@ -111,9 +111,8 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     from latent_sindy.models.dynamics import ContinuousSindyConfig
     from latent_sindy.training import TrainConfig
     from latent_sindy.training.config import resolve_device
-    from latent_sindy.training.core import fit
-    from latent_sindy.training.prepare import new_model, training_tensors
-    from latent_sindy.training.record import resolve_model, run_record
+    from latent_sindy.training.record import run_record
+    from latent_sindy.training.session import Phase, prepare
 
     t0 = time.perf_counter()
     model_cfg = ModelConfig(
@@ -123,30 +122,20 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     cfg = TrainConfig(model=model_cfg, loss=weights(s, data, k, span), seed=seed,
                       epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
                       weight_decay=0.0, batch_size=s.batch, threshold=s.threshold,
-                      threshold_every=s.threshold_every, eval_every=s.eval_every)
+                      threshold_every=s.threshold_every, eval_every=s.eval_every, starts=1)
     record = run_record(cfg, data)
     on = torch.device(resolve_device(device))
     norm = Normalizer.from_dict(record["normalizer"])
-    tensors = None
+    reconstruct = LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0)
 
     def first_phase(start: int) -> dict[str, Any]:
-        nonlocal tensors
-        run = replace(cfg, seed=seed + 1000 * start)
-        with torch.random.fork_rng(devices=[]):
-            model, opt, gen = new_model(resolve_model(model_cfg, data, "pca"), run, on)
-        if tensors is None:
-            tensors = training_tensors(model, data, norm, cfg, on)
-        if s.warmup:
-            warm = replace(run, epochs=s.warmup, refine_epochs=0, threshold_every=0,
-                           loss=LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0,
-                                            lambda_l1=0.0))
-            fit(model, opt, gen, tensors.train, tensors.val, warm, per_batch=s.batch)
-        result = fit(model, opt, gen, tensors.train, tensors.val, run, per_batch=s.batch,
-                     done=s.warmup)
-        model.load_state_dict(result.state)
-        return {"recon": kept_value(result, "val/recon"), "model": model, "opt": opt,
-                "gen": gen, "result": result, "run": run, "start": start,
-                "fvu": float("inf")}
+        session = prepare(replace(cfg, seed=seed + 1000 * start), data, on, record=record)
+        if s.warmup:  # its last epoch's weights go on (nothing to select on yet)
+            session.fit(Phase(s.warmup, "warm-up", {"loss": reconstruct, "refine_epochs": 0,
+                                                    "threshold_every": 0}, adopt=False))
+        result = session.fit(Phase(s.epochs, "main"))
+        return {"recon": kept_value(result, "val/recon"), "session": session,
+                "result": result, "start": start, "fvu": float("inf")}
 
     # A start whose first phase reconstructs the validation frames poorly, or whose
     # calibrated equations leave much of the encoder's z̈ unexplained, found another system
@@ -160,14 +149,14 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
         pick = min(waiting, key=lambda c: c["recon"])
         waiting.remove(pick)
         if s.calibrate_epochs:
-            calibrate_start(pick, s, data, k, span, cfg, tensors)
+            calibrate_start(pick, s, data, k, span)
         else:
             pick["fvu"] = 0.0  # nothing calibrated, nothing more to judge
         done.append(pick)
         if pick["fvu"] <= s.restart_fvu:
             break
     kept = min(done, key=lambda c: c["fvu"])
-    model, result, chosen = kept["model"], kept["result"], kept["start"]
+    model, result, chosen = kept["session"].model, kept["result"], kept["start"]
     model = model.cpu().eval()
     steps = s.warmup + s.epochs + s.calibrate_epochs
     row = {"seed": seed, **verdict(model), **evaluate(model, norm, video, lo, span),
@@ -178,28 +167,22 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     return {**row, "recovered": bool(row["exact_sin"] and abs(c + 1) <= 0.02)}
 
 
-def calibrate_start(c: dict[str, Any], s: Schedule, data, k: int, span: float, cfg,
-                    tensors) -> None:
-    """The schedule's calibration of one start ``c`` (in place): refinement with the
-    calibration weights, thresholding when asked; ``c["fvu"]`` becomes the kept epoch's
-    validation z̈ term (the unexplained fraction when the term is scale-free)."""
-    from latent_sindy.training.core import fit
+def calibrate_start(c: dict[str, Any], s: Schedule, data, k: int, span: float) -> None:
+    """The schedule's calibration of one start ``c`` (in place): a phase of refinement with
+    the calibration weights and learning rate, thresholding when asked; ``c["fvu"]`` becomes
+    the kept epoch's validation z̈ term (the unexplained fraction when the term is
+    scale-free)."""
+    from latent_sindy.training.session import Phase
 
-    model, opt = c["model"], c["opt"]
-    for group in opt.param_groups:
-        group["lr"] = s.calibrate_lr or s.lr
     raised = replace(s, pred_x=s.calibrate_x or s.pred_x, pred_z=s.calibrate_z or s.pred_z)
     loss = weights(raised, data, k, span)
     if s.calibrate_relative:
         loss = replace(loss, lambda_pred_z=s.calibrate_relative, relative_pred_z=True)
     prune = s.calibrate_prune_every
-    calibrate = replace(c["run"], epochs=cfg.epochs + s.calibrate_epochs, loss=loss,
-                        refine_epochs=s.calibrate_epochs - (2 * s.calibrate_epochs // 3
-                                                            if prune else 0),
-                        threshold_every=prune)
-    result = fit(model, opt, c["gen"], tensors.train, tensors.val, calibrate,
-                 per_batch=s.batch, done=cfg.epochs)
-    model.load_state_dict(result.state)
+    refine = s.calibrate_epochs - (2 * s.calibrate_epochs // 3 if prune else 0)
+    result = c["session"].fit(Phase(s.calibrate_epochs, "calibration", {
+        "lr": s.calibrate_lr or s.lr, "loss": loss, "refine_epochs": refine,
+        "threshold_every": prune}))
     c["result"], c["fvu"] = result, kept_value(result, "val/pred_z")
 
 

@@ -1,0 +1,238 @@
+"""One training, set up in one place: :func:`prepare` checks the settings and the data and
+builds everything a fit needs (a :class:`Session`: model, optimiser, mini-batch generator,
+tensors, where it stands); :meth:`Session.fit` trains it, whole or a :class:`Phase` at a time.
+The estimator, the run folder (:mod:`latent_sindy.training.loop`), the choice of a moment
+order and the worlds' own studies all train through it.
+
+An autoencoder and its sparse dynamics find a good model from some initialisations and not
+from others (the paper kept the best of ten runs). With ``TrainConfig.starts`` > 1, prepare
+trains that many candidates (seeded from ``cfg.seed``) for ``start_epochs`` and keeps the one
+of lowest validation objective; it continues to ``cfg.epochs`` as if it had been the only
+one (its metrics from epoch 1, its optimiser and batches as they were).
+
+    session = prepare(cfg, data)          # every check first, then the model and its start
+    result = session.fit()                # to cfg.epochs: the kept weights and the metrics
+    model = session.finish(result)        # the kept weights (and --sindy-fit after)
+
+    warm = session.fit(Phase(100, "warm-up", {"loss": LossWeights(lambda_l1=0.0)}, adopt=False))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from latent_sindy.atomic import check_memory
+from latent_sindy.configs import from_json
+from latent_sindy.data import SequenceData
+from latent_sindy.data.windows import Normalizer
+from latent_sindy.errors import UserError
+from latent_sindy.models.latent_model import LatentModel, ModelConfig
+from latent_sindy.progress import Progress, Silent
+from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
+from latent_sindy.training.core import BestValidation, FitResult, TrainingDiverged, fit
+from latent_sindy.training.memory import check_training_memory
+from latent_sindy.training.prepare import (
+    TrainingTensors,
+    fit_after,
+    new_model,
+    regression_init,
+    settle_model,
+    settle_settings,
+    training_tensors,
+)
+from latent_sindy.training.record import run_record
+
+__all__ = ["Phase", "Session", "prepare", "start_seed"]
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A stretch of ``epochs`` epochs trained with settings of its own (``changes``: any
+    :class:`TrainConfig` fields, e.g. ``loss``, ``lr``, ``threshold_every``,
+    ``refine_epochs``), after whatever the session has trained. Its epochs keep counting
+    from the session's, so pruning every k epochs falls where it would in one run. A phase
+    chooses its kept weights among its own epochs (its objective may differ from the last
+    phase's), and the session continues from them (``adopt``) or from its last epoch."""
+
+    epochs: int
+    name: str = "phase"
+    changes: Mapping[str, Any] = field(default_factory=dict)
+    adopt: bool = True
+
+    def __post_init__(self) -> None:
+        if self.epochs < 0:
+            raise UserError(f"phase {self.name!r}: epochs {self.epochs}: use 0 or more")
+        unknown = set(self.changes) - {f.name for f in dataclasses.fields(TrainConfig)}
+        if unknown or "epochs" in self.changes:
+            raise UserError(f"phase {self.name!r} changes {sorted(unknown or {'epochs'})}: "
+                            "give TrainConfig fields other than epochs (the phase's own)")
+
+
+@dataclass
+class Session:
+    """A model ready to train from epoch ``done`` + 1: its settings, optimiser, generator and
+    tensors, the metrics and selection state so far, and how its start was chosen (``info``:
+    None for a single start)."""
+
+    cfg: TrainConfig
+    model: LatentModel
+    opt: torch.optim.Optimizer
+    gen: torch.Generator
+    tensors: TrainingTensors
+    data: SequenceData
+    norm: Normalizer
+    record: dict[str, Any]
+    device: torch.device
+    parts: int = 1
+    done: int = 0
+    metrics: list[dict[str, Any]] = field(default_factory=list)
+    best: BestValidation = field(default_factory=BestValidation)
+    info: dict[str, Any] | None = None
+
+    def fit(self, phase: Phase | None = None,
+            on_epoch: Callable[[int, dict[str, Any]], None] | None = None) -> FitResult:
+        """Train: without ``phase`` to ``cfg.epochs`` with the run's settings, its metrics and
+        selection going on (a resumed run, the chosen start); with one, the phase's epochs
+        with its settings, then its kept weights adopted as it says. Returns the fit's
+        result (:func:`~latent_sindy.training.core.fit`)."""
+        if phase is None:
+            result = self._fit(self.cfg, self.metrics, self.best, on_epoch)
+        else:
+            cfg = dataclasses.replace(self.cfg, **phase.changes, epochs=self.done + phase.epochs)
+            for group in self.opt.param_groups:
+                group["lr"] = cfg.lr
+            result = self._fit(cfg, [], BestValidation(), on_epoch)
+            if phase.adopt:
+                self.model.load_state_dict(result.state)
+        self.done = max(self.done, result.metrics[-1]["epoch"] if result.metrics else 0)
+        return result
+
+    def _fit(self, cfg: TrainConfig, metrics: list, best: BestValidation,
+             on_epoch: Callable[[int, dict[str, Any]], None] | None) -> FitResult:
+        result = fit(self.model, self.opt, self.gen, self.tensors.train, self.tensors.val,
+                     cfg, per_batch=self.tensors.per_batch, parts=self.parts, done=self.done,
+                     metrics=metrics, best=best, on_epoch=on_epoch)
+        if self.info is not None:
+            result.kept["start"] = self.info
+        return result
+
+    def finish(self, result: FitResult) -> LatentModel:
+        """The model with ``result``'s kept weights and, with ``--sindy-fit after``, its
+        coefficients fitted to the trained encoder (``result.state`` then updated too)."""
+        self.model.load_state_dict(result.state)
+        if self.cfg.sindy_fit == "after":
+            fit_after(self.model, self.data, self.norm, self.cfg, self.device)
+            result.state = {k: v.detach().cpu().clone()
+                            for k, v in self.model.state_dict().items()}
+        return self.model
+
+
+def prepare(cfg: TrainConfig, data: SequenceData, device: str | torch.device | None = None,
+            *, record: dict[str, Any] | None = None, earlier: dict[str, Any] | None = None,
+            resumed: bool = False, progress: Progress | None = None,
+            ready: Callable[[], None] | None = None) -> Session:
+    """Check ``cfg`` against ``data`` and build its :class:`Session`: the settings the data
+    settle (batch size), the record a run folder keeps (``record``: where the caller made it),
+    the memory the training needs, a moment order chosen from the data, the model, its
+    optimiser and tensors, and, unless ``resumed`` (the caller then loads its checkpoint into
+    the session), the start (several candidates where ``cfg.starts`` > 1). ``earlier``: the
+    record of a run being resumed, whose choices stand. UserError for anything unusable,
+    before any model is trained; ``ready()``, where given, is called once everything is
+    checked and before the starts train (a run folder writes its record then)."""
+    progress = progress or Silent()
+    cfg = settle_settings(cfg, data)
+    on = torch.device(resolve_device(cfg.device) if device is None else device)
+    record = run_record(cfg, data) if record is None else record
+    n_windows = data.n * (data.steps - cfg.window + 1)
+    check_memory(4 * n_windows * (cfg.window + 1) * data.images[0, 0].size * 3,
+                 f"training windows of {cfg.window} steps", "use a smaller --window")
+    norm = Normalizer.from_dict(record["normalizer"])
+    model_cfg = from_json(ModelConfig, record["model"], "model")
+    check_training_memory(model_cfg, cfg, data)
+    if earlier is None and getattr(model_cfg.observation, "order_from_data", False):
+        progress.note(f"--moment-order 0: choosing the order from the data ({cfg.order_epochs} "
+                      "epochs at order 2 first)")
+    model_cfg = settle_model(record, data, norm, cfg, on, earlier)
+    built = new_model(model_cfg, cfg, on)
+    regression = regression_init(cfg, built[0])  # (refuses settings it would ignore)
+    threads = torch.get_num_threads()
+    parts = threads if resolve_parallel(cfg, on.type, threads) == "batch" else 1
+    if ready is not None:
+        ready()
+
+    def session(model, opt, gen, tensors) -> Session:
+        return Session(cfg, model, opt, gen, tensors, data, norm, record, on, parts)
+
+    if resumed:
+        return session(*built, training_tensors(built[0], data, norm, cfg, on, fresh=False))
+    shared: list[TrainingTensors] = []  # built once: the data are the same for every start
+
+    def candidate(seed: int) -> Session:
+        model, opt, gen = built if seed == cfg.seed else new_model(
+            model_cfg, dataclasses.replace(cfg, seed=seed), on)
+        if shared and shared[0].prime is not None:
+            shared[0].prime(model)
+        else:
+            shared[:] = [training_tensors(model, data, norm, cfg, on, regression=regression)]
+        return session(model, opt, gen, shared[0])
+
+    return candidate(cfg.seed) if cfg.starts == 1 else _choose_start(cfg, candidate, progress)
+
+
+def start_seed(seed: int, k: int) -> int:
+    """The seed of candidate ``k`` of a run of ``seed``: the seed itself for the first (one
+    start is the run it always was), independent streams for the others."""
+    if k == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, k]).generate_state(1)[0])
+
+
+def _choose_start(cfg: TrainConfig, candidate: Callable[[int], Session],
+                  progress: Progress) -> Session:
+    """The candidate whose validation objective after ``cfg.start_epochs`` (a fifth of the
+    epochs where None) is lowest (ties: the earlier), with its metrics and selection state."""
+    probe = min(cfg.epochs, cfg.start_epochs or max(1, cfg.epochs // 5))
+    chosen: Session | None = None
+    diverged: TrainingDiverged | None = None
+    seeds, scores = [], []
+    for k in range(cfg.starts):
+        seed = start_seed(cfg.seed, k)
+        start = candidate(seed)
+        # (refinement begins at the same epoch as in the whole run, if within the probe)
+        short = dataclasses.replace(cfg, seed=seed, epochs=probe, refine_epochs=max(
+            0, cfg.refine_epochs - (cfg.epochs - probe)))
+        try:
+            result = start._fit(short, [], BestValidation(), None)
+        except TrainingDiverged as e:
+            diverged = e
+            seeds.append(seed)
+            scores.append(math.inf)
+            progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}) diverged: {e}")
+            continue
+        last = result.metrics[-1]
+        score = last.get("val/objective")  # (with a pose head's reading, as the kept weights)
+        if score is not None:
+            score += cfg.loss.lambda_pose * (last.get("val/pose") or 0.0)
+        else:  # no validation split: the training objective
+            score = last.get("train/objective", last.get("train/total"))
+        score = float(score) if score is not None and math.isfinite(score) else math.inf
+        seeds.append(seed)
+        scores.append(score)
+        progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}): objective {score:.4g} "
+                      f"after {probe} epochs")
+        if chosen is None or score < min(scores[:-1]):
+            start.done, start.metrics, start.best = probe, result.metrics, result.best
+            chosen = start
+    if chosen is None:  # every candidate diverged
+        raise diverged
+    k = scores.index(min(scores))
+    chosen.info = {"starts": cfg.starts, "epochs": probe, "chosen": k, "seeds": seeds,
+                   "objectives": [s if math.isfinite(s) else None for s in scores]}
+    return chosen
