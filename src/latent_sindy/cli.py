@@ -67,6 +67,10 @@ class Collect:
     world: str = "push"
     """The world to collect from: push (the options below), or another installed world with
     a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed only."""
+    world_config: tuple[str, ...] = ()
+    """KEY=VALUE settings of a --world other than push (fields of its config dataclass, the
+    others at their defaults), e.g. `image_size=32` for pendulum or `task=reacher-easy
+    size=32` for dmc."""
     out: Path = Path("data/push.h5")
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
     plan: Annotated[CollectionPlan, tyro.conf.arg(name=""), Flat] = field(
@@ -80,6 +84,9 @@ class Collect:
         if self.world != "push":
             self._collect_world()
             return
+        if self.world_config:
+            raise UserError("--world-config sets another world's settings: the push world "
+                            "takes the options below")
         from latent_sindy.worlds.push.collect import collect
 
         plan = self.plan
@@ -95,10 +102,18 @@ class Collect:
 
 
     def _collect_world(self) -> None:
+        from dataclasses import is_dataclass
+
+        from latent_sindy.configs import from_pairs
         from latent_sindy.data.store import write_sequences
         from latent_sindy.plugins import get_world, hook
 
         world = get_world(self.world)
+        if self.world_config:  # a world is its class built on its settings
+            if not is_dataclass(getattr(world, "config", None)):
+                raise UserError(f"--world {self.world} has no settings for --world-config")
+            world = type(world)(from_pairs(type(world.config), self.world_config,
+                                           "--world-config"))
         make = hook(world, "collect")
         if make is None:
             raise UserError(f"--world {self.world} does not collect data (no collect hook): "

@@ -21,14 +21,16 @@ would each need adapters for the same rules and add a dependency to every instal
 from __future__ import annotations
 
 import dataclasses
+import json
 import types
 import typing
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal, Union
 
 from latent_sindy.errors import UserError
 
-__all__ = ["from_json", "to_json"]
+__all__ = ["from_json", "from_pairs", "to_json"]
 
 
 def to_json(obj: Any) -> Any:
@@ -61,6 +63,27 @@ def from_json(cls: type, data: Any, where: str) -> Any:
     dataclass's own checks (``__post_init__``) run as usual.
     """
     return _convert(cls, data, where)
+
+
+def from_pairs(cls: type, pairs: Sequence[str], where: str) -> Any:
+    """Settings dataclass ``cls`` from the ``KEY=VALUE`` pairs of a command line, the other
+    fields at their defaults, checked as :func:`from_json` checks a file: each VALUE is read
+    as JSON where it parses as JSON (``32``, ``true``, ``[1, 2]``), else as a string.
+
+        >>> from latent_sindy.training.config import TrainConfig
+        >>> from_pairs(TrainConfig, ["epochs=7"], "--settings").epochs
+        7
+    """
+    given: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise UserError(f"{where}: {pair!r} is not KEY=VALUE (e.g. size=32)")
+        try:
+            given[key.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            given[key.strip()] = text
+    return from_json(cls, given, where)
 
 
 def _fail(where: str, msg: str) -> UserError:
