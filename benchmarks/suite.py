@@ -13,6 +13,7 @@ the test sequences:
     python benchmarks/suite.py                           # every system, seeds 0 1 2
     python benchmarks/suite.py --systems disc --seeds 0..7
     python benchmarks/suite.py --set batch_size=500 prune=absolute   # another setting, A/B
+    python benchmarks/suite.py --systems dmc --seeds 0     # where dm_control is installed
 
 ``--set`` changes a training setting for every row (to compare against the defaults in the
 same run); the table says which. Rows run in ``--workers`` processes of one torch thread.
@@ -21,6 +22,7 @@ same run); the table says which. Rows run in ``--workers`` processes of one torc
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import sys
@@ -122,6 +124,16 @@ def _pendulum(seed: int):
     return get_world("pendulum").collect(SEQUENCES, STEPS, seed=seed)
 
 
+def _dmc(seed: int):
+    """The DeepMind Control suite's cartpole-swingup, two stacked 32x32 RGB frames, each
+    random action held 8 control steps (PlaNet's repeat)."""
+    from latent_sindy.worlds.dmc.config import DmcConfig
+    from latent_sindy.worlds.dmc.plugin import DmcWorld
+
+    return DmcWorld(DmcConfig(task="cartpole-swingup", size=32)).collect(SEQUENCES, STEPS,
+                                                                         seed=seed)
+
+
 SYSTEMS: dict[str, System] = {
     "disc": System(lambda s: _disc(s), 2, "RGB 20x28 disc, 2-D velocity, 0.2 of a side a step"),
     "disc-gray": System(lambda s: _disc(s, (16, 16), 1, 0.1, 2.5), 2,
@@ -133,6 +145,8 @@ SYSTEMS: dict[str, System] = {
     "lorenz": System(_lorenz, 3, "Lorenz through a fixed 256-point embedding (no actions)"),
     "pendulum": System(_pendulum, 3, "controlled pendulum, two stacked 48x48 frames"),
 }
+if importlib.util.find_spec("dm_control") is not None:  # the dmc extra: a row where installed
+    SYSTEMS["dmc"] = System(_dmc, 6, "dm_control cartpole-swingup, two stacked 32x32 RGB frames")
 
 
 def _seeds(text: list[str]) -> list[int]:
