@@ -61,6 +61,10 @@ class LatentSINDy:
         include_sine: SINDy's library also holds sin(z).
         encoder: "conv" (learned), "mlp" (fully connected, 128-64-32 sigmoid), or a kind a
             world registers; decoder: "conv", "fc" or "mlp".
+        pca_components: with the mlp encoder and decoder, the first this many principal
+            components of the training frames in front of the encoder and behind the
+            decoder (a fixed linear map; derivatives pass it exactly): much cheaper steps on
+            large frames. 0: none.
         time: "discrete" (z[t+1] = z + Θ(z, u) Ξ) or "continuous" (SINDy only: the
             latent's time derivative is Θ(...) Ξ, trained on the images' derivatives, which
             the data gives or its frames, dt apart, estimate).
@@ -82,7 +86,7 @@ class LatentSINDy:
                  model: ModelConfig | None = None, seed: int = 0,
                  device: Literal["cpu", "cuda", "auto"] = "cpu",
                  time: Literal["discrete", "continuous"] = "discrete",
-                 derivative_order: int = 1) -> None:
+                 derivative_order: int = 1, pca_components: int = 0) -> None:
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
@@ -94,6 +98,7 @@ class LatentSINDy:
         self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
         self.library, self.include_sine = library, include_sine
         self.encoder, self.decoder, self.seed, self.device = encoder, decoder, seed, device
+        self.pca_components = pca_components
         self.loss = loss or LossWeights()
         self.settings = settings or TrainConfig(lr=1e-3)
         self.model = model
@@ -127,7 +132,8 @@ class LatentSINDy:
         return ModelConfig(dynamics=dyn,
                            encoder=AutoencoderConfig(latent_dim=self.latent_dim,
                                                      encoder_kind=self.encoder,
-                                                     decoder_kind=self.decoder))
+                                                     decoder_kind=self.decoder,
+                                                     pca_components=self.pca_components))
 
     def train_config(self, **overrides: Any) -> TrainConfig:
         """The training settings of a fit (``overrides``: any TrainConfig field)."""

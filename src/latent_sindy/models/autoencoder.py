@@ -138,6 +138,11 @@ class AutoencoderConfig:
     mlp_activation: Literal["sigmoid", "relu", "elu", "tanh"] = "sigmoid"
     """mlp encoder and decoder: the activation after every hidden layer (the SINDy
     autoencoder's pendulum: sigmoid)."""
+    pca_components: int = 0
+    """mlp encoder and decoder: the first this many principal components of the normalised
+    training frames in front of the encoder's network and behind the decoder's, a fixed
+    linear map (:mod:`~latent_sindy.models.front`; the frames' derivatives pass it exactly):
+    the networks work on these coordinates, not on every pixel. 0: none."""
 
     def __post_init__(self) -> None:
         if isinstance(self.image_size, tuple | list):
@@ -160,6 +165,16 @@ class AutoencoderConfig:
                 f"hidden sizes must be positive (and the decoder needs at least one layer), "
                 f"got encoder_hidden={self.encoder_hidden}, decoder_hidden={self.decoder_hidden}"
             )
+        if self.pca_components < 0 or (self.pca_components and not (
+                self.encoder_kind == "mlp" and self.decoder_kind == "mlp")):
+            raise UserError(f"pca_components {self.pca_components}: use 0 (none) or more, with "
+                            f"the mlp encoder and decoder (got {self.encoder_kind!r}, "
+                            f"{self.decoder_kind!r})")
+        if self.pca_components and self.resolved and self.pca_components > (
+                self.channels * self.height * self.width):
+            raise UserError(f"pca_components {self.pca_components} is more than the "
+                            f"{self.channels * self.height * self.width} values of a frame: use "
+                            "at most that many")
         if self.decoder_kind not in DECODERS:
             raise UserError(f"decoder {self.decoder_kind!r} is unknown: use one of "
                             + ", ".join(DECODERS))
@@ -337,11 +352,17 @@ class Autoencoder(nn.Module):
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor) -> None:
         """Let an encoder or a decoder that needs them (the moments encoders' and the sprite
-        decoder's background) take their statistics from normalised training images
-        (N, C, H, W); the learned ones need none."""
+        decoder's background, the principal components of ``pca_components``) take their
+        statistics from normalised training images (N, C, H, W); the learned ones need none."""
         for part in (self.encoder, self.decoder):
             if isinstance(part, MomentEncoder | MaskMomentEncoder | SpriteDecoder):
                 part.fit_statistics(frames)
+        if k := self.config.pca_components:
+            from latent_sindy.models.front import principal_components
+
+            mean, basis = principal_components(frames.flatten(1), k)
+            self.encoder.net[0].set(basis.T, -(mean @ basis))
+            self.decoder.net[-1].set(basis, mean)
 
     def cost_weights(self, period: float) -> torch.Tensor:
         """Q (nz,) of MPPI's latent cost, :func:`~latent_sindy.models.costs.cost_weights`: on

@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from latent_sindy.models.encoders import median_background, mlp
+from latent_sindy.models.front import LinearMap
 
 if TYPE_CHECKING:
     from latent_sindy.models.autoencoder import AutoencoderConfig
@@ -117,8 +118,11 @@ class MlpDecoder(nn.Module):
     def __init__(self, cfg: AutoencoderConfig) -> None:
         super().__init__()
         self.shape = (cfg.channels, cfg.height, cfg.width)
-        pixels = cfg.channels * cfg.height * cfg.width
-        self.net = mlp([cfg.latent_dim, *reversed(cfg.mlp_widths), pixels], cfg.mlp_activation)
+        pixels, k = cfg.channels * cfg.height * cfg.width, cfg.pca_components
+        self.net = mlp([cfg.latent_dim, *reversed(cfg.mlp_widths), k or pixels],
+                       cfg.mlp_activation)
+        if k:  # back from the principal components (fitted with the model's statistics)
+            self.net.append(LinearMap(k, pixels))
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return self.net(z).reshape(*z.shape[:-1], *self.shape)

@@ -32,6 +32,7 @@ import torch
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.front import LinearMap
 
 if TYPE_CHECKING:
     from latent_sindy.models.autoencoder import AutoencoderConfig
@@ -63,8 +64,10 @@ class MlpEncoder(nn.Module):
 
     def __init__(self, cfg: AutoencoderConfig) -> None:
         super().__init__()
-        pixels = cfg.channels * cfg.height * cfg.width
-        self.net = mlp([pixels, *cfg.mlp_widths, cfg.latent_dim], cfg.mlp_activation)
+        pixels, k = cfg.channels * cfg.height * cfg.width, cfg.pca_components
+        self.net = mlp([k or pixels, *cfg.mlp_widths, cfg.latent_dim], cfg.mlp_activation)
+        if k:  # the principal components in front (fitted with the model's statistics)
+            self.net.insert(0, LinearMap(pixels, k))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net(x.flatten(1))

@@ -1,0 +1,66 @@
+"""A fixed linear front for the fully connected autoencoder: the first ``k`` principal
+components of the training frames in front of the encoder's network and behind the
+decoder's (``AutoencoderConfig.pca_components``).
+
+The networks then work on k coordinates instead of every pixel, which makes a step of the
+SINDy autoencoder's pendulum model tens of times cheaper (BENCHMARKS.md), and being linear
+the map carries the frames' time derivatives exactly. Nothing of it is learned: the map is
+fitted once, from the normalised training frames, when the model takes its statistics, and
+travels in the model's state (its buffers).
+
+    mean, basis = principal_components(frames.flatten(1), k)   # (pixels,), (pixels, k)
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from latent_sindy.errors import UserError
+
+__all__ = ["FRONT_FRAMES", "LinearMap", "principal_components"]
+
+#: The most training frames the principal components are fitted on (evenly spaced).
+FRONT_FRAMES = 8192
+
+
+class LinearMap(nn.Module):
+    """x -> x Wᵀ + b with W (n_out, n_in) and b fixed (buffers, not parameters)."""
+
+    is_linear = True  # (derivatives.along_layers: its derivatives are W times its input's)
+
+    def __init__(self, n_in: int, n_out: int) -> None:
+        super().__init__()
+        self.register_buffer("weight", torch.zeros(n_out, n_in))
+        self.register_buffer("bias", torch.zeros(n_out))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.linear(x, self.weight, self.bias)
+
+    def set(self, weight: torch.Tensor, bias: torch.Tensor) -> None:
+        """Give the map its weight (n_out, n_in) and bias (n_out,)."""
+        self.weight.copy_(weight)
+        self.bias.copy_(bias)
+
+
+@torch.no_grad()
+def principal_components(frames: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The mean (pixels,) and the first ``k`` principal directions (pixels, k), orthonormal
+    columns, of ``frames`` (M, pixels), fitted in float64 on at most :data:`FRONT_FRAMES`
+    evenly spaced frames; UserError where there are fewer frames or pixels than ``k``."""
+    m, p = frames.shape
+    if k > min(m, p):
+        raise UserError(f"pca_components {k}: the training split has {m} frames of {p} values; "
+                        f"use at most {min(m, p)} components")
+    x = frames[torch.linspace(0, m - 1, min(m, FRONT_FRAMES)).round().long()].double()
+    mean = x.mean(0)
+    x = x - mean
+    # the eigenvectors of the smaller of xᵀx and xxᵀ (2.5 times quicker than an SVD here)
+    if p <= len(x):
+        basis = torch.linalg.eigh(x.T @ x)[1][:, -k:].flip(1)
+    else:
+        values, u = torch.linalg.eigh(x @ x.T)
+        scale = values[-k:].flip(0).clamp_min(torch.finfo(x.dtype).tiny).sqrt()
+        basis = (x.T @ u[:, -k:].flip(1)) / scale
+    return mean.float(), basis.float()
