@@ -16,6 +16,7 @@ included.
 
     .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..2 --schedule scalefree
     .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0..9 --derivatives central
+    .venv/bin/python benchmarks/pendulum_recovery.py --seeds 0,1 --omega2 1.44
 
 The data is cached in /tmp (pendulum_pca_K_EVERY_DERIVATIVES.npz) after its first making.
 The same study with a report: ``latent-sindy reproduce --world pendulum-video``.
@@ -57,6 +58,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--device", default="cpu", choices=["auto", "cpu", "cuda"],
                     help="where the models train")
+    ap.add_argument("--omega2", type=float, default=1.0,
+                    help="ω² of the video's pendulum, θ̈ = −ω² sin θ (the benchmark's: 1)")
     ap.add_argument("--out", type=Path, default=None, help="append one JSON line per seed")
     args = ap.parse_args()
 
@@ -64,18 +67,20 @@ def main() -> None:
 
     cfg = VideoStudyConfig(seeds=tuple(seeds_of(args.seeds)), schedule=args.schedule,
                            derivatives=args.derivatives, components=args.components,
-                           epochs=args.epochs, device=args.device, threads=args.threads)
+                           epochs=args.epochs, device=args.device, threads=args.threads,
+                           omega2=args.omega2)
     torch.set_num_threads(cfg.threads)
     s = cfg.resolved_schedule()
     t0 = time.perf_counter()
-    video = load_or_make(Path("/tmp"), cfg.components, s.frames_every, cfg.derivatives)
+    video = load_or_make(Path("/tmp"), cfg.components, s.frames_every, cfg.derivatives,
+                         omega2=cfg.omega2)
     data, lo, span = as_sequences(video)
     print(f"data: {video.coords.shape} in {time.perf_counter() - t0:.1f} s; schedule "
           f"{args.schedule}: {json.dumps(asdict(s))}; derivatives {args.derivatives}",
           flush=True)
     result = VideoStudyResult(cfg, [])
     for seed in cfg.seeds:
-        r = train_seed(seed, s, data, cfg.components, video, lo, span, cfg.device)
+        r = train_seed(seed, s, data, cfg.components, video, lo, span, cfg.device, cfg.omega2)
         result.rows.append(r)
         print(seed_line(r), flush=True)
         if args.out:

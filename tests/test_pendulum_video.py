@@ -131,3 +131,42 @@ def test_the_video_plugin_is_found_by_name():
         {"video": {"steps": 500}}, "here") == {"steps": 500}
     with pytest.raises(UserError, match="lacks"):
         get_world("pendulum-video").config_from_record({}, "here")
+
+
+@pytest.mark.parametrize("omega2", [0.49, 1.44, 4.0])
+def test_another_frequency_is_the_same_pendulum_in_its_own_time(omega2: float) -> None:
+    """θ̈ = −ω² sin θ: the states and the images' derivatives follow it, no start turns full
+    circles, and the starts are the benchmark's with the rates scaled by ω."""
+    dt = 0.002
+    data = pendulum_video(n_train=3, n_val=1, n_test=1, steps=400, dt=dt, size=21,
+                          omega2=omega2, dtype=np.float64)
+    th, rate = data.states[..., 0], data.states[..., 1]
+    e = rate ** 2 / 2 - omega2 * np.cos(th)
+    assert np.abs(e - e[:, :1]).max() < 1e-8 and np.abs(e).max() <= ENERGY_LIMIT * omega2
+    # the rate's central difference is θ̈ = −ω² sin θ
+    acc = (rate[:, 2:] - rate[:, :-2]) / (2 * dt)
+    np.testing.assert_allclose(acc, -omega2 * np.sin(th[:, 1:-1]), atol=1e-4 * omega2)
+    # the images' ẍ is the central difference of their ẋ
+    ddx = (data.images_dot[:, 2:] - data.images_dot[:, :-2]) / (2 * dt)
+    scale = np.abs(data.images_ddot).max()
+    assert np.abs(ddx - data.images_ddot[:, 1:-1]).max() < 5e-3 * scale
+    ref = sample_starts(5, np.random.default_rng(0))
+    np.testing.assert_allclose(data.states[:, 0], ref * [1, math.sqrt(omega2)], rtol=1e-12)
+    assert data.record["video"]["omega2"] == omega2
+
+
+def test_a_frequency_that_is_no_number_is_refused() -> None:
+    with pytest.raises(UserError, match="omega2"):
+        pendulum_video(n_train=1, n_val=0, n_test=0, steps=10, omega2=-1.0)
+
+
+def test_the_video_study_keys_its_rows_and_cache_by_the_frequency() -> None:
+    from latent_sindy.worlds.pendulum.video_pca import cache_name
+    from latent_sindy.worlds.pendulum.video_study import VideoStudyConfig
+
+    one, other = VideoStudyConfig(seeds=(0,)), VideoStudyConfig(seeds=(0,), omega2=1.44)
+    assert "omega2" not in one.key()  # rows of the benchmark's video kept before stay valid
+    assert other.key()["omega2"] == 1.44
+    assert cache_name(48, 5, "exact") != cache_name(48, 5, "exact", omega2=1.44)
+    with pytest.raises(UserError, match="omega2"):
+        VideoStudyConfig(seeds=(0,), omega2=0.0)
