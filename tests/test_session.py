@@ -95,3 +95,21 @@ def test_the_estimator_in_memory_and_into_a_run_folder_train_the_same_model(tmp_
                                              out=tmp_path / "run")
     assert a.kept_ == b.kept_ and a.kept_["start"]["starts"] == 2
     assert np.array_equal(a.coefficients(), b.coefficients())
+
+
+def test_the_estimator_trains_phases_after_its_fit() -> None:
+    kwargs = {"encoder": "mlp", "decoder": "mlp", "order": 1, "include_sine": False}
+    model = LatentSINDy(2, seed=0, **kwargs).fit(
+        _data(), epochs=3, starts=1, phases=[Phase(2, "calibration", {"lr": 1e-4})])
+    assert [r["epoch"] for r in model.metrics_] == [1, 2, 3, 4, 5]
+    assert model.kept_["phase"] == "calibration" and model.kept_["epoch"] in (4, 5)
+    plain = LatentSINDy(2, seed=0, **kwargs).fit(_data(), epochs=3, starts=1)
+    assert not np.array_equal(plain.coefficients(), model.coefficients())
+
+
+def test_phases_are_refused_into_a_run_folder_and_when_not_phases(tmp_path) -> None:
+    est = LatentSINDy(2, seed=0, encoder="mlp", decoder="mlp", order=1, include_sine=False)
+    with pytest.raises(UserError, match="in memory"):
+        est.fit(_data(), epochs=1, phases=[Phase(1)], out=tmp_path / "run")
+    with pytest.raises(UserError, match="Phase"):
+        est.fit(_data(), epochs=1, phases=[{"epochs": 1}])

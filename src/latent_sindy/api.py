@@ -20,6 +20,7 @@ import dataclasses
 import os
 import re
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -35,13 +36,13 @@ from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
-from latent_sindy.progress import Progress, Silent
+from latent_sindy.progress import Progress
 from latent_sindy.training.config import (
     TrainConfig,
     check_fit_settings,
 )
 from latent_sindy.training.runs import RunDir
-from latent_sindy.training.session import prepare
+from latent_sindy.training.session import Phase, fit_in_memory
 
 __all__ = ["AllTermsPruned", "LatentSINDy"]
 
@@ -143,15 +144,20 @@ class LatentSINDy:
     # ------------------------------------------------------------------ fitting
     def fit(self, data: SequenceData, epochs: int | None = None, *,
             out: str | os.PathLike | None = None, progress: Progress | None = None,
-            **settings: Any) -> LatentSINDy:
+            phases: Sequence[Phase] = (), **settings: Any) -> LatentSINDy:
         """Train on ``data`` (its training split; its validation split selects the kept
         weights). In memory, or into the run folder ``out`` (with checkpoints; resumable).
-        ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...)."""
+        ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...). ``phases``:
+        :class:`~latent_sindy.Phase` stretches trained after it, each with settings of its
+        own (a calibration: ``Phase(300, "calibration", {"lr": 1e-3, "loss": ...})``), in
+        memory only."""
         if not isinstance(data, SequenceData):
             raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
         check_fit_settings(settings, out)
         if epochs is not None:
             settings["epochs"] = epochs
+        if out is not None and phases:
+            raise UserError("phases train in memory: drop out= (save the model afterwards)")
         if out is not None:
             from latent_sindy.training.loop import train
 
@@ -159,19 +165,13 @@ class LatentSINDy:
             train(cfg, progress, data=data)
             self._adopt(RunDir(out))
         else:
-            progress = progress or Silent()
-            session = prepare(self.train_config(**settings), data, progress=progress)
-            progress.start(session.cfg.epochs, session.done)
-            try:
-                result = session.fit(on_epoch=progress.update)
-            finally:
-                progress.close()
-            model, record = session.finish(result).cpu().eval(), session.record
-            self.model_, self.normalizer_ = model, session.norm
+            session, result, metrics = fit_in_memory(self.train_config(**settings), data,
+                                                     progress, phases)
+            self.model_, self.normalizer_, record = session.model, session.norm, session.record
             self.description_ = record["description"]
             self.world_record_ = record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}
-            self.metrics_, self.kept_ = result.metrics, result.kept
+            self.metrics_, self.kept_ = metrics, result.kept
         if note := pruned_note(self.model_.dynamics):
             warnings.warn(note, AllTermsPruned, stacklevel=2)
         return self

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,7 +49,7 @@ from latent_sindy.training.prepare import (
 )
 from latent_sindy.training.record import run_record
 
-__all__ = ["Phase", "Session", "prepare", "start_seed"]
+__all__ = ["Phase", "Session", "fit_in_memory", "prepare", "start_seed"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,7 @@ class Session:
             for group in self.opt.param_groups:
                 group["lr"] = cfg.lr
             result = self._fit(cfg, [], BestValidation(), on_epoch)
+            result.kept["phase"] = phase.name
             if phase.adopt:
                 self.model.load_state_dict(result.state)
         self.done = max(self.done, result.metrics[-1]["epoch"] if result.metrics else 0)
@@ -184,6 +185,28 @@ def prepare(cfg: TrainConfig, data: SequenceData, device: str | torch.device | N
         return session(model, opt, gen, shared[0])
 
     return candidate(cfg.seed) if cfg.starts == 1 else _choose_start(cfg, candidate, progress)
+
+
+def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | None = None,
+                  phases: Sequence[Phase] = ()) -> tuple[Session, FitResult, list[dict]]:
+    """Train ``cfg``'s model on ``data`` without a run folder: the fit to ``cfg.epochs``,
+    then each of ``phases`` in turn. Returns the session (its model holding the kept weights,
+    on the CPU, in eval mode), the last fit's result and every epoch's metrics rows."""
+    if not all(isinstance(p, Phase) for p in phases):
+        raise UserError("phases: give a sequence of latent_sindy.Phase")
+    progress = progress or Silent()
+    session = prepare(cfg, data, progress=progress)
+    progress.start(session.cfg.epochs + sum(p.epochs for p in phases), session.done)
+    try:
+        result = session.fit(on_epoch=progress.update)
+        metrics = list(result.metrics)
+        for phase in phases:
+            result = session.fit(phase, on_epoch=progress.update)
+            metrics += result.metrics
+    finally:
+        progress.close()
+    session.finish(result).cpu().eval()
+    return session, result, metrics
 
 
 def start_seed(seed: int, k: int) -> int:
