@@ -60,6 +60,9 @@ def main() -> None:
                     help="where the models train")
     ap.add_argument("--omega2", type=float, default=1.0,
                     help="ω² of the video's pendulum, θ̈ = −ω² sin θ (the benchmark's: 1)")
+    ap.add_argument("--starts", default="own_time", choices=["own_time", "benchmark"],
+                    help="at ω² ≠ 1: the benchmark's starts in the pendulum's own time, or "
+                         "drawn as for ω² = 1")
     ap.add_argument("--out", type=Path, default=None, help="append one JSON line per seed")
     args = ap.parse_args()
 
@@ -68,12 +71,12 @@ def main() -> None:
     cfg = VideoStudyConfig(seeds=tuple(seeds_of(args.seeds)), schedule=args.schedule,
                            derivatives=args.derivatives, components=args.components,
                            epochs=args.epochs, device=args.device, threads=args.threads,
-                           omega2=args.omega2)
+                           omega2=args.omega2, starts=args.starts)
     torch.set_num_threads(cfg.threads)
     s = cfg.resolved_schedule()
     t0 = time.perf_counter()
     video = load_or_make(Path("/tmp"), cfg.components, s.frames_every, cfg.derivatives,
-                         omega2=cfg.omega2)
+                         omega2=cfg.omega2, starts=cfg.starts)
     data, lo, span = as_sequences(video)
     print(f"data: {video.coords.shape} in {time.perf_counter() - t0:.1f} s; schedule "
           f"{args.schedule}: {json.dumps(asdict(s))}; derivatives {args.derivatives}",

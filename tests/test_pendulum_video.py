@@ -170,3 +170,15 @@ def test_the_video_study_keys_its_rows_and_cache_by_the_frequency() -> None:
     assert cache_name(48, 5, "exact") != cache_name(48, 5, "exact", omega2=1.44)
     with pytest.raises(UserError, match="omega2"):
         VideoStudyConfig(seeds=(0,), omega2=0.0)
+
+
+def test_the_benchmarks_own_starts_at_another_frequency() -> None:
+    """starts="benchmark": the starts drawn as for ω² = 1 whatever ω² (relatively smaller
+    swings above 1); refused below 1, where some would turn full circles."""
+    ours = pendulum_video(n_train=3, n_val=1, n_test=1, steps=20, size=11, omega2=1.44,
+                          starts="benchmark")
+    bench = pendulum_video(n_train=3, n_val=1, n_test=1, steps=20, size=11)
+    np.testing.assert_array_equal(ours.states[:, 0], bench.states[:, 0])
+    assert not np.array_equal(ours.states[:, 1], bench.states[:, 1])  # another pendulum
+    with pytest.raises(UserError, match="full circles"):
+        pendulum_video(n_train=1, n_val=0, n_test=0, steps=10, omega2=0.5, starts="benchmark")

@@ -102,7 +102,8 @@ def blob_images(theta: np.ndarray, rate: np.ndarray, size: int = 51,
 
 def pendulum_video(n_train: int = 100, n_val: int = 10, n_test: int = 10, seed: int = 0,
                    steps: int = 500, dt: float = 0.02, size: int = 51, frames_every: int = 1,
-                   dtype: Any = np.float32, omega2: float = 1.0) -> SequenceData:
+                   dtype: Any = np.float32, omega2: float = 1.0,
+                   starts: str = "own_time") -> SequenceData:
     """The pendulum video benchmark as :class:`~latent_sindy.data.SequenceData`.
 
     Args:
@@ -113,7 +114,11 @@ def pendulum_video(n_train: int = 100, n_val: int = 10, n_test: int = 10, seed: 
         dt: the time between samples; size: the image's side in pixels.
         frames_every: keep every k-th sample (the data's ``dt`` is then k·dt).
         dtype: floating-point type of the images and their derivatives.
-        omega2: ω² of θ̈ = −ω² sin θ (the benchmark's 1); the starts' rates scale with ω.
+        omega2: ω² of θ̈ = −ω² sin θ (the benchmark's 1).
+        starts: "own_time" (the benchmark's starts in the pendulum's own time: rates drawn ω
+            times wider, the energy limit ω² times larger) or "benchmark" (the starts drawn
+            as for ω² = 1, whatever ω²: relatively smaller swings for ω² > 1; refused below
+            1, where some would turn full circles).
 
     Returns images (N, F, 1, size, size) in [0, 1], ``images_dot`` and ``images_ddot`` of the
     same shape, states (θ, θ̇) with θ's period 2π, no actions, world "pendulum-video".
@@ -131,10 +136,13 @@ def pendulum_video(n_train: int = 100, n_val: int = 10, n_test: int = 10, seed: 
         raise UserError(f"dt {dt!r} and size {size!r}: use dt > 0 and an integer size >= 2")
     if not (math.isfinite(omega2) and omega2 > 0):
         raise UserError(f"omega2 {omega2!r}: use a number > 0 (the benchmark's is 1)")
+    if starts not in ("own_time", "benchmark") or (starts == "benchmark" and omega2 < 1):
+        raise UserError(f"starts {starts!r} with omega2 {omega2}: use own_time, or benchmark "
+                        "with omega2 >= 1 (below, some of its starts turn full circles)")
     if not np.issubdtype(np.dtype(dtype), np.floating):
         raise UserError(f"dtype {dtype!r}: the images are floating point (float32 or float64)")
-    starts = sample_starts(n, np.random.default_rng(seed), omega2)
-    states = integrate(starts, steps, dt, omega2)[:, ::frames_every]  # (n, F, 2)
+    first = sample_starts(n, np.random.default_rng(seed), omega2 if starts == "own_time" else 1)
+    states = integrate(first, steps, dt, omega2)[:, ::frames_every]  # (n, F, 2)
     shape = (n, states.shape[1], 1, size, size)
     x, x_dot, x_ddot = (np.empty(shape, dtype) for _ in range(3))
     for i in range(n):  # one trajectory at a time: the float64 temporaries stay small
@@ -142,7 +150,8 @@ def pendulum_video(n_train: int = 100, n_val: int = 10, n_test: int = 10, seed: 
             states[i, :, 0], states[i, :, 1], size, dtype, omega2)
     split = np.repeat(np.arange(3, dtype=np.uint8), [n_train, n_val, n_test])
     settings = {"steps": steps, "dt": dt, "size": size, "frames_every": frames_every,
-                "energy_limit": ENERGY_LIMIT, "width": WIDTH, "omega2": omega2}
+                "energy_limit": ENERGY_LIMIT, "width": WIDTH, "omega2": omega2,
+                "starts": starts}
     return SequenceData(
         x, None, states=states.astype(dtype), state_names=("θ", "θ_dot"),
         state_periods=(2 * math.pi, None), split=split, dt=dt * frames_every,

@@ -45,9 +45,10 @@ class Compressed:
 
 def compressed_video(k: int, frames_every: int, derivatives: str,
                      splits: tuple[int, int, int] = SPLITS, steps: int = STEPS,
-                     omega2: float = 1.0) -> Compressed:
+                     omega2: float = 1.0, starts: str = "own_time") -> Compressed:
     """The benchmark's trajectories (``pendulum_video(seed=0)``'s starts and states; fewer
-    with smaller ``splits``/``steps``; θ̈ = −ω² sin θ with ``omega2``), rendered one
+    with smaller ``splits``/``steps``; θ̈ = −ω² sin θ with ``omega2``, its ``starts`` as
+    :func:`~latent_sindy.worlds.pendulum.video.pendulum_video` draws them), rendered one
     trajectory at a time and projected on the first ``k`` principal components of the
     training frames (every 5th frame of each fitted)."""
     from latent_sindy.models.derivatives import estimate_derivatives
@@ -61,8 +62,11 @@ def compressed_video(k: int, frames_every: int, derivatives: str,
     if derivatives not in ("exact", "central"):
         raise UserError(f"--derivatives {derivatives!r}: use exact or central")
     n = sum(splits)
-    starts = sample_starts(n, np.random.default_rng(0), omega2)
-    states = integrate(starts, steps, DT, omega2)  # (n, F, 2)
+    if starts not in ("own_time", "benchmark") or (starts == "benchmark" and omega2 < 1):
+        raise UserError(f"starts {starts!r} with omega2 {omega2}: use own_time, or benchmark "
+                        "with omega2 >= 1")
+    first = sample_starts(n, np.random.default_rng(0), omega2 if starts == "own_time" else 1)
+    states = integrate(first, steps, DT, omega2)  # (n, F, 2)
     fit = np.concatenate([blob_images(states[i, ::5, 0], states[i, ::5, 1])[0]
                           .reshape(-1, PIXELS) for i in range(splits[0])]).astype(np.float64)
     mean = fit.mean(0)
@@ -88,19 +92,20 @@ def compressed_video(k: int, frames_every: int, derivatives: str,
 
 def cache_name(k: int, frames_every: int, derivatives: str,
                splits: tuple[int, int, int] = SPLITS, steps: int = STEPS,
-               omega2: float = 1.0) -> str:
+               omega2: float = 1.0, starts: str = "own_time") -> str:
     """The cache file's name; the benchmark's own sizes keep their historical name."""
     size = "" if (splits, steps) == (SPLITS, STEPS) else f"_{'-'.join(map(str, splits))}x{steps}"
-    size += "" if omega2 == 1 else f"_w{omega2!r}"
+    size += "" if omega2 == 1 else f"_w{omega2!r}" + ("" if starts == "own_time" else "b")
     return f"pendulum_pca_{k}_{frames_every}_{derivatives}{size}.npz"
 
 
 def load_or_make(folder: Path, k: int, frames_every: int, derivatives: str,
                  splits: tuple[int, int, int] = SPLITS, steps: int = STEPS,
-                 omega2: float = 1.0) -> Compressed:
+                 omega2: float = 1.0, starts: str = "own_time") -> Compressed:
     """The compressed video, read from ``folder``'s cache when there (a damaged or foreign
     file is made again), else made and cached atomically (``.npz``, no pickles)."""
-    path = Path(folder) / cache_name(k, frames_every, derivatives, splits, steps, omega2)
+    path = Path(folder) / cache_name(k, frames_every, derivatives, splits, steps, omega2,
+                                     starts)
     n, frames = sum(splits), len(range(0, steps, frames_every))
     try:
         with np.load(path, allow_pickle=False) as f:
@@ -111,7 +116,7 @@ def load_or_make(folder: Path, k: int, frames_every: int, derivatives: str,
             return video
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         pass  # missing or unreadable: make it again
-    video = compressed_video(k, frames_every, derivatives, splits, steps, omega2)
+    video = compressed_video(k, frames_every, derivatives, splits, steps, omega2, starts)
     with atomic_path(path) as tmp:
         np.savez(tmp, **{f.name: getattr(video, f.name) for f in dataclasses.fields(video)
                          if f.name != "dt"})

@@ -223,6 +223,9 @@ class VideoStudyConfig:
     omega2: float = 1.0
     """ω² of the video's pendulum, θ̈ = −ω² sin θ (the benchmark's: 1); a seed is recovered
     when its coefficient is within 2 % of −ω²."""
+    starts: Literal["own_time", "benchmark"] = "own_time"
+    """The video's starts at ω² ≠ 1 (:func:`~latent_sindy.worlds.pendulum.video.pendulum_video`):
+    the benchmark's in the pendulum's own time, or drawn as for ω² = 1."""
 
     def __post_init__(self) -> None:
         if self.schedule not in SCHEDULES:
@@ -251,7 +254,8 @@ class VideoStudyConfig:
         return {"schedule": self.schedule, "derivatives": self.derivatives,
                 "components": self.components, "splits": list(self.splits),
                 "steps": self.steps, **asdict(self.resolved_schedule()),
-                **({} if self.omega2 == 1 else {"omega2": self.omega2})}
+                **({} if self.omega2 == 1 else {"omega2": self.omega2}),
+                **({} if self.starts == "own_time" else {"starts": self.starts})}
 
 
 @dataclass
@@ -327,9 +331,10 @@ def run_video_study(cfg: VideoStudyConfig, out: Path | None = None,
         video = data = lo = span = None
         if todo:
             video = (load_or_make(out, cfg.components, s.frames_every, cfg.derivatives,
-                                  cfg.splits, cfg.steps, cfg.omega2) if out is not None else
+                                  cfg.splits, cfg.steps, cfg.omega2, cfg.starts)
+                     if out is not None else
                      compressed_video(cfg.components, s.frames_every, cfg.derivatives,
-                                      cfg.splits, cfg.steps, cfg.omega2))
+                                      cfg.splits, cfg.steps, cfg.omega2, cfg.starts))
             data, lo, span = as_sequences(video)
         result = VideoStudyResult(cfg, [], [seed for seed in cfg.seeds if seed in done],
                                   time.perf_counter() - t0)
