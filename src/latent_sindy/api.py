@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.planner import ImagePlanner
+from latent_sindy.control.planner import ImagePlanner, Objective
 from latent_sindy.data import SequenceData
 from latent_sindy.data.inputs import check_actions, check_frames
 from latent_sindy.equations import name_actions, pruned_note
@@ -379,13 +379,14 @@ class LatentSINDy:
         return est._adopt(folder)
 
     def planner(self, mppi: MPPIConfig | None = None, space: Literal["latent", "image"]
-                = "latent", seed: int = 0) -> ImagePlanner:
-        """MPPI in this model's latent space: ``planner.act(image, goal_image)`` -> (nu,)."""
+                = "latent", seed: int = 0, objective: Objective = "goal") -> ImagePlanner:
+        """MPPI in this model's latent space: ``planner.act(image, goal_image)`` -> (nu,);
+        ``objective="reward"``: the most predicted reward (a reward head), ``act(image)``."""
         self._check_fitted()
         d = self.description_
         return ImagePlanner(self.model_, self.normalizer_, mppi or MPPIConfig(),
                             d["action_low"], d["action_high"], space=space, seed=seed,
-                            pixel_dtype=d.get("pixel_dtype", "uint8"))
+                            pixel_dtype=d.get("pixel_dtype", "uint8"), objective=objective)
 
     def __repr__(self) -> str:
         state = "fitted" if hasattr(self, "model_") else "not fitted"

@@ -1,6 +1,7 @@
 """Control in latent space: MPPI over any latent model's batched ``step``, its costs, a planner
 toward goal images, the world interface and the one closed loop every world runs through
-(policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`).
+(policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`), and the
+model-based loop that plans against a learned reward (:mod:`.model_based`).
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
 >>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
@@ -8,7 +9,7 @@ toward goal images, the world interface and the one closed loop every world runs
 """
 
 from latent_sindy.control.collect import collect_random
-from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
+from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, RewardCost, StateCost
 from latent_sindy.control.episodes import (
     Episode,
     ImagePolicy,
@@ -19,6 +20,7 @@ from latent_sindy.control.episodes import (
     run_loop,
     success_rates,
 )
+from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult, model_based
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.control.sindy_step import SparseSindyStep
@@ -34,15 +36,19 @@ __all__ = [
     "LatentCost",
     "MPPIConfig",
     "MPPIInfo",
+    "ModelBasedConfig",
+    "ModelBasedResult",
     "Observation",
     "Policy",
     "PoseCost",
+    "RewardCost",
     "SparseSindyStep",
     "StateCost",
     "Task",
     "World",
     "collect_random",
     "latent_step",
+    "model_based",
     "run_closed_loop",
     "run_episode",
     "run_loop",

@@ -1,7 +1,10 @@
 """State costs for MPPI: plain batched callables ``cost(z (..., nz)) -> (...)``.
 
 MPPI calls a cost once per command on all predicted states, z (H, K, nz) -> (H, K), so a
-cost must accept any leading batch dimensions.
+cost must accept any leading batch dimensions. A cost whose ``takes_actions`` is true is
+called instead on the states the actions are taken in and the actions,
+``cost(z_0..z_{H-1} (H, K, nz), u (H, K, nu)) -> (H, K)``: ``RewardCost``, minus a model's
+predicted reward, so that MPPI maximises the reward summed over its horizon (no goal).
 
 ``LatentCost`` is the paper's quadratic cost in latent space, ``ImageCost`` its image-space
 variant (decode each predicted latent and compare with the goal image), ``PoseCost`` a
@@ -12,6 +15,7 @@ features) against the goal's.
     >>> cost(torch.ones(5, 16))  # (5,): tensor([16., 16., 16., 16., 16.])
     >>> icost = ImageCost(autoencoder.decode, goal_image)  # goal_image (1, 32, 32)
     >>> pcost = PoseCost(model.pose_head, model.pose_head(z_goal), pose_cost_weights(P))
+    >>> rcost = RewardCost(model.reward_head)   # rcost(z (H, K, nz), u (H, K, nu)) -> (H, K)
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from torch import Tensor
 
 from latent_sindy.errors import UserError
 
-__all__ = ["ImageCost", "LatentCost", "PoseCost", "StateCost"]
+__all__ = ["ImageCost", "LatentCost", "PoseCost", "RewardCost", "StateCost"]
 
 #: ``cost(z (..., nz)) -> (...)``, batched over any leading dimensions
 StateCost = Callable[[Tensor], Tensor]
@@ -117,3 +121,22 @@ class PoseCost:
 
     def __call__(self, z: Tensor) -> Tensor:
         return self._cost(self.readout(z))  # (...)
+
+
+class RewardCost:
+    """Minus a predicted reward, ``cost(z, u) = −r̂(z, u)``: MPPI with it maximises the
+    reward summed over the horizon, Σ_{t=0..H-1} r̂(z_t, u_t) (z_0 the encoded image).
+
+    Args:
+        reward: ``reward(z (..., nz), u (..., nu)) -> (...)``, e.g. a model's reward head.
+    """
+
+    takes_actions = True
+
+    def __init__(self, reward: Callable[[Tensor, Tensor], Tensor]) -> None:
+        if not callable(reward):
+            raise UserError(f"RewardCost takes a callable reward(z, u), got {type(reward)}")
+        self.reward = reward
+
+    def __call__(self, z: Tensor, u: Tensor) -> Tensor:
+        return -self.reward(z, u)  # (...)

@@ -4,7 +4,8 @@ any world (:class:`~latent_sindy.control.world.World`).
 A policy is reset toward a goal and then asked for an action at every step:
 ``policy.reset(goal, seed)`` and ``policy.act(observation) -> action``, where goal and
 observation are an :class:`Observation`: the camera image and, where the world gives it, its
-true state (the pushing block's pose, the pendulum's angle and rate). A policy from images
+true state (the pushing block's pose, the pendulum's angle and rate). A policy that needs no
+goal (a planner of a learned reward) is reset with ``goal=None``. A policy from images
 reads ``observation.image`` only; a reference policy on the true state reads
 ``observation.state``. :class:`ImagePolicy` makes a planner that takes images
 (``LatentSINDy.planner()``) such a policy.
@@ -41,9 +42,9 @@ class Observation:
 
 
 class Policy(Protocol):
-    def reset(self, goal: Observation, seed: int | None = None) -> None:
-        """Act toward ``goal`` (its image, and state where given) from now on; ``seed`` seeds
-        the episode's draws."""
+    def reset(self, goal: Observation | None, seed: int | None = None) -> None:
+        """Act toward ``goal`` (its image, and state where given; None: a policy of no goal)
+        from now on; ``seed`` seeds the episode's draws."""
 
     def act(self, observation: Observation) -> np.ndarray:
         """The action (nu,) to take now."""
@@ -60,11 +61,12 @@ class Stepper(Protocol):
         there (the environment terminated it)."""
 
 
-def run_loop(policy: Policy, stepper: Stepper, first: Observation, goal: Observation,
+def run_loop(policy: Policy, stepper: Stepper, first: Observation, goal: Observation | None,
              max_steps: int, seed: int | None) -> int:
-    """The closed loop: reset ``policy`` toward ``goal`` with ``seed``, then act on each
-    observation from ``first`` on until the stepper's goal is met, the episode ends or
-    ``max_steps`` actions were taken. Returns the number of actions taken."""
+    """The closed loop: reset ``policy`` toward ``goal`` (None: a policy of no goal) with
+    ``seed``, then act on each observation from ``first`` on until the stepper's goal is met,
+    the episode ends or ``max_steps`` actions were taken. Returns the number of actions
+    taken."""
     policy.reset(goal, seed)
     observation, steps = first, 0
     while steps < max_steps and not stepper.done():
@@ -83,8 +85,8 @@ class ImagePolicy:
     def __init__(self, planner: Any) -> None:
         self.planner = planner
 
-    def reset(self, goal: Observation, seed: int | None = None) -> None:
-        self.planner.reset(goal.image, seed)
+    def reset(self, goal: Observation | None, seed: int | None = None) -> None:
+        self.planner.reset(None if goal is None else goal.image, seed)
 
     def act(self, observation: Observation) -> np.ndarray:
         return self.planner.act(observation.image)

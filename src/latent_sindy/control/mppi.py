@@ -5,6 +5,7 @@ out through the model in one batched loop over the horizon H, weights them by th
 moves the nominal sequence towards the good ones (Williams et al., the paper's §II.D):
 
     cost_k = Σ_{t=1..H} c(z_t^k) + w_T c(z_H^k) + λ Σ_{t=0..H-1} u_tᵀ Σ⁻¹ ε_t^k
+    (a cost of states and actions, c(z_t, u_t) for t = 0..H-1, where it ``takes_actions``)
     ω_k ∝ exp(-(cost_k - min_j cost_j) / λ),   u_t += Σ_k ω_k ε_t^k
 
 Dimensions: K samples, H horizon, nz latent size, nu action size.
@@ -154,7 +155,9 @@ class MPPI:
         cost: a state cost ``cost(z (..., nz)) -> (...)``, called on all predicted states
             (H, K, nz) at once (e.g. :class:`LatentCost`,
             :class:`ImageCost`), or a goal vector z_goal (nz,), which stands for
-            ``LatentCost(z_goal, config.Q)``.
+            ``LatentCost(z_goal, config.Q)``; a cost with ``takes_actions`` (a
+            :class:`RewardCost`) is called on the states z_0..z_{H-1} and the actions taken
+            in them, ``cost(z (H, K, nz), u (H, K, nu)) -> (H, K)``.
         config: :class:`MPPIConfig`.
 
     Candidate actions are ``clamp(nominal + ε)`` into the action box, and the *clamped*
@@ -194,6 +197,7 @@ class MPPI:
         )
         if not callable(self.cost):
             raise UserError(f"MPPI cost must be a callable or a goal tensor, got {type(cost)}")
+        self._cost_of_actions = bool(getattr(self.cost, "takes_actions", False))
         self._big = big = torch.finfo(dtype).max
         sigma = torch.tensor(_vector("sigma", cfg.sigma, nu), **kw)  # (nu,)
         if not bool(torch.isfinite(sigma.sqrt() * 10).all()):
@@ -296,17 +300,21 @@ class MPPI:
 
         A step with a ``rollout(z0 (K, nz), actions (K, H, nu)) -> (K, H+1, nz)`` method (like
         :class:`SparseSindyStep`) predicts the whole horizon in one call; any other step is
-        called H times. The cost then runs once on all predicted states, (H, K, nz).
+        called H times. The cost then runs once on all predicted states, (H, K, nz), or on
+        the states the actions are taken in and the actions (a cost that ``takes_actions``).
         """
         z = z0.expand(actions.shape[0], -1)  # (K, nz)
         rollout = getattr(self.step, "rollout", None)
         if rollout is not None:
-            zs = rollout(z, actions)[:, 1:].transpose(0, 1)  # (H, K, nz)
+            zs = rollout(z, actions).transpose(0, 1)  # (H+1, K, nz)
         else:
-            states = []
+            states = [z]
             for u in actions.unbind(1):  # H steps; u (K, nu)
                 z = self.step(z, u)
                 states.append(z)
-            zs = torch.stack(states)  # (H, K, nz)
-        c = self.cost(zs)  # (H, K)
+            zs = torch.stack(states)  # (H+1, K, nz)
+        if self._cost_of_actions:
+            c = self.cost(zs[:-1], actions.transpose(0, 1))  # (H, K)
+        else:
+            c = self.cost(zs[1:])  # (H, K)
         return c.sum(0) + self.config.terminal_weight * c[-1]

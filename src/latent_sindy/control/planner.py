@@ -3,11 +3,14 @@
 :class:`ImagePlanner` joins a latent model, the normaliser of its data and MPPI. ``act(image,
 goal_image)`` encodes both images and returns the first action of the plan that drives the
 latent state toward the goal's (``space="latent"``) or the decoded prediction toward the goal
-image (``space="image"``). It is what :meth:`latent_sindy.LatentSINDy.planner` returns; the
-closed loop (:mod:`latent_sindy.control.episodes`) drives it as ``ImagePolicy(planner)``.
+image (``space="image"``). With ``objective="reward"`` it needs no goal: the plan maximises
+the model's predicted reward summed over the horizon (a model with a reward head). It is what
+:meth:`latent_sindy.LatentSINDy.planner` returns; the closed loop
+(:mod:`latent_sindy.control.episodes`) drives it as ``ImagePolicy(planner)``.
 
     planner = ImagePlanner(model, normalizer, MPPIConfig(), action_low, action_high)
     u = planner.act(image, goal_image)      # (nu,) numpy
+    u = ImagePlanner(model, ..., objective="reward").act(image)
 """
 
 from __future__ import annotations
@@ -18,30 +21,43 @@ from typing import Literal
 import numpy as np
 import torch
 
-from latent_sindy.control.costs import ImageCost, LatentCost, StateCost
+from latent_sindy.control.costs import ImageCost, LatentCost, RewardCost, StateCost
 from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.data.sequence import check_pixels
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 
-__all__ = ["ImagePlanner", "feasible_action"]
+__all__ = ["OBJECTIVES", "ImagePlanner", "Objective", "feasible_action"]
+
+#: What a plan pursues: a goal image, or the most predicted reward.
+Objective = Literal["goal", "reward"]
+OBJECTIVES = ("goal", "reward")
 
 
 class ImagePlanner:
-    """MPPI in a latent model's space toward a goal image: ``act(image, goal_image)``."""
+    """MPPI in a latent model's space toward a goal image, ``act(image, goal_image)``, or
+    (``objective="reward"``) toward the most predicted reward, ``act(image)``."""
 
     def __init__(self, model: torch.nn.Module, normalizer: Normalizer, mppi: MPPIConfig,
                  action_low: Sequence[float], action_high: Sequence[float],
                  space: Literal["latent", "image"] = "latent",
                  Q: float | Sequence[float] | torch.Tensor = 1.0, seed: int = 0,
-                 pixel_dtype: str | None = None) -> None:
+                 pixel_dtype: str | None = None, objective: Objective = "goal") -> None:
         if space not in ("latent", "image"):
             raise UserError(f"space {space!r}: plan in 'latent' or 'image' space")
+        if objective not in OBJECTIVES:
+            raise UserError(f"objective {objective!r}: use {' or '.join(OBJECTIVES)}")
+        if objective == "reward" and getattr(model, "reward_head", None) is None:
+            raise UserError("objective 'reward' plans on a model's predicted reward, and this "
+                            "model has no reward head: fit one with ModelConfig(reward_head="
+                            "64) on data with rewards, or plan toward a goal image")
+        if objective == "reward" and space != "latent":
+            raise UserError("objective 'reward' plans in latent space: drop space='image'")
         if len(action_low) == 0:
             raise UserError("this model has no actions (an autonomous system): nothing to plan")
         self.model, self.normalizer, self.settings = model.eval(), normalizer, mppi
         self.box = (tuple(action_low), tuple(action_high))
-        self.space, self.Q, self.seed = space, Q, seed
+        self.space, self.Q, self.seed, self.objective = space, Q, seed, objective
         self.pixel_dtype = pixel_dtype  # (None: images of any pixel type are taken)
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         self.mppi: MPPI | None = None
@@ -71,10 +87,20 @@ class ImagePlanner:
         return self.model.encode(self.normalizer.normalize(x)[None])[0]
 
     @torch.no_grad()
-    def reset(self, goal_image: np.ndarray, seed: int | None = None) -> None:
-        """Plan toward ``goal_image`` from now on (a fresh nominal plan)."""
+    def reset(self, goal_image: np.ndarray | None = None, seed: int | None = None) -> None:
+        """Plan toward ``goal_image`` from now on (a fresh nominal plan); a planner of the
+        reward takes none."""
+        cost: StateCost | RewardCost
+        if self.objective == "reward":
+            if goal_image is not None:
+                raise UserError("a planner of the reward has no goal: drop goal_image")
+            self.mppi = MPPI(self.step, RewardCost(self.model.reward_head), self.settings,
+                             *self.box, seed=self.seed if seed is None else seed)
+            return
+        if goal_image is None:
+            raise UserError("give the planner a goal image: reset(goal_image), or plan "
+                            "against a reward head (objective='reward')")
         goal = self.normalizer.normalize(self._check(goal_image, "goal_image"))
-        cost: StateCost
         if self.space == "latent":
             cost = LatentCost(self.model.encode(goal[None])[0], self.Q)
         else:
@@ -89,6 +115,8 @@ class ImagePlanner:
         if goal_image is not None and (self._goal is None or self._goal.shape != np.shape(
                 goal_image) or not np.array_equal(self._goal, goal_image)):
             self.reset(goal_image)
+        elif self.mppi is None and self.objective == "reward":
+            self.reset()
         if self.mppi is None:
             raise UserError("give the planner a goal image first: act(image, goal_image)")
         action, self.last = self.mppi.command(z)

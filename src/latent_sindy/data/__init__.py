@@ -5,7 +5,8 @@ training windows and normalisation. Collection belongs to the worlds.
     data = read_sequences("data/push.h5")
 """
 
-from latent_sindy.data.sequence import SPLITS, SequenceData, seeded_split
+from latent_sindy.data.sequence import SPLITS, SequenceData, concatenate, seeded_split
 from latent_sindy.data.store import read_sequences, write_sequences
 
-__all__ = ["SPLITS", "SequenceData", "read_sequences", "seeded_split", "write_sequences"]
+__all__ = ["SPLITS", "SequenceData", "concatenate", "read_sequences", "seeded_split",
+           "write_sequences"]

@@ -29,7 +29,7 @@ import numpy as np
 
 from latent_sindy.errors import UserError
 
-__all__ = ["SPLITS", "SequenceData", "check_pixels", "seeded_split"]
+__all__ = ["SPLITS", "SequenceData", "check_pixels", "concatenate", "seeded_split"]
 
 SPLITS = ("train", "val", "test")
 _SLACK = 1e-4
@@ -357,3 +357,33 @@ class SequenceData:
         return get_world(self.world).config_from_record(self.record, self.source)
 
     env_config = world_config
+
+
+#: The optional per-sequence arrays, which every part of a concatenation has or none does.
+_OPTIONAL = ("states", "images_dot", "images_ddot", "executed", "rewards")
+
+
+def concatenate(parts: Sequence[SequenceData]) -> SequenceData:
+    """The sequences of ``parts`` one after another, with their split labels; the context
+    (action box and names, state names and periods, dt, world and its record) is the first
+    part's, and the others must agree with it (UserError naming what differs)."""
+    if not parts:
+        raise UserError("concatenate needs at least one SequenceData")
+    first = parts[0]
+    for k, part in enumerate(parts[1:], 1):
+        differs = [name for name, a, b in (
+            ("frame shape", first.frame_shape, part.frame_shape),
+            ("pixel type", first.images.dtype, part.images.dtype),
+            ("steps", first.steps, part.steps), ("action box", (first.action_low,
+             first.action_high), (part.action_low, part.action_high)),
+            ("state names", first.state_names, part.state_names),
+            ("dt", first.dt, part.dt), ("world", first.world, part.world))
+            if a != b]
+        differs += [name for name in _OPTIONAL
+                    if (getattr(first, name) is None) != (getattr(part, name) is None)]
+        if differs:
+            raise UserError(f"concatenate: part {k} ({part.source}) differs from part 0 "
+                            f"({first.source}) in {', '.join(differs)}")
+    joined = {name: np.concatenate([getattr(p, name) for p in parts])
+              for name in ("images", "actions", *_OPTIONAL) if getattr(first, name) is not None}
+    return first.replace(**joined, split=np.concatenate([p.split_ids for p in parts]))

@@ -139,7 +139,8 @@ OBSERVATIONS = {c.kind: c for c in (ImageObservations, StateObservations)}
 class WindowDataset(Dataset):
     """All windows of H pushes of a set of trajectories, as observed by an encoder ``kind``
     (normalised images by default), as torch tensors; :meth:`pose_tensors` gives the true
-    poses of the same windows (for a privileged pose head)."""
+    poses of the same windows (for a privileged pose head), :meth:`reward_tensors` their
+    rewards (for a reward head)."""
 
     def __init__(self, data: SequenceData, window: int, normalizer: Normalizer,
                  kind: str = "image") -> None:
@@ -150,6 +151,8 @@ class WindowDataset(Dataset):
         self.images = OBSERVATIONS[kind].batch(data, normalizer)  # (N, T+1, *observation)
         self.actions = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, 3)
         self.poses = data_features(data)  # (N, T+1, nf) state features, or None
+        self.rewards = (None if data.rewards is None  # (N, T), or None
+                        else torch.as_tensor(data.rewards, dtype=torch.float32))
         starts = np.arange(data.steps - window + 1)
         traj = np.repeat(np.arange(data.n), len(starts))
         self._index = np.stack([traj, np.tile(starts, data.n)], axis=1)  # (W, 2)
@@ -176,6 +179,14 @@ class WindowDataset(Dataset):
         x = self.images[i[:, None], t[:, None] + steps]
         u = self.actions[i[:, None], t[:, None] + steps[:-1]]
         return x, u
+
+    def reward_tensors(self) -> torch.Tensor:
+        """The rewards of every window, in :meth:`tensors`' order: (W, H)."""
+        if self.rewards is None:
+            raise UserError("this data has no rewards: a reward head needs them")
+        i = torch.as_tensor(self._index[:, 0])
+        t = torch.as_tensor(self._index[:, 1])
+        return self.rewards[i[:, None], t[:, None] + torch.arange(self.window)]
 
     def pose_tensors(self) -> torch.Tensor:
         """The state features of every window, in :meth:`tensors`' order: (W, H+1, nf)."""

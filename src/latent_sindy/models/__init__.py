@@ -7,6 +7,7 @@ loss. Nothing here knows a world: what a latent coordinate means comes from the 
     autoencoder.py  AutoencoderConfig + Autoencoder  state.py      the true state as latent
     pose_head.py  a readout of the pose features     latent_model.py  ModelConfig, the loss
     costs.py      weights of a quadratic latent cost renamed.py    old setting names
+    reward_head.py  r̂(z, u), a reward predicted along the latent rollout
 
 >>> from latent_sindy.models import LinearConfig
 >>> LinearConfig().build(nz=16, nu=3).step(torch.zeros(8, 16), torch.zeros(8, 3)).shape

@@ -20,11 +20,14 @@ pixels (or latent coordinates), so values do not depend on the image size, batch
     pose   = mean_{b,t=0..H} ‖P(enc(x_t)) − s̃_t‖² / 4 + mean_{b,t=1..H} ‖P(ẑ_t) − s̃_t‖² / 4
              (a model with a pose head P given the true poses, :mod:`.pose_head`; s̃ the
              standardised pose features; else 0)
+    reward = mean_{b,t=0..H-1} (r̂(ẑ_t, u_t) − r_t)²   (a model with a reward head given the
+             rewards, :mod:`.reward_head`; ẑ_0 = enc(x_0); else 0)
     objective = recon + λ1 pred_x + λ2 pred_z   (what train/val/test losses report, comparable
                                                 across models)
-    total  = objective + λ3 l1 + λ4 pose   (what training minimises; with a foreground
-                                  weight, recon and pred_x in it weight the object's pixels more;
-                                  the pose term only with λ4 > 0)
+    total  = objective + λ3 l1 + λ4 pose + λ5 reward  (what training minimises; with a
+                                  foreground weight, recon and pred_x in it weight the object's
+                                  pixels more; the pose term only with λ4 > 0, the reward term
+                                  only with a reward head and rewards)
 
 Given longer sequences x_0..x_T and ``window=H``, it computes the terms of every window of H
 actions in them while encoding and reconstructing each frame once (the trainer's
@@ -44,7 +47,7 @@ Dimensions: B batch, H horizon, C channels, h × w image, nz latent size, nu act
     >>> cfg = ModelConfig(dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
     >>> terms = LatentModel(cfg).loss(torch.zeros(8, 2, 1, 32, 32), torch.zeros(8, 1, 3))
     >>> sorted(terms)
-    ['l1', 'objective', 'pose', 'pred_x', 'pred_z', 'recon', 'total']
+    ['l1', 'objective', 'pose', 'pred_x', 'pred_z', 'recon', 'reward', 'total']
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ from latent_sindy.models.dynamics import (
 from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, foreground, latent_error
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
 from latent_sindy.models.renamed import renamed
+from latent_sindy.models.reward_head import RewardHead, Targets, reward_error
 from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
 
 __all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "OBSERVATION_CONFIGS", "EncoderConfig",
@@ -85,7 +89,7 @@ ObservationConfig = Union[tuple(  # noqa: UP007  (built from the registry at imp
 ENCODER_CONFIGS, EncoderConfig = OBSERVATION_CONFIGS, ObservationConfig
 
 #: The names of the loss terms :meth:`LatentModel.loss` returns, in report order.
-LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "pose", "objective")
+LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "pose", "objective", "reward")
 
 
 @renamed(encoder="observation")
@@ -115,6 +119,9 @@ class ModelConfig:
     """A pose latent's orientation features (z2, z3) are turned, after every step, by the
     angle ω that the dynamics give as z2's update (z2 + i z3 times e^(iω); z3's own update is
     unused), instead of being updated like the others: a turn of any size is one equation."""
+    reward_head: int = 0
+    """Hidden width of a reward head r̂(z, u), trained on the data's rewards (weight
+    --lambda-reward) and what a planner against the reward maximises; 0: no head."""
 
     def __post_init__(self) -> None:
         if self.action_dim is not None and self.action_dim < 0:  # 0: an autonomous system
@@ -149,6 +156,9 @@ class ModelConfig:
                             "the encoder and decoder: use an image model without a pose head "
                             "and with --decoder mlp or fc (the conv and sprite decoders have no "
                             "forward-mode derivative here)")
+        if self.reward_head < 0 or (self.reward_head and self.dynamics.kind == "continuous"):
+            raise UserError(f"--reward-head {self.reward_head}: give a hidden width > 0 (0: no "
+                            "head), on discrete-time dynamics")
         if self.pose_head == "coordinates" and self.observation.latent_dim < 4:
             raise UserError(f"--pose-head coordinates puts the pose in the first 4 latent "
                             f"coordinates: use --latent-dim 4 or more, not "
@@ -225,6 +235,9 @@ class LatentModel(nn.Module):
         self.pose_head: PoseHead | None = (
             POSE_HEADS[config.pose_head](config.observation.latent_dim)
             if config.has_pose_head else None)
+        self.reward_head: RewardHead | None = (
+            RewardHead(config.observation.latent_dim, config.action_dim, config.reward_head)
+            if config.reward_head else None)
 
     @torch.no_grad()
     def fit_statistics(self, frames: torch.Tensor, poses: torch.Tensor | None) -> None:
@@ -263,7 +276,7 @@ class LatentModel(nn.Module):
 
     def loss(
         self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
-        poses: torch.Tensor | None = None, window: int | None = None,
+        poses: torch.Tensor | Targets | None = None, window: int | None = None,
     ) -> dict[str, torch.Tensor]:
         """The loss terms of :data:`LOSS_TERMS` on sequences x (B, T+1, C, h, w), u (B, T, nu).
 
@@ -275,9 +288,12 @@ class LatentModel(nn.Module):
         means over the B (T-H+1) windows, exactly those of the windows passed one by one
         (which count a frame in every window that holds it). ``weights`` None uses the
         defaults of :class:`LossWeights`. ``poses`` (B, T+1, 4): the true pose features of
-        the sequences, for the pose head's term (0 without them or without a head).
+        the sequences, for the pose head's term (0 without them or without a head), or
+        :class:`Targets` holding them and the rewards (B, T) for a reward head's term.
         """
         weights = weights or DEFAULT_WEIGHTS
+        poses, rewards = (poses.poses, poses.rewards) if isinstance(poses, Targets) else (
+            poses, None)
         if self.dynamics.continuous:
             return self._continuous_loss(x, u, weights)
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
@@ -319,6 +335,10 @@ class LatentModel(nn.Module):
         total = trained + weights.lambda_l1 * l1
         if weights.lambda_pose > 0:  # 0 * a non-finite pose error would still be NaN
             total = total + weights.lambda_pose * pose
+        reward = l1.new_zeros(())
+        if self.reward_head is not None and rewards is not None:
+            reward = reward_error(self.reward_head, z, z_hat, u_win, rewards)
+            total = total + weights.lambda_reward * reward
         return {
             "total": total,
             "recon": recon,
@@ -327,6 +347,7 @@ class LatentModel(nn.Module):
             "l1": l1,
             "pose": pose,
             "objective": objective,
+            "reward": reward,
         }
 
     def _pose_error(self, z: torch.Tensor, z_hat: torch.Tensor, poses: torch.Tensor | None,
@@ -361,4 +382,5 @@ class LatentModel(nn.Module):
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,
-                "pred_z": pred_z, "l1": l1, "pose": recon.new_zeros(()), "objective": objective}
+                "pred_z": pred_z, "l1": l1, "pose": recon.new_zeros(()), "objective": objective,
+                "reward": recon.new_zeros(())}

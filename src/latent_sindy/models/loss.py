@@ -1,6 +1,7 @@
-"""The loss's weights (λ1 image prediction, λ2 latent prediction, λ3 L1, λ4 pose; see
-:mod:`latent_sindy.models.latent_model`) and the error terms the latent model's loss shares:
-the latent prediction error (absolute or scale-free) and the object's pixels of an image."""
+"""The loss's weights (λ1 image prediction, λ2 latent prediction, λ3 L1, λ4 pose, λ5
+reward; see :mod:`latent_sindy.models.latent_model`) and the error terms the latent model's
+loss shares: the latent prediction error (absolute or scale-free) and the object's pixels of
+an image."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ MAX_FOREGROUND_WEIGHT = 1000.0
 
 @dataclass(frozen=True)
 class LossWeights:
-    """λ1, λ2, λ3 of the loss (see the module docstring)."""
+    """λ1 ... λ5 of the loss (see the module docstring)."""
 
     # On a 60-trajectory set (SINDy order 2, 300 epochs): λ2 = 0.1 left the latent prediction
     # error 9x larger than λ2 = 1 for 6% better validation reconstruction. On 100 training
@@ -36,6 +37,9 @@ class LossWeights:
     lambda_pose: float = 0.0
     """λ4: weight of the pose head's error on the true poses (models with --pose-head; a
     privileged signal used in training only). 0: the head is not trained."""
+    lambda_reward: float = 1.0
+    """λ5: weight of the reward head's error on the data's rewards (models with
+    --reward-head, on data with rewards; nothing otherwise)."""
     relative_pred_z: bool = False
     """λ2's term as a fraction of its targets' variance (the encoded latents' z_t, or the
     encoder's z^(k) in continuous time) instead of the mean squared error: scale-free, so the
@@ -48,7 +52,7 @@ class LossWeights:
 
     def __post_init__(self) -> None:
         for name in ("lambda_pred_x", "lambda_pred_z", "lambda_l1", "lambda_pose",
-                     "foreground_weight"):
+                     "lambda_reward", "foreground_weight"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise UserError(f"--{name.replace('_', '-')} {v}: use a finite number >= 0")

@@ -101,9 +101,11 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
                 if not math.isfinite(val_terms["total"]):
                     raise TrainingDiverged(epoch, "the validation loss")
                 row.update({f"val/{k}": v for k, v in val_terms.items()})
-                # A pose head's reading is what its model plans on: it counts in the choice.
+                # A pose head's reading, or a reward head's, is what its model plans on: it
+                # counts in the choice (0 without a head).
                 best.offer(epoch, val_terms["objective"]
-                           + cfg.loss.lambda_pose * val_terms.get("pose", 0.0), model)
+                           + cfg.loss.lambda_pose * val_terms.get("pose", 0.0)
+                           + cfg.loss.lambda_reward * val_terms.get("reward", 0.0), model)
             if sparse:
                 row["sindy/active"] = model.dynamics.n_active()
                 row["sindy/sparsity"] = model.dynamics.sparsity()
@@ -212,9 +214,9 @@ def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
         idx = order[b : b + per_batch]
         terms = grads(x[idx], u[idx], weights, None if poses is None else poses[idx],
                       cfg.window)
-        values = torch.stack([terms[k] for k in LOSS_TERMS])  # (7,)
+        values = torch.stack([terms[k] for k in LOSS_TERMS])  # (8,)
         if not torch.isfinite(values).all():
-            bad = next(k for k in ("recon", "pred_x", "pred_z", "l1", "pose", "total")
+            bad = next(k for k in ("recon", "pred_x", "pred_z", "l1", "pose", "reward", "total")
                        if not torch.isfinite(terms[k]))
             raise TrainingDiverged(epoch, f"loss term {bad} ({float(terms[bad])})")
         opt.step()

@@ -20,6 +20,7 @@ from latent_sindy.data.windows import Normalizer, WindowDataset
 from latent_sindy.errors import UserError
 from latent_sindy.models.derivatives import estimate_derivatives
 from latent_sindy.models.latent_model import LatentModel
+from latent_sindy.models.reward_head import Targets
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
 from latent_sindy.training.core import ENCODE_CHUNK, Sequences
@@ -208,6 +209,10 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
     if model.pose_head is not None:
         s = (train_windows.poses if by_trajectory else train_windows.pose_tensors()).to(device)
         sv = val_windows.pose_tensors().to(device) if val_windows else None
+    if model.reward_head is not None:  # and the rewards beside them, for a reward head
+        r = train_windows.rewards if by_trajectory else train_windows.reward_tensors()
+        s = Targets(s, r).to(device)
+        sv = Targets(sv, val_windows.reward_tensors()).to(device) if val_windows else None
     def prime(m: LatentModel) -> None:
         m.fit_statistics(train_windows.images.to(device),
                          train_windows.poses if m.pose_head is not None else None)

@@ -62,6 +62,10 @@ def data_identity(data: SequenceData, path: Path | None) -> dict[str, Any]:
 def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
     """``model`` with its shapes taken from ``data`` and the settings the data's world derives
     (its ``prepare_model``); UserError where they contradict the data."""
+    if model.reward_head and data.rewards is None:
+        raise UserError(f"{where} has no rewards: a reward head (reward_head={model.reward_head}"
+                        ") learns them; give data with rewards (SequenceData(rewards=...), "
+                        "a world that returns them), or drop the head")
     c, h, w = data.frame_shape
     cfg = model.resolve(c, h if h == w else (h, w), data.nu, source=where)
     dyn = cfg.dynamics
