@@ -26,12 +26,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from latent_sindy.experiments.catalogue import model_specs
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, train_job
-from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.scales import SCALES
 from latent_sindy.training import RunDir, TrainConfig
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.jobs import EvalJob, TrainJob, eval_job, train_job
+from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.scales import SCALES
 
 PROBE_EPOCHS = 2
 

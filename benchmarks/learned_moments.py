@@ -20,7 +20,7 @@ on its test split, fitted on its training split:
   (x, y) in metres; orientation error (degrees, modulo the latent's symmetry 2π / n): the
   angle of (cos nφ, sin nφ) with its sign and constant phase fitted (as
   ``benchmarks/textured_world.py`` reads them; at random, 22.5° for n = 4);
-* R² of the linear and the kernel probes (``experiments/probe.py``) for x, y and the angle
+* R² of the linear and the kernel probes (``worlds/push/study/probe.py``) for x, y and the angle
   (mean of the cos and sin features');
 * a SINDy model (order-2 polynomial library, STLSQ at ``--threshold``) fitted to each
   latent's training transitions: active terms and its one-push latent squared error on the
@@ -45,11 +45,11 @@ from latent_sindy import LatentSINDy
 from latent_sindy.data import SequenceData
 from latent_sindy.data.store import read_sequences
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.experiments.probe import latent_probes
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training import TrainConfig
+from latent_sindy.worlds.push.study.probe import latent_probes
 
 
 def encode(model: LatentModel, data: SequenceData, norm: Normalizer) -> torch.Tensor:

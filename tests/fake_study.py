@@ -10,10 +10,10 @@ from typing import Any
 import imageio.v3 as iio
 import numpy as np
 
-from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
-from latent_sindy.experiments.evaluation import aggregate
-from latent_sindy.experiments.results import CONTROL_METRICS, Baselines, Evaluations, Study
 from latent_sindy.stats import wilson_interval
+from latent_sindy.study.evaluation import aggregate
+from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.results import CONTROL_METRICS, Baselines, Evaluations, Study
 
 
 def _control(rng: np.random.Generator, episodes: int) -> dict[str, float]:
@@ -61,7 +61,7 @@ def _png(path: Path, width: int, height: int) -> Path:
 
 def fake_study(out: Path, seeds: tuple[int, ...] = (0,),
                models: tuple[str, ...] = ()) -> tuple[Study, dict[str, Any], dict[str, Any]]:
-    """(study, files, summary) as :func:`latent_sindy.experiments.study_report.write_report`
+    """(study, files, summary) as :func:`latent_sindy.worlds.push.study.study_report.write_report`
     takes them; the images are written under ``out/inputs``."""
     plan = StudyPlan.of(ReproduceConfig(scale="tiny", out=out, seeds=seeds, models=models))
     rng = np.random.default_rng(0)

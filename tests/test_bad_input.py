@@ -23,10 +23,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from latent_sindy.cli import main
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.reproduce import reproduce
 from latent_sindy.training.runs import RunDir
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
+from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.pipeline import reproduce
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 TINY = ["--latent-dim", "3", "--encoder-hidden", "8", "--decoder-hidden", "16"]
@@ -267,7 +267,7 @@ def test_13_a_study_never_reuses_models_trained_on_other_data(world: Path, tmp_p
                     workers=1)
     run = RunDir(world / "run")
     cfg = run.train_config()
-    from latent_sindy.experiments.jobs import ensure_trained
+    from latent_sindy.worlds.push.study.jobs import ensure_trained
 
     assert ensure_trained(cfg) == "reused"
     with pytest.raises(Exception, match=r"other settings or data \(data\.fingerprint"):

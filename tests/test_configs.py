@@ -14,13 +14,13 @@ from latent_sindy.configs import from_json, to_json
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.scales import ROUND_ONE, SCALES, Scale
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
 from latent_sindy.training import RunDir, TrainConfig, load_run
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
+from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.scales import ROUND_ONE, SCALES, Scale
 
 DATA = Path(__file__).parent / "data"
 

@@ -21,12 +21,12 @@ import pytest
 from latent_sindy.cli import main
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.jobs import EvalJob, ensure_trained, eval_job
-from latent_sindy.experiments.scales import Condition
 from latent_sindy.training import TrainConfig
 from latent_sindy.training.runs import RunDir
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 from latent_sindy.worlds.push.episodes import ControlConfig
+from latent_sindy.worlds.push.study.jobs import EvalJob, ensure_trained, eval_job
+from latent_sindy.worlds.push.study.scales import Condition
 from test_bad_input import TINY, refused, snapshot
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -226,7 +226,7 @@ def renamed(monkeypatch) -> list[str]:
 
 def test_table1_and_the_sweep_table_are_written_by_rename(tmp_path: Path,
                                                           renamed: list[str]) -> None:
-    from latent_sindy.experiments.table import write_sweep_table, write_table1
+    from latent_sindy.worlds.push.study.table import write_sweep_table, write_table1
 
     write_table1(tmp_path, ["m"], {"m": "a model"}, {}, 1)
     write_sweep_table(tmp_path / "sweep.md", ["m"], {"m": "a model"}, {0: {"m": {}}}, [0])
@@ -236,7 +236,7 @@ def test_table1_and_the_sweep_table_are_written_by_rename(tmp_path: Path,
 
 def test_equations_files_are_written_by_rename(world: Path, tmp_path: Path,
                                                renamed: list[str]) -> None:
-    from latent_sindy.experiments.outputs import write_equations
+    from latent_sindy.worlds.push.study.outputs import write_equations
 
     run = tmp_path / "run"
     shutil.copytree(world / "run", run)
@@ -249,7 +249,7 @@ def test_equations_files_are_written_by_rename(world: Path, tmp_path: Path,
 
 
 def test_the_report_is_written_by_rename(tmp_path: Path, renamed: list[str]) -> None:
-    from latent_sindy.experiments.report import Report
+    from latent_sindy.study.report import Report
 
     Report("t").paragraph("p").write(tmp_path / "report.html")
     assert renamed == ["report.html"]

@@ -88,8 +88,8 @@ def test_a_state_period_must_be_finite_and_positive(period: float) -> None:
 
 
 def test_a_study_refuses_a_folder_that_holds_another_study(tmp_path: Path) -> None:
-    from latent_sindy.experiments.config import ReproduceConfig
-    from latent_sindy.experiments.reproduce import reproduce
+    from latent_sindy.worlds.push.study.config import ReproduceConfig
+    from latent_sindy.worlds.push.study.pipeline import reproduce
 
     out = tmp_path / "study"
     out.mkdir()

@@ -1,4 +1,5 @@
-"""The package's layering (pyproject's import-linter contract) holds, and would catch a break."""
+"""The package's layering (pyproject's import-linter contracts) holds, and would catch a break:
+a lower layer importing a higher one, a world importing another, the core importing a world."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def _contract_ini() -> str:
     lines = ["[importlinter]", f"root_package = {cfg['root_package']}"]
     for i, c in enumerate(cfg["contracts"]):
         lines += [f"[importlinter:contract:{i}]", f"name = {c['name']}", f"type = {c['type']}"]
-        for key in ("layers", "modules"):  # a layers or an independence contract
+        # a layers, an independence or a forbidden contract
+        for key in ("layers", "modules", "source_modules", "forbidden_modules"):
             if key in c:
                 lines += [f"{key} ="] + [f"    {m}" for m in c[key]]
         if c.get("ignore_imports"):
@@ -55,6 +57,13 @@ def test_the_contract_holds_and_fails_on_a_back_import(tmp_path: Path) -> None:
     assert crossed.returncode != 0
     assert "latent_sindy.worlds.pendulum is not allowed to import latent_sindy.worlds.push" \
         in crossed.stdout.replace("\n", " ")
+    world.write_text(world.read_text().replace(
+        "\nimport latent_sindy.worlds.push.criteria  # noqa\n", ""))
+    cli = copy / "cli.py"  # the top layer, which the layers allow to import anything below
+    cli.write_text(cli.read_text() + "\nimport latent_sindy.worlds.pendulum.physics  # noqa\n")
+    named = _lint(copy, tmp_path)
+    assert named.returncode != 0
+    assert "latent_sindy.cli is not allowed to import latent_sindy.worlds" in named.stdout
 
 
 def _imports(path: Path):

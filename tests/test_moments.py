@@ -152,9 +152,9 @@ def test_training_fits_the_background_and_checks_the_order_against_the_world(
 
 
 def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
-    from latent_sindy.experiments.catalogue import model_specs
-    from latent_sindy.experiments.scales import SCALES
     from latent_sindy.worlds.push.config import PushEnvConfig
+    from latent_sindy.worlds.push.study.catalogue import model_specs
+    from latent_sindy.worlds.push.study.scales import SCALES
 
     for world, library, order in (("symmetric", "face", 4), ("marked", "push", 1)):
         w = PushEnvConfig.named(world)

@@ -231,8 +231,8 @@ def test_the_help_names_the_worlds_and_their_scales(capsys, monkeypatch):
 
 def test_each_scale_names_its_seeds_and_schedule():
     """Without --seeds a world study runs its scale's seeds; given ones win."""
-    from latent_sindy.experiments.config import ReproduceConfig
     from latent_sindy.worlds.pendulum.reproduce import pendulum_config, video_config
+    from latent_sindy.worlds.push.study.config import ReproduceConfig
 
     cfg = ReproduceConfig(world="pendulum-video", scale="demo")
     assert cfg.seeds is None and cfg.study_world is VIDEO

@@ -17,9 +17,6 @@ from latent_sindy.control.costs import PoseCost
 from latent_sindy.data import write_sequences
 from latent_sindy.data.windows import pose_features
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.catalogue import model_specs
-from latent_sindy.experiments.probe import latent_probe
-from latent_sindy.experiments.scales import SCALES
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import SindyConfig
@@ -27,9 +24,12 @@ from latent_sindy.models.latent_model import LatentModel, LossWeights, ModelConf
 from latent_sindy.models.state import StateConfig, pose_cost_weights
 from latent_sindy.training import RunDir, TrainConfig, train
 from latent_sindy.worlds.push.config import ACTION_HIGH, ACTION_LOW, PushEnvConfig
+from latent_sindy.worlds.push.controller import COSTS, ControlConfig, Controller
 from latent_sindy.worlds.push.data import push_data
-from latent_sindy.worlds.push.episodes import COSTS, ControlConfig, Controller
 from latent_sindy.worlds.push.scene import CameraView
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.probe import latent_probe
+from latent_sindy.worlds.push.study.scales import SCALES
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

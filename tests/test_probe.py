@@ -11,7 +11,10 @@ import torch
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer, pose_features
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.probe import (
+from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.data import push_data
+from latent_sindy.worlds.push.scene import CameraView
+from latent_sindy.worlds.push.study.probe import (
     KernelProbe,
     block_position,
     kernel_probe,
@@ -20,9 +23,6 @@ from latent_sindy.experiments.probe import (
     position_errors,
     state_position_errors,
 )
-from latent_sindy.worlds.push.config import PushEnvConfig
-from latent_sindy.worlds.push.data import push_data
-from latent_sindy.worlds.push.scene import CameraView
 
 HALF_DIAGONAL = 0.0708  # m: the 0.1 m block's corners from its centre
 

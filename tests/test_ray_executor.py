@@ -16,8 +16,8 @@ import pytest
 from latent_sindy.cli import main
 from latent_sindy.errors import UserError
 from latent_sindy.executors import EXECUTORS, ExecutorOptions, RayExecutor, make_executor
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.reproduce import reproduce
+from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.pipeline import reproduce
 from study_outputs import assert_same_study
 
 ray = pytest.importorskip("ray")

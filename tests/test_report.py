@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from fake_study import fake_study
-from latent_sindy.experiments.report import Report
-from latent_sindy.experiments.study_report import write_report
+from latent_sindy.study.report import Report
+from latent_sindy.worlds.push.study.study_report import write_report
 
 CHECK = """
 <script>

@@ -19,11 +19,11 @@ import pytest
 from matplotlib.figure import Figure
 
 from fake_study import fake_study
-from latent_sindy.experiments import figures
-from latent_sindy.experiments.evaluation import aggregate
-from latent_sindy.experiments.overview import overview, overview_table
-from latent_sindy.experiments.study_report import write_report
 from latent_sindy.stats import wilson_interval
+from latent_sindy.study.evaluation import aggregate
+from latent_sindy.worlds.push.study import figures
+from latent_sindy.worlds.push.study.overview import overview, overview_table
+from latent_sindy.worlds.push.study.study_report import write_report
 
 WIDTH, HEIGHT = 1280, 800
 

@@ -14,14 +14,14 @@ import pytest
 
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.catalogue import model_specs
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.evaluation import Stat, aggregate, baseline_errors, mean_std
-from latent_sindy.experiments.jobs import ensure_trained
-from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.scales import SCALES
-from latent_sindy.experiments.table import PAPER, ROWS, format_stat
+from latent_sindy.study.evaluation import Stat, aggregate, baseline_errors, mean_std
 from latent_sindy.training import RunDir
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.jobs import ensure_trained
+from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.table import PAPER, ROWS, format_stat
 from test_report import CHECK, _chromium, _render_title
 
 SPECS = model_specs(SCALES["tiny"])

@@ -84,8 +84,8 @@ def test_after_the_autoencoder_the_coefficients_are_the_regression_of_its_latent
 def test_a_run_folder_keeps_the_choice_and_is_reused(tmp_path) -> None:
     """Trained into a folder, the run loads at the order chosen; the study's check of a
     finished run against the same settings finds no difference."""
-    from latent_sindy.experiments.jobs import ensure_trained
     from latent_sindy.training.runs import load_run
+    from latent_sindy.worlds.push.study.jobs import ensure_trained
 
     path = tmp_path / "d.h5"
     write_sequences(path, moving((3.5, 1.2)))

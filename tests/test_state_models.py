@@ -295,8 +295,8 @@ def test_the_study_writes_world_direction_pushes_with_the_face_library_only() ->
     """The face library's relative angle is ψ − θ for a push in a world direction ψ; where
     the push angle is measured from the block (the paper's and the marked world) the state
     and pose-latent rows keep the push library."""
-    from latent_sindy.experiments.catalogue import model_specs
-    from latent_sindy.experiments.scales import SCALES
+    from latent_sindy.worlds.push.study.catalogue import model_specs
+    from latent_sindy.worlds.push.study.scales import SCALES
 
     for push, library in (("symmetric", "face"), ("paper", "push")):
         specs = {s.name: s for s in model_specs(SCALES["tiny"], push=push)}
@@ -373,9 +373,8 @@ def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
 
 
 def test_the_init_threshold_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
-    from latent_sindy.experiments.catalogue import study_specs
-    from latent_sindy.experiments.config import ReproduceConfig
-    from latent_sindy.experiments.sweeps import Sweep
+    from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
+    from latent_sindy.worlds.push.study.sweeps import Sweep
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path,
                           models=("sindy2", "sindy_moments", "state_sindy"),
@@ -392,7 +391,7 @@ def test_a_turning_models_coefficient_map_counts_its_candidates(data: Path, tmp_
     a turning model), not the mask's share."""
     import matplotlib.pyplot as plt
 
-    from latent_sindy.experiments import figures
+    from latent_sindy.worlds.push.study import figures
 
     out = tmp_path / "run"
     assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "1",

@@ -16,15 +16,15 @@ from latent_sindy.cli import main
 from latent_sindy.configs import to_json
 from latent_sindy.data import write_sequences
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.catalogue import model_specs, study_specs
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.scales import SCALES
-from latent_sindy.experiments.stages import check_given_data
-from latent_sindy.experiments.sweeps import SWEEPABLE, Sweep, parse_seeds
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.data import push_data
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
+from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.stages import check_given_data
+from latent_sindy.worlds.push.study.sweeps import SWEEPABLE, Sweep, parse_seeds
 from synthetic import make_trajectories
 
 
@@ -209,8 +209,8 @@ def test_the_catalogue_without_sweeps_is_as_it_was(tmp_path):
 def test_every_named_world_is_described_for_the_report_and_help() -> None:
     """The study's report and --help describe each pushing world; a world without its phrase
     crashed the textured world's report."""
-    from latent_sindy.experiments.config import _world_help
     from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT
+    from latent_sindy.worlds.push.study.config import _world_help
 
     assert set(WORLD_ABOUT) == set(ENV_PRESETS)
     text = _world_help()

@@ -9,14 +9,14 @@ import math
 import pytest
 
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.catalogue import model_specs, study_specs
-from latent_sindy.experiments.config import ReproduceConfig
-from latent_sindy.experiments.reproduce import reproduce
-from latent_sindy.experiments.scales import SCALES
-from latent_sindy.experiments.sweeps import Sweep, parse_seeds
-from latent_sindy.experiments.table import sweep_rows
 from latent_sindy.stats import wilson_interval
 from latent_sindy.training import RunDir
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
+from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.sweeps import Sweep, parse_seeds
+from latent_sindy.worlds.push.study.table import sweep_rows
 
 
 @pytest.mark.parametrize(("args", "seeds"), [
@@ -87,8 +87,8 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
 def test_the_threshold_is_a_sindy_setting_the_study_trains_with(tmp_path):
     """--sweep threshold applies to SINDy models only, and the study trains each spec with
     its own threshold where it sets one (the moments row), else the scale's."""
-    from latent_sindy.experiments.config import StudyPlan
-    from latent_sindy.experiments.stages import train_config
+    from latent_sindy.worlds.push.study.config import StudyPlan
+    from latent_sindy.worlds.push.study.stages import train_config
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
                           sweep=(Sweep.parse("threshold=0.01,0.1"),))

@@ -33,16 +33,24 @@ import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
-from latent_sindy.experiments.config import ReproduceConfig
+from latent_sindy.plugins import get_world, hook
 from latent_sindy.progress import bar
 from latent_sindy.training.config import TrainConfig
-from latent_sindy.worlds.push.collect import CollectionPlan
-from latent_sindy.worlds.push.episodes import ControlConfig
 
 Flat = tyro.conf.OmitArgPrefixes
 
+DEFAULT_WORLD = "push"
+"""The world plug-in whose settings collect, control and reproduce take as flags (its
+``commands`` hook, which it must have); they reach other worlds through the generic hooks."""
+COMMAND_OF = hook(get_world(DEFAULT_WORLD), "commands")
+CollectSettings = COMMAND_OF["collect"].settings
+ControlSettings = COMMAND_OF["control"].settings
+StudySettings = COMMAND_OF["reproduce"].settings
+
 
 MAX_THREADS = 1024
+#: The control settings every world's closed loop takes (the rest are the default world's).
+GENERIC = ("episodes", "max_steps", "seed", "space", "mppi")
 
 
 def _check_threads(n: int, auto: bool) -> None:
@@ -64,7 +72,7 @@ class Collect:
     """Collect random-push trajectories into an HDF5 file (resumable: re-run to finish); with
     --world, random-action sequences of any world that collects (its collect hook)."""
 
-    world: str = "push"
+    world: str = DEFAULT_WORLD
     """The world to collect from: push (the options below), or another installed world with
     a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed only."""
     world_config: tuple[str, ...] = ()
@@ -73,40 +81,28 @@ class Collect:
     size=32` for dmc."""
     out: Path = Path("data/push.h5")
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
-    plan: Annotated[CollectionPlan, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=CollectionPlan)
+    plan: Annotated[CollectSettings, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=CollectSettings)
     workers: int = 2
     """Worker processes simulating in parallel (1 runs in this process)."""
     progress: bool = True
     """Show a progress bar."""
 
     def run(self) -> None:
-        if self.world != "push":
+        if self.world != DEFAULT_WORLD:
             self._collect_world()
             return
         if self.world_config:
-            raise UserError("--world-config sets another world's settings: the push world "
-                            "takes the options below")
-        from latent_sindy.worlds.push.collect import collect
-
-        plan = self.plan
-        existed = self.out.exists()
-        t0 = time.perf_counter()
-        path = collect(self.out, plan, self.workers,
-                       _bar("collect", "traj") if self.progress else None)
-        if existed:
-            print(f"{path} is already complete with these settings; nothing to do")
-        else:
-            print(f"wrote {path} ({plan.trajectories} trajectories x {plan.steps} pushes, "
-                  f"splits {plan.split_counts()}) in {time.perf_counter() - t0:.1f} s")
-
+            raise UserError(f"--world-config sets another world's settings: the "
+                            f"{DEFAULT_WORLD} world takes the options below")
+        COMMAND_OF["collect"].run(self.plan, self.out, self.workers,
+                                  _bar("collect", "traj") if self.progress else None)
 
     def _collect_world(self) -> None:
         from dataclasses import is_dataclass
 
         from latent_sindy.configs import from_pairs
         from latent_sindy.data.store import write_sequences
-        from latent_sindy.plugins import get_world, hook
 
         world = get_world(self.world)
         if self.world_config:  # a world is its class built on its settings
@@ -118,11 +114,12 @@ class Collect:
         if make is None:
             raise UserError(f"--world {self.world} does not collect data (no collect hook): "
                             "use a world that does, e.g. pendulum")
-        default = CollectionPlan()
+        default = CollectSettings()
         if replace(self.plan, trajectories=default.trajectories, steps=default.steps,
                    seed=default.seed) != default:
             raise UserError(f"--world {self.world} takes --trajectories, --steps and --seed; "
-                            "the other collection options are the push world's: drop them")
+                            f"the other collection options are the {DEFAULT_WORLD} world's: "
+                            "drop them")
         out = check_output_file(self.out, "--out", (".h5",))
         if out.exists():
             raise UserError(f"--out {out} exists: choose another file or delete it first")
@@ -256,8 +253,8 @@ class Control:
 
     run_dir: tyro.conf.Positional[Path]
     """Run folder written by `latent-sindy train`."""
-    settings: Annotated[ControlConfig, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=ControlConfig)
+    settings: Annotated[ControlSettings, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=ControlSettings)
     out: Path | None = None
     """Output folder (default: RUN/control-TASK-SPACE)."""
     threads: int = 1
@@ -268,10 +265,7 @@ class Control:
     def run(self) -> None:
         import torch
 
-        from latent_sindy.control.mppi import MPPIConfig
         from latent_sindy.training import RunDir
-        from latent_sindy.worlds.push.episodes import check_space, format_summary, run_control
-        from latent_sindy.worlds.push.planner import world_planner
 
         s = self.settings
         _check_threads(self.threads, auto=False)
@@ -279,26 +273,14 @@ class Control:
         run_dir = RunDir(self.run_dir)
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
-        if run.world is not None and run.world != "push":
+        if run.world is not None and run.world != DEFAULT_WORLD:
             self._control_world(run, s, check_output_dir(
                 self.out or run_dir.path / f"control-{s.space}", "--out"))
             return
-        check_space(run.model, s.space)  # before the planner's note: the refusal alone
-        if s.mppi == MPPIConfig():  # no planner option given: the planner of the run's world
-            s = replace(s, mppi=world_planner(run.env_config))
-            m = s.mppi
-            print(f"planner: the {run.env_config.push} push's default, K={m.samples} "
-                  f"H={m.horizon} sigma={m.sigma} lambda={m.lambda_} (options choose another)",
-                  file=sys.stderr)
-        _, summary = run_control(run.model, run.normalizer, run.env_config, s, out,
-                                 _bar("episodes", "ep") if self.progress else None)
-        print(format_summary(summary, f"{self.run_dir} ({run.config.model.kind}), "
-                                      f"{s.task} task, {s.space}-space MPPI:"))
-        print(f"wrote {out}/results.json, results.csv"
-              + (", episode GIFs" if s.gif_episodes else ""))
+        COMMAND_OF["control"].run(self.run_dir, run, s, out,
+                                  _bar("episodes", "ep") if self.progress else None)
 
-
-    def _control_world(self, run, s: ControlConfig, out: Path) -> None:
+    def _control_world(self, run, s: ControlSettings, out: Path) -> None:
         """Another world's closed loop: its own tasks and criteria, MPPI in the run's space."""
         import json
 
@@ -306,12 +288,13 @@ class Control:
         from latent_sindy.atomic import write_atomic
         from latent_sindy.control import ImagePolicy, run_closed_loop, success_rates
         from latent_sindy.control.mppi import MPPIConfig
-        from latent_sindy.plugins import get_world, hook
 
-        push_only = [f"--{k.replace('_', '-')}" for k in ("task", "until", "gif_episodes",
-                     "reach") if getattr(s, k) != getattr(ControlConfig(), k)]
-        if push_only or s.space == "pose":
-            raise UserError(f"{', '.join(push_only) or '--space pose'}: the push world's; a "
+        default = ControlSettings()
+        own = [f"--{k.replace('_', '-')}" for k in vars(default) if k not in GENERIC
+               and getattr(s, k) != getattr(default, k)]
+        if own or s.space not in ("latent", "image"):
+            raise UserError(f"{', '.join(own) or f'--space {s.space}'}: the "
+                            f"{DEFAULT_WORLD} world's; a "
                             f"{run.world} run takes --episodes, --max-steps, --seed, --space "
                             "latent or image and the planner's options")
         if not callable(getattr(plugin := get_world(run.world), "make_env", None)):
@@ -354,12 +337,14 @@ class Reproduce:
 
     # No default instance: its fields' own defaults show (--seeds: the scale's, not the push
     # study's 0 that a constructed default would hold).
-    config: Annotated[ReproduceConfig, tyro.conf.arg(name=""), Flat]
+    config: Annotated[StudySettings, tyro.conf.arg(name=""), Flat]
 
     def run(self) -> None:
-        from latent_sindy.experiments.reproduce import reproduce
+        from latent_sindy.study.runner import reproduce_world, study_worlds
 
-        report = reproduce(self.config)
+        world = study_worlds().get(self.config.world)
+        report = (COMMAND_OF["reproduce"].run(self.config) if world is None
+                  else reproduce_world(world, self.config))
         print(f"report: {report}")
 
 

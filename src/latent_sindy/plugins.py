@@ -18,7 +18,8 @@ that names a world's library loads without the user importing the world first.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from functools import cache
 from importlib.metadata import entry_points
 from typing import Any, Protocol
@@ -27,8 +28,8 @@ from latent_sindy.errors import UserError
 
 GROUP = "latent_sindy.worlds"
 
-__all__ = ["GROUP", "HOOKS", "WorldPlugin", "get_world", "hook", "legacy_world", "load_plugins",
-           "world_names"]
+__all__ = ["GROUP", "HOOKS", "Command", "WorldPlugin", "get_world", "hook", "legacy_world",
+           "load_plugins", "world_names"]
 
 
 class WorldPlugin(Protocol):
@@ -66,7 +67,25 @@ HOOKS: dict[str, str] = {
     "reproduce": "(scale, out, seeds, device, say) -> the world's own study, a "
                  "latent_sindy.world_study.WorldStudy [none]",
     "data": "(**settings) -> SequenceData the world's study is made of [none]",
+    "commands": "{'collect' | 'control' | 'reproduce': Command} the CLI's commands as this "
+                "world runs them, with settings of its own (a Command's settings type: its "
+                "fields are the command's flags where this is the CLI's default world); "
+                "collect: run(settings, out, workers, progress) for --world of this world; "
+                "control: run(run folder, loaded run, settings, out, progress) for its runs; "
+                "reproduce: run(settings) -> report.html for a --world that names no world "
+                "with a study of its own [collect: the collect hook; control: the closed "
+                "loop of control.episodes; reproduce: a world's reproduce hook]",
 }
+
+
+@dataclass(frozen=True)
+class Command:
+    """One CLI command as a world runs it (the ``commands`` hook): its settings, a dataclass
+    whose fields become the command's flags, and what runs it (:data:`HOOKS` says with
+    which arguments)."""
+
+    settings: type
+    run: Callable[..., Any]
 
 
 def legacy_world() -> Any:

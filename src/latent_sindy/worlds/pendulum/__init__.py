@@ -14,8 +14,9 @@ neither gymnasium nor the environment; ``PendulumImageEnv`` loads when first ask
 
 from latent_sindy.worlds.pendulum.config import PendulumConfig
 from latent_sindy.worlds.pendulum.criteria import swing_up_success, upright, upright_fraction
-from latent_sindy.worlds.pendulum.plugin import VIDEO, WORLD, PendulumWorld
+from latent_sindy.worlds.pendulum.plugin import VIDEO, WORLD
 from latent_sindy.worlds.pendulum.video import pendulum_video
+from latent_sindy.worlds.pendulum.world import PendulumWorld
 
 
 def __getattr__(name: str):

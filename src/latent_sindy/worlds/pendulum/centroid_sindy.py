@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torch import nn
 
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models.encoders import image_coordinates
@@ -39,7 +40,6 @@ from latent_sindy.sindy import Polynomial, SindyLibrary, StepwiseSR, select_on_r
 from latent_sindy.sindy.fit import fit_state_data
 from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.selection import TOLERANCES
-from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.state_sindy import sindy_step
 
 __all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]

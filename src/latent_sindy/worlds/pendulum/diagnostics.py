@@ -18,10 +18,10 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.api import LatentSINDy
 from latent_sindy.control.episodes import Observation
 from latent_sindy.control.mppi import MPPI, MPPIConfig
-from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.render import observe
 
 __all__ = ["TrueDynamicsImageCost", "state_table"]

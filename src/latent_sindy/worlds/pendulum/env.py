@@ -18,7 +18,7 @@ from typing import ClassVar
 import gymnasium as gym
 import numpy as np
 
-from latent_sindy.worlds.pendulum import physics
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.worlds.pendulum.config import PendulumConfig
 from latent_sindy.worlds.pendulum.render import observe
 

@@ -1,11 +1,11 @@
 """The pendulum worlds' plug-ins (entry points ``pendulum`` and ``pendulum-video`` of
 ``latent_sindy.worlds``).
 
-:data:`WORLD` is the controlled pendulum as a :class:`~latent_sindy.control.world.World`:
-swing up from hanging (or from anywhere) to upright at rest, seen through two stacked 48×48
-frames. :data:`VIDEO` is the autonomous pendulum video's plug-in: its data name it, and the
-core reads its settings back from a data file's or run's record. Neither loads gymnasium
-until an environment is made.
+:data:`WORLD` is the controlled pendulum (:class:`~.world.PendulumWorld`: swing up from
+hanging, or from anywhere, to upright at rest, seen through two stacked 48×48 frames) with
+its study, ``latent-sindy reproduce --world pendulum``. :data:`VIDEO` is the autonomous
+pendulum video's plug-in: its data name it, and the core reads its settings back from a data
+file's or run's record. Neither loads gymnasium until an environment is made.
 
     from latent_sindy.plugins import get_world
     world = get_world("pendulum")                  # or PendulumWorld(PendulumConfig(...))
@@ -14,68 +14,20 @@ until an environment is made.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from latent_sindy.configs import from_json, to_json
-from latent_sindy.control.collect import collect_random
-from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.world import Task
 from latent_sindy.data.sequence import SequenceData
 from latent_sindy.errors import UserError
-from latent_sindy.worlds.pendulum import physics
-from latent_sindy.worlds.pendulum.config import PendulumConfig
-from latent_sindy.worlds.pendulum.criteria import UPRIGHT_DEG
-from latent_sindy.worlds.pendulum.render import observe
+from latent_sindy.worlds.pendulum.world import STATE_NAMES, UPRIGHT, PendulumWorld
 
-__all__ = ["STATE_NAMES", "VIDEO", "WORLD", "PendulumVideo", "PendulumWorld"]
-
-STATE_NAMES = ("θ", "θ_dot")
-UPRIGHT = np.array([0.0, 0.0])  # the goal: upright at rest
+__all__ = ["STATE_NAMES", "UPRIGHT", "VIDEO", "WORLD", "PendulumPlugin", "PendulumVideo",
+           "PendulumWorld"]
 
 
-class PendulumWorld:
-    """The torque-driven pendulum (Pendulum-v1's physics) seen by a camera."""
-
-    name = "pendulum"
-    action_low = (-physics.MAX_TORQUE,)
-    action_high = (physics.MAX_TORQUE,)
-    action_names = ("torque",)
-
-    def __init__(self, config: PendulumConfig | None = None) -> None:
-        self.config = config or PendulumConfig()
-
-    # ------------------------------------------------------ what the core asks of its data
-    @staticmethod
-    def config_from_record(record: dict[str, Any], where: str) -> PendulumConfig:
-        if "pendulum" not in record:
-            raise UserError(f"{where}: the pendulum's record lacks its settings ('pendulum')")
-        return from_json(PendulumConfig, record["pendulum"], f"{where}: pendulum")
-
-    @classmethod
-    def check_data(cls, data: SequenceData) -> None:
-        """UserError unless ``data`` has this world's frames (2, S, S) and one torque."""
-        cfg = cls.config_from_record(data.record, data.source)
-        s = cfg.image_size
-        if data.frame_shape != (2, s, s) or data.action_names != cls.action_names:
-            raise UserError(f"{data.source}: pendulum data need frames (2, {s}, {s}) and one "
-                            f"action 'torque', got frames {data.frame_shape} and actions "
-                            f"{data.action_names}")
-
-    def collect(self, sequences: int, steps: int, seed: int = 0) -> SequenceData:
-        """Random torques from the box, from starts of this world's tasks: images, actions,
-        states (θ, θ̇) and the world's record."""
-        data = collect_random(self, sequences, steps, seed)
-        return data.replace(state_names=STATE_NAMES, state_periods=(2 * math.pi, None),
-                            dt=physics.DT, world=self.name,
-                            record={"pendulum": to_json(self.config),
-                                    "collection": {"sequences": sequences, "steps": steps,
-                                                   "seed": seed, "actions": "uniform"}},
-                            source=f"<random torques in the pendulum, seed {seed}>")
+class PendulumPlugin(PendulumWorld):
+    """The controlled pendulum's plug-in: the world (:class:`PendulumWorld`) and its study."""
 
     # ------------------------------------------------------ latent-sindy reproduce
     about = ("the controlled pendulum (Pendulum-v1's physics) from images: SINDy, MLP and "
@@ -96,39 +48,6 @@ class PendulumWorld:
         from latent_sindy.worlds.pendulum.reproduce import reproduce_pendulum
 
         return reproduce_pendulum(scale, out, seeds, device, threads, say)
-
-    # ------------------------------------------------------ the world interface
-    def planner(self) -> MPPIConfig:
-        """Settings of MPPI for the swing-up (measured with the true dynamics)."""
-        return MPPIConfig(samples=500, horizon=30, sigma=1.0, lambda_=1.0)
-
-    def make_env(self) -> Any:
-        from latent_sindy.worlds.pendulum.env import PendulumImageEnv
-
-        return PendulumImageEnv(self.config)
-
-    def sample_task(self, rng: np.random.Generator) -> Task:
-        from latent_sindy.worlds.pendulum.env import sample_start
-
-        return Task(start=sample_start(self.config, rng), goal=UPRIGHT.copy())
-
-    def reset(self, env: Any, task: Task, seed: int) -> np.ndarray:
-        return env.reset(seed=seed, options={"start": task.start})[0]
-
-    def image(self, observation: Any) -> np.ndarray:
-        return observation
-
-    def goal_image(self, env: Any, task: Task) -> np.ndarray:
-        theta, rate = np.asarray(task.goal, np.float64)
-        return observe(theta, rate, self.config.image_size)
-
-    def state(self, env: Any) -> np.ndarray:
-        return env.state.copy()
-
-    def success(self, state: np.ndarray, goal: np.ndarray) -> dict[str, bool]:
-        """"upright": θ within 10° of the goal's angle (the rate is not asked)."""
-        error = physics.wrap_angle(float(state[0]) - float(goal[0]))
-        return {"upright": bool(abs(error) <= math.radians(UPRIGHT_DEG))}
 
 
 class PendulumVideo:
@@ -168,5 +87,5 @@ class PendulumVideo:
         return pendulum_video(**settings)
 
 
-WORLD = PendulumWorld()
+WORLD = PendulumPlugin()
 VIDEO = PendulumVideo()

@@ -17,11 +17,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.sindy import Polynomial, SindyLibrary
 from latent_sindy.sindy.fit import fit_state_data
-from latent_sindy.worlds.pendulum import physics
 
 __all__ = ["FEATURE_NAMES", "StateSindy"]
 

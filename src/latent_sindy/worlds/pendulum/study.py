@@ -29,6 +29,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.api import LatentSINDy
 from latent_sindy.control.episodes import Observation
 from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
@@ -37,7 +38,6 @@ from latent_sindy.errors import UserError
 from latent_sindy.models import LossWeights
 from latent_sindy.stats import wilson_interval
 from latent_sindy.training import TrainConfig
-from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.centroid_sindy import (
     CentroidMlp,
     CentroidSindy,
@@ -46,10 +46,10 @@ from latent_sindy.worlds.pendulum.centroid_sindy import (
 from latent_sindy.worlds.pendulum.config import PendulumConfig
 from latent_sindy.worlds.pendulum.diagnostics import TrueDynamicsImageCost
 from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost
-from latent_sindy.worlds.pendulum.plugin import UPRIGHT, PendulumWorld
 from latent_sindy.worlds.pendulum.render import observe
 from latent_sindy.worlds.pendulum.state_sindy import StateSindy
 from latent_sindy.worlds.pendulum.swing_up import StateMPPI, SwingUp, run_swing_up
+from latent_sindy.worlds.pendulum.world import UPRIGHT, PendulumWorld
 
 __all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study"]
 

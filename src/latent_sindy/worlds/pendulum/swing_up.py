@@ -19,13 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.control.episodes import ImagePolicy, Observation, Policy, run_closed_loop
 from latent_sindy.control.mppi import MPPI, MPPIConfig
 from latent_sindy.control.world import Task
 from latent_sindy.errors import UserError
-from latent_sindy.worlds.pendulum import physics
 from latent_sindy.worlds.pendulum.criteria import swing_up_success, upright_fraction
-from latent_sindy.worlds.pendulum.plugin import PendulumWorld
+from latent_sindy.worlds.pendulum.world import PendulumWorld
 
 __all__ = ["ImagePolicy", "StateMPPI", "SwingUp", "run_swing_up"]
 

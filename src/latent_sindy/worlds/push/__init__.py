@@ -5,17 +5,7 @@ gymnasium environment ``latent_sindy/PandaPush-v0`` (done by :class:`PandaPushEn
 """
 
 from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, CameraConfig, PushEnvConfig
-
-ENV_ID = "latent_sindy/PandaPush-v0"
-
-
-def register_env() -> str:
-    """Register the gymnasium environment (once); returns its id."""
-    from gymnasium.envs.registration import register, registry
-
-    if ENV_ID not in registry:
-        register(id=ENV_ID, entry_point="latent_sindy.worlds.push.panda_push:PandaPushEnv")
-    return ENV_ID
+from latent_sindy.worlds.push.registration import ENV_ID, register_env
 
 
 def __getattr__(name: str):

@@ -1,5 +1,6 @@
 """The pushing world's policy: a trained model with its MPPI (:class:`Controller`), planning in
-the latent, image or pose space (:data:`COSTS`), and how it chose each push (:class:`Push`).
+the latent, image or pose space (:data:`COSTS`), and how it chose each push (:class:`Push`);
+the settings of the episodes it plays (:class:`ControlConfig`).
 
 It is a policy of the project's closed loop (:mod:`latent_sindy.control.episodes`):
 ``reset(goal, seed)`` and ``act(observation)``, where an observation holds the camera image
@@ -15,15 +16,16 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 import torch
+import tyro
 
 from latent_sindy.control.costs import ImageCost, LatentCost, PoseCost, StateCost
 from latent_sindy.control.episodes import Observation
-from latent_sindy.control.mppi import MPPI, MPPIInfo, latent_step
+from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import feasible_action
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
 from latent_sindy.errors import UserError
@@ -31,10 +33,7 @@ from latent_sindy.models.state import pose_cost_weights
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.reach import Reach
 
-if TYPE_CHECKING:
-    from latent_sindy.worlds.push.episodes import ControlConfig
-
-__all__ = ["COSTS", "Controller", "Push", "check_space"]
+__all__ = ["COSTS", "ControlConfig", "Controller", "Push", "check_space"]
 
 
 def _latent_cost(controller: Controller, goal: torch.Tensor) -> StateCost:
@@ -70,6 +69,50 @@ def check_space(model, space: str) -> None:
 #: model observes it (normalised goal image, or encoded goal pose for a state model).
 COSTS: dict[str, Callable[[Controller, torch.Tensor], StateCost]] = {
     "latent": _latent_cost, "image": _image_cost, "pose": _pose_cost}
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """How episodes are posed and planned; the planner's own settings are nested."""
+
+    task: Literal["paper", "random"] = "paper"
+    """paper: start (0.4, 0, 0.2π), goal (0.7, 0, 0); random: start and goal from the seed."""
+    episodes: int = 1
+    """Number of episodes."""
+    seed: int = 0
+    """Seeds the random tasks and the controller's noise."""
+    space: Literal["latent", "image", "pose"] = "latent"
+    """Where MPPI's cost is computed: "latent" (distance to the encoded goal image), "image"
+    (decode each predicted latent, compare with the goal image: the paper's variant) or
+    "pose" (the pose head's reading of each predicted latent against the goal image's,
+    2 cm or 10° costing 1: models trained with --pose-head)."""
+    max_steps: int = 20
+    """Pushes allowed per episode (the course: 20 latent, 30 image space)."""
+    until: Literal["course", "strict"] = "course"
+    """Stop an episode when this success criterion is met."""
+    gif_episodes: int = 1
+    """Save a GIF of the first this many episodes."""
+    reach: bool = True
+    """Replace a planned push the arm cannot make from the block's true pose by the
+    lowest-cost sampled push it can (the world's reach answer, worlds/push/reach.py);
+    --no-reach executes MPPI's push as planned (out of reach: the block stays)."""
+    mppi: tyro.conf.OmitArgPrefixes[MPPIConfig] = field(default_factory=MPPIConfig)
+    """The planner (K, H, Σ, λ)."""
+
+    def __post_init__(self) -> None:
+        if self.task not in ("paper", "random"):
+            raise UserError(f"--task {self.task}: use paper or random")
+        if self.space not in COSTS:
+            raise UserError(f"--space {self.space}: use one of {', '.join(COSTS)}")
+        if self.until not in ("course", "strict"):
+            raise UserError(f"--until {self.until}: use course or strict")
+        for name in ("episodes", "max_steps"):
+            if getattr(self, name) < 1:
+                raise UserError(f"--{name.replace('_', '-')} {getattr(self, name)}: use 1 or more")
+        if self.gif_episodes < 0:
+            raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
+        if self.seed < 0:
+            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
 
 
 

@@ -4,11 +4,11 @@ Each episode encodes the goal image (the camera's view with the block at the goa
 every step encodes the current image, asks MPPI for a push in latent space (or in image
 space: the cost decodes every predicted latent and compares it with the goal image; or in
 pose space: a model's pose head reads the block's pose from every predicted latent and from
-the encoded goal image, :data:`COSTS`), executes it in the PyBullet world and looks again,
-until the block is at the goal or the step limit is reached: the project's one closed loop
-(:func:`~latent_sindy.control.episodes.run_loop`), with the :class:`Controller` as its policy
-(``act(observation)``: the camera image and the block's true pose) and this world's record of
-each push (:class:`_Pushes`).
+the encoded goal image, :data:`.controller.COSTS`), executes it in the PyBullet world and
+looks again, until the block is at the goal or the step limit is reached: the project's one
+closed loop (:func:`~latent_sindy.control.episodes.run_loop`), with the :class:`Controller`
+as its policy (``act(observation)``: the camera image and the block's true pose) and this
+world's record of each push (:class:`_Pushes`).
 
     latent-sindy control runs/sindy2 --task paper --episodes 1
     latent-sindy control runs/sindy2 --task random --episodes 20 --space image --max-steps 30
@@ -24,65 +24,17 @@ import os
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
-import tyro
 
 from latent_sindy.atomic import atomic_path, check_memory, check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.control.episodes import Observation, run_loop
-from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.errors import UserError
 from latent_sindy.stats import wilson_interval
 from latent_sindy.worlds.push.config import PushEnvConfig
-from latent_sindy.worlds.push.controller import COSTS, Controller, check_space
-
-
-@dataclass(frozen=True)
-class ControlConfig:
-    """How episodes are posed and planned; the planner's own settings are nested."""
-
-    task: Literal["paper", "random"] = "paper"
-    """paper: start (0.4, 0, 0.2π), goal (0.7, 0, 0); random: start and goal from the seed."""
-    episodes: int = 1
-    """Number of episodes."""
-    seed: int = 0
-    """Seeds the random tasks and the controller's noise."""
-    space: Literal["latent", "image", "pose"] = "latent"
-    """Where MPPI's cost is computed: "latent" (distance to the encoded goal image), "image"
-    (decode each predicted latent, compare with the goal image: the paper's variant) or
-    "pose" (the pose head's reading of each predicted latent against the goal image's,
-    2 cm or 10° costing 1: models trained with --pose-head)."""
-    max_steps: int = 20
-    """Pushes allowed per episode (the course: 20 latent, 30 image space)."""
-    until: Literal["course", "strict"] = "course"
-    """Stop an episode when this success criterion is met."""
-    gif_episodes: int = 1
-    """Save a GIF of the first this many episodes."""
-    reach: bool = True
-    """Replace a planned push the arm cannot make from the block's true pose by the
-    lowest-cost sampled push it can (the world's reach answer, worlds/push/reach.py);
-    --no-reach executes MPPI's push as planned (out of reach: the block stays)."""
-    mppi: tyro.conf.OmitArgPrefixes[MPPIConfig] = field(default_factory=MPPIConfig)
-    """The planner (K, H, Σ, λ)."""
-
-    def __post_init__(self) -> None:
-        if self.task not in ("paper", "random"):
-            raise UserError(f"--task {self.task}: use paper or random")
-        if self.space not in COSTS:
-            raise UserError(f"--space {self.space}: use one of {', '.join(COSTS)}")
-        if self.until not in ("course", "strict"):
-            raise UserError(f"--until {self.until}: use course or strict")
-        for name in ("episodes", "max_steps"):
-            if getattr(self, name) < 1:
-                raise UserError(f"--{name.replace('_', '-')} {getattr(self, name)}: use 1 or more")
-        if self.gif_episodes < 0:
-            raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
-        if self.seed < 0:
-            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
+from latent_sindy.worlds.push.controller import ControlConfig, Controller, check_space
 
 
 @dataclass

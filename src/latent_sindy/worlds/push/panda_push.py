@@ -22,9 +22,9 @@ import gymnasium as gym
 import numpy as np
 
 from latent_sindy.configs import from_json, to_json
-from latent_sindy.worlds.push import register_env
 from latent_sindy.worlds.push.config import PAPER_GOAL, PAPER_START, PushEnvConfig
 from latent_sindy.worlds.push.criteria import goal_criteria
+from latent_sindy.worlds.push.registration import register_env
 from latent_sindy.worlds.push.scene import draw_look
 from latent_sindy.worlds.push.world import PushWorld
 

@@ -47,6 +47,13 @@ class PushWorld:
     read_legacy = staticmethod(_data.read_legacy)
     prepare_model = staticmethod(_prepare_model)
 
+    @property
+    def commands(self) -> dict[str, Any]:
+        """The CLI's collect, control and reproduce in this world (loaded when asked for)."""
+        from latent_sindy.worlds.push.commands import COMMANDS
+
+        return COMMANDS
+
     # ------------------------------------------------------ the world interface
     @property
     def action_low(self) -> tuple[float, ...]:

@@ -12,7 +12,7 @@ Every model, whatever its dynamics, is judged on the same normalised images:
 * ``model_stats``: active coefficients and sparsity (SINDy), coefficient / parameter counts;
 * ``aggregate``: mean ± std over seeds of flat metric dictionaries.
 
-    from latent_sindy.experiments.evaluation import horizon_errors, split_losses
+    from latent_sindy.study.evaluation import horizon_errors, split_losses
     run = load_run("results/runs/seed0/sindy2")
     losses = split_losses(run.model, read_sequences("results/data.h5"), run.normalizer)
 """

@@ -4,7 +4,7 @@ Images are embedded as base64 data URIs, styles inline, no scripts and no extern
 the file can be mailed, archived or opened from disk as it is. The page never scrolls
 sideways: a table wider than the page scrolls inside its own box.
 
-    from latent_sindy.experiments.report import Report
+    from latent_sindy.study.report import Report
     r = Report("latent-sindy study")
     r.heading("Table I")
     r.table(["model", "test loss"], [["SINDy 1", "0.061"], ["linear", "0.22"]])

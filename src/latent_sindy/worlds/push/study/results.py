@@ -13,9 +13,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from latent_sindy.experiments.config import StudyPlan
-from latent_sindy.experiments.evaluation import Stat
-from latent_sindy.experiments.scales import Condition
+from latent_sindy.study.evaluation import Stat
+from latent_sindy.worlds.push.study.config import StudyPlan
+from latent_sindy.worlds.push.study.scales import Condition
 
 __all__ = ["CONTROL_METRICS", "Baselines", "Evaluations", "RunResult", "Study"]
 

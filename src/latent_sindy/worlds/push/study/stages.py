@@ -30,17 +30,17 @@ from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Executor, Resources
-from latent_sindy.experiments.catalogue import ModelSpec
-from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
-from latent_sindy.experiments.evaluation import aggregate, baseline_errors
-from latent_sindy.experiments.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
-from latent_sindy.experiments.probe import position_errors
-from latent_sindy.experiments.results import Baselines, Evaluations, RunResult
-from latent_sindy.experiments.scales import SCALES
-from latent_sindy.experiments.sweeps import check_windows
 from latent_sindy.progress import bar
+from latent_sindy.study.evaluation import aggregate, baseline_errors
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
+from latent_sindy.worlds.push.study.catalogue import ModelSpec
+from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
+from latent_sindy.worlds.push.study.probe import position_errors
+from latent_sindy.worlds.push.study.results import Baselines, Evaluations, RunResult
+from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.sweeps import check_windows
 
 __all__ = ["baseline_stage", "check_given_data", "check_reused_data", "collect_stage", "run_stage",
            "train_config"]

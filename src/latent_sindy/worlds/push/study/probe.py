@@ -301,7 +301,7 @@ def position_errors(model: LatentModel | None, data: SequenceData, normalizer: N
     at t + h), and, given a model, ``recon`` (its reconstructions dec(enc(x_t))) and
     ``model`` per h (its decoded open-loop predictions from x_t with the true actions).
     ``predictions``: item t the model's normalised predictions from x_t, (N, T-t+1, C, S, S)
-    (:func:`latent_sindy.experiments.evaluation.rollouts`), when already made.
+    (:func:`latent_sindy.study.evaluation.rollouts`), when already made.
     """
     cfg = data.env_config
     levels = levels if levels is not None else block_levels(cfg)
@@ -341,7 +341,7 @@ def state_position_errors(data: SequenceData, predictions: list[torch.Tensor]
     :func:`position_errors` averages (every start t with t + h <= T), so the two compare.
 
     ``predictions``: item t the predicted encoded poses from the true pose at t,
-    (N, T-t+1, 4) (:func:`latent_sindy.experiments.evaluation.rollouts`). A state model sees
+    (N, T-t+1, 4) (:func:`latent_sindy.study.evaluation.rollouts`). A state model sees
     the pose itself: ``recon`` is 0, and ``still`` ("nothing moves") is the true pose at t
     against that at t + h. A non-finite prediction counts as infinitely far.
     """

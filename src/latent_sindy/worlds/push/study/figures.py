@@ -14,7 +14,7 @@ Drawn with matplotlib's object API (no pyplot, so no global backend or open figu
 
 Every file is written atomically (a reader never sees half a PNG).
 
-    from latent_sindy.experiments import figures
+    from latent_sindy.worlds.push.study import figures
     figures.coefficient_map(run.model.dynamics, "SINDy order 2", Path("figures/coef.png"))
 """
 
@@ -30,9 +30,9 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
 from latent_sindy.atomic import atomic_path
-from latent_sindy.experiments.overview import Overview
 from latent_sindy.models.dynamics import SindyDynamics
 from latent_sindy.plots import loss_histories
+from latent_sindy.worlds.push.study.overview import Overview
 
 __all__ = ["coefficient_map", "control_bars", "horizon_plot", "loss_histories", "overview_figure",
            "rollout_strip"]

@@ -28,14 +28,15 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
-from latent_sindy.experiments import evaluation, probe
-from latent_sindy.experiments.results import RunResult
-from latent_sindy.experiments.scales import Condition
 from latent_sindy.progress import Milestones
+from latent_sindy.study import evaluation
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
 from latent_sindy.training.loop import restore_finished
 from latent_sindy.training.record import run_record
 from latent_sindy.worlds.push.episodes import ControlConfig, run_control
+from latent_sindy.worlds.push.study import probe
+from latent_sindy.worlds.push.study.results import RunResult
+from latent_sindy.worlds.push.study.scales import Condition
 
 __all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "held_out_split",
            "train_job"]

@@ -21,7 +21,7 @@ from latent_sindy.worlds.push.episodes import ControlConfig
 from latent_sindy.worlds.push.planner import world_planner
 
 if TYPE_CHECKING:
-    from latent_sindy.experiments.catalogue import ModelSpec
+    from latent_sindy.worlds.push.study.spec import ModelSpec
 
 __all__ = ["ROUND_ONE", "SCALES", "Condition", "Scale"]
 

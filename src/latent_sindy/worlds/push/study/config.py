@@ -2,7 +2,7 @@
 
 :class:`ReproduceConfig` is the command's typed settings (its field docstrings are the
 ``--help``); :class:`StudyPlan` is what a config resolves to before anything runs: the
-models (:func:`.catalogue.study_specs`) and each (seed, model)'s run folder.
+models (:func:`study_specs`) and each (seed, model)'s run folder.
 
 ``--world`` names a pushing world (``ENV_PRESETS``: the push study) or a world plug-in
 (entry points ``latent_sindy.worlds``) that has a study of its own: an object with ``about``,
@@ -11,13 +11,14 @@ This module knows those plug-ins only through that interface.
 
     latent-sindy reproduce --scale demo --out results --seeds 0..2
 
-    from latent_sindy.experiments.config import ReproduceConfig, StudyPlan
+    from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
     plan = StudyPlan.of(ReproduceConfig(scale="tiny", out=Path("results")))
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,27 +27,23 @@ from typing import Annotated, Any, Literal
 import tyro
 
 from latent_sindy.errors import UserError
-from latent_sindy.experiments.catalogue import SINGLE_STEP, ModelSpec, study_specs
-from latent_sindy.experiments.scales import SCALES, Scale
-from latent_sindy.experiments.sweeps import MAX_SEEDS, Seeds, Sweeps, check_windows, sweep_help
-from latent_sindy.plugins import get_world, hook, world_names
+from latent_sindy.plugins import hook
+from latent_sindy.study.runner import study_worlds
 from latent_sindy.training.config import resolve_device
 from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT, PushEnvConfig
+from latent_sindy.worlds.push.study.catalogue import model_specs
+from latent_sindy.worlds.push.study.scales import SCALES, Scale
+from latent_sindy.worlds.push.study.spec import SINGLE_STEP, ModelSpec
+from latent_sindy.worlds.push.study.sweeps import (
+    MAX_SEEDS,
+    SWEEPABLE,
+    Seeds,
+    Sweeps,
+    check_windows,
+    sweep_help,
+)
 
-__all__ = ["ReproduceConfig", "StudyPlan", "study_worlds"]
-
-
-def study_worlds() -> dict[str, Any]:
-    """The installed world plug-ins that have a study of their own (``reproduce``)."""
-    found = {}
-    for name in world_names():
-        try:
-            world = get_world(name)
-        except Exception:  # a broken plug-in must not break the other commands (asked for
-            continue       # by name, get_world raises its error)
-        if callable(hook(world, "reproduce")) and hook(world, "scales") is not None:
-            found[name] = world
-    return found
+__all__ = ["ReproduceConfig", "StudyPlan", "study_specs"]
 
 
 def _world_help() -> str:
@@ -249,3 +246,43 @@ class StudyPlan:
     def multistep(self) -> ModelSpec | None:
         """The SINDy model trained on multi-step windows."""
         return next((s for s in self.specs if s.window > 1), None)
+
+
+def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
+    """The models of a study: :func:`model_specs`, those of ``--models``, and for each model
+    one variant per combination of the ``--sweep`` values that apply to it."""
+    world = PushEnvConfig.named(config.world)
+    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push)
+    names = [s.name for s in specs]
+    unknown = [m for m in config.models if m not in names]
+    if unknown or len(set(config.models)) != len(config.models):
+        raise UserError(f"--models {' '.join(config.models)}: give distinct names among "
+                        f"{', '.join(names)}")
+    if config.models:
+        specs = tuple(s for s in specs if s.name in config.models)
+    out: list[ModelSpec] = []
+    for sweep in config.sweep:
+        setting = SWEEPABLE[sweep.setting]
+        if not any(setting.applies(s) for s in specs):
+            raise UserError(f"{sweep.text}: none of the chosen models "
+                            f"({', '.join(s.name for s in specs)}) has this setting; "
+                            f"{sweep.setting} is a setting of {setting.models}: choose such "
+                            "models with --models")
+    for spec in specs:
+        sweeps = [sw for sw in config.sweep if SWEEPABLE[sw.setting].applies(spec)]
+        for combo in itertools.product(*(sw.variants() for sw in sweeps)):
+            variant = spec
+            for sw, (name, value) in zip(sweeps, combo, strict=True):
+                try:
+                    variant = SWEEPABLE[sw.setting].apply(variant, value)
+                except UserError as e:  # a value this model does not take: name both
+                    raise UserError(f"--sweep {name}: model {spec.name}: {e}; leave it out "
+                                    "with --models") from None
+            if combo:
+                suffix = ".".join(name for name, _ in combo)
+                label = ", ".join(f"{SWEEPABLE[sw.setting].label}={v:g}"
+                                  for sw, (_, v) in zip(sweeps, combo, strict=True))
+                variant = dataclasses.replace(variant, name=f"{spec.name}.{suffix}",
+                                              label=f"{spec.label}, {label}")
+            out.append(variant)
+    return tuple(out)

@@ -5,7 +5,7 @@ its open-loop prediction error, and its closed-loop success on the random tasks 
 under both criteria, each with the 95 % Wilson interval of every seed's episodes pooled. And
 how the study's numbers reproduce, as sentences about this study.
 
-    from latent_sindy.experiments.overview import overview, overview_table
+    from latent_sindy.worlds.push.study.overview import overview, overview_table
     view = overview(study)                        # rows, best first
     header, rows = overview_table(view, seeds=1)  # the report's short table
 """
@@ -15,11 +15,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from latent_sindy.experiments.catalogue import ModelSpec
-from latent_sindy.experiments.evaluation import Stat
-from latent_sindy.experiments.results import Study
-from latent_sindy.experiments.table import format_stat, pooled_counts
 from latent_sindy.stats import wilson_interval
+from latent_sindy.study.evaluation import Stat
+from latent_sindy.worlds.push.study.catalogue import ModelSpec
+from latent_sindy.worlds.push.study.results import Study
+from latent_sindy.worlds.push.study.table import format_stat, pooled_counts
 
 __all__ = ["CONDITION", "ModelRow", "Overview", "Success", "overview", "overview_table",
            "reproduction_notes"]

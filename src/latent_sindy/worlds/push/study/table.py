@@ -2,9 +2,9 @@
 
 Rows the paper reports come twice, "(paper)" then "(ours)"; the rows we add (success rates,
 planning time, discarded samples, prediction error) only as ours. Our values are mean ± std
-over the seeds (see :func:`latent_sindy.experiments.evaluation.aggregate`).
+over the seeds (see :func:`latent_sindy.study.evaluation.aggregate`).
 
-    from latent_sindy.experiments.table import table1_rows, write_table1
+    from latent_sindy.worlds.push.study.table import table1_rows, write_table1
     write_table1(out_dir, models, labels, stats, seeds=2)  # table1.md, table1.csv
 """
 
@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import IO
 
 from latent_sindy.atomic import write_atomic
-from latent_sindy.experiments.evaluation import Stat, mean_std
 from latent_sindy.stats import wilson_interval
+from latent_sindy.study.evaluation import Stat, mean_std
 
 __all__ = ["PAPER", "ROWS", "SWEEP_COLUMNS", "Row", "format_stat", "pooled_counts", "sweep_rows",
            "table1_rows", "write_sweep_table", "write_table1"]

@@ -1,7 +1,7 @@
 """The study's last stage: figures, equations and tables of a finished :class:`~.results.Study`.
 
 :func:`output_stage` writes them under OUT and returns the files the report shows (the report
-itself, and summary.json: :mod:`latent_sindy.experiments.reproduce`).
+itself, and summary.json: :mod:`latent_sindy.worlds.push.study.pipeline`).
 
     latent-sindy reproduce --scale tiny --out /tmp/tiny   # OUT/figures/, table1.md, equations_*.txt
 """
@@ -17,12 +17,12 @@ import torch
 
 from latent_sindy.atomic import write_atomic
 from latent_sindy.data import SequenceData
-from latent_sindy.experiments import figures
-from latent_sindy.experiments.evaluation import BASELINES
-from latent_sindy.experiments.jobs import held_out
-from latent_sindy.experiments.results import Study
-from latent_sindy.experiments.table import write_sweep_table, write_table1
+from latent_sindy.study.evaluation import BASELINES
 from latent_sindy.training import RunDir, load_run, read_metrics
+from latent_sindy.worlds.push.study import figures
+from latent_sindy.worlds.push.study.jobs import held_out
+from latent_sindy.worlds.push.study.results import Study
+from latent_sindy.worlds.push.study.table import write_sweep_table, write_table1
 
 __all__ = ["output_stage", "write_equations"]
 

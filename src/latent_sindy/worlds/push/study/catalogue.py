@@ -1,11 +1,12 @@
-"""The study's models: each row's name, label and training recipe, and a study's choice of them.
+"""The study's models: each row's name, label and training recipe (:mod:`.spec`); a study's
+choice of them (``--models``, ``--sweep``) is :func:`.config.study_specs`.
 
 Rows are looked up by name, never by position. Why each row is set as it is, with the
 measurements behind it: RESULTS.md, "Why the catalogue's rows are set as they are".
 
     latent-sindy reproduce --models sindy2 sindy_moments state_sindy
 
-    >>> from latent_sindy.experiments.scales import SCALES
+    >>> from latent_sindy.worlds.push.study.scales import SCALES
     >>> [s.name for s in model_specs(SCALES["demo"])][:6]
     ['sindy1', 'sindy2', 'sindy3', 'sindy4', 'linear', 'mlp']
 """
@@ -13,68 +14,17 @@ measurements behind it: RESULTS.md, "Why the catalogue's rows are set as they ar
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
-from latent_sindy.errors import UserError
-from latent_sindy.experiments.scales import Scale
-from latent_sindy.experiments.sweeps import SWEEPABLE
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 from latent_sindy.models.state import StateConfig
-from latent_sindy.worlds.push.config import PushEnvConfig
+from latent_sindy.worlds.push.study.scales import Scale
+from latent_sindy.worlds.push.study.spec import SINGLE_STEP, ModelSpec
 
-if TYPE_CHECKING:
-    from latent_sindy.experiments.config import ReproduceConfig
-
-__all__ = ["SINGLE_STEP", "ModelSpec", "model_specs", "study_specs"]
-
-#: The name of the single-step model the multi-step one is compared with.
-SINGLE_STEP = "sindy2"
-
-
-@dataclass(frozen=True)
-class ModelSpec:
-    """One model of the study: its name (folder, table column), label and training recipe."""
-
-    name: str
-    label: str
-    model: ModelConfig
-    window: int = 1
-    """Training window H (1: single-step)."""
-    cost: float = 1.0
-    """Relative training time, to start the longest jobs first."""
-    loss: LossWeights = field(default_factory=LossWeights)
-    """Weights of the loss terms."""
-    headline: bool = False
-    """A headline row: the most random-task episodes."""
-    epochs_factor: int = 1
-    """Train this many times the scale's epochs (and prune and validate that much less often):
-    the state rows, whose epochs cost a small part of an image model's, are still improving
-    after the images' schedule (RESULTS.md, "The state rows")."""
-    image_space: bool = False
-    """Also plan with image-space MPPI (the paper's variant; needs an image model). The study
-    runs it for SINDy-2 only: a step decodes K·H images (Table I's "planning ms per step,
-    image-space MPPI")."""
-    threshold: float | None = None
-    """SINDy's pruning threshold τ (|Ψ| < τ pruned); None: the scale's."""
-    init_threshold: float = 0.0
-    """SINDy on a fixed encoder: the threshold of the sparse regression its coefficients start
-    from (``TrainConfig.sindy_init_threshold``)."""
-    sindy_fit: Literal["joint", "after"] = "joint"
-    """SINDy: trained with the autoencoder ("joint") or fitted by sparse regression to the
-    trained encoder's latents ("after", ``TrainConfig.sindy_fit``)."""
-    latent_cost: Literal["latent", "pose"] = "latent"
-    """The cost of its latent MPPI: "latent" (the distance to the encoded goal image, every
-    coordinate alike) or "pose" (its pose head's reading against the goal image's; a model
-    with a pose head)."""
-
-    def __post_init__(self) -> None:
-        if self.latent_cost == "pose" and not self.model.has_pose_head:
-            raise ValueError(f"model {self.name}: the pose cost needs a model with a pose head")
+__all__ = ["SINGLE_STEP", "ModelSpec", "model_specs"]
 
 
 def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
@@ -206,43 +156,3 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         ModelSpec("state_mlp", "MLP, state", state(MlpConfig(harmonics=4)), cost=0.1,
                   headline=True, epochs_factor=10),
     )
-
-
-def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
-    """The models of a study: :func:`model_specs`, those of ``--models``, and for each model
-    one variant per combination of the ``--sweep`` values that apply to it."""
-    world = PushEnvConfig.named(config.world)
-    specs = model_specs(config.preset, config.decoder, world.angle_period, world.push)
-    names = [s.name for s in specs]
-    unknown = [m for m in config.models if m not in names]
-    if unknown or len(set(config.models)) != len(config.models):
-        raise UserError(f"--models {' '.join(config.models)}: give distinct names among "
-                        f"{', '.join(names)}")
-    if config.models:
-        specs = tuple(s for s in specs if s.name in config.models)
-    out: list[ModelSpec] = []
-    for sweep in config.sweep:
-        setting = SWEEPABLE[sweep.setting]
-        if not any(setting.applies(s) for s in specs):
-            raise UserError(f"{sweep.text}: none of the chosen models "
-                            f"({', '.join(s.name for s in specs)}) has this setting; "
-                            f"{sweep.setting} is a setting of {setting.models}: choose such "
-                            "models with --models")
-    for spec in specs:
-        sweeps = [sw for sw in config.sweep if SWEEPABLE[sw.setting].applies(spec)]
-        for combo in itertools.product(*(sw.variants() for sw in sweeps)):
-            variant = spec
-            for sw, (name, value) in zip(sweeps, combo, strict=True):
-                try:
-                    variant = SWEEPABLE[sw.setting].apply(variant, value)
-                except UserError as e:  # a value this model does not take: name both
-                    raise UserError(f"--sweep {name}: model {spec.name}: {e}; leave it out "
-                                    "with --models") from None
-            if combo:
-                suffix = ".".join(name for name, _ in combo)
-                label = ", ".join(f"{SWEEPABLE[sw.setting].label}={v:g}"
-                                  for sw, (_, v) in zip(sweeps, combo, strict=True))
-                variant = dataclasses.replace(variant, name=f"{spec.name}.{suffix}",
-                                              label=f"{spec.label}, {label}")
-            out.append(variant)
-    return tuple(out)

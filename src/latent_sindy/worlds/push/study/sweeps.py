@@ -27,7 +27,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.sindy import VALID_ORDERS
 
 if TYPE_CHECKING:
-    from latent_sindy.experiments.catalogue import ModelSpec
+    from latent_sindy.worlds.push.study.spec import ModelSpec
 
 __all__ = ["MAX_SEEDS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps", "check_windows",
            "parse_seeds", "parse_sweeps", "sweep_help"]

@@ -4,7 +4,7 @@ against prediction error) and a short table of the models (:mod:`.overview`). Ho
 reproduce, the setting, then Table I, control results, findings beyond the paper, figures,
 GIFs, equations, configuration and versions.
 
-Written by :func:`latent_sindy.experiments.reproduce.reproduce`; the findings are sentences
+Written by :func:`latent_sindy.worlds.push.study.pipeline.reproduce`; the findings are sentences
 computed from the measured numbers, never fixed text.
 
     latent-sindy reproduce --scale demo --out results   # writes results/report.html
@@ -17,14 +17,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-from latent_sindy.experiments import figures
-from latent_sindy.experiments.evaluation import Stat
-from latent_sindy.experiments.overview import overview, overview_table, reproduction_notes
-from latent_sindy.experiments.report import Report
-from latent_sindy.experiments.results import Study
-from latent_sindy.experiments.scales import SCALES
-from latent_sindy.experiments.table import format_stat, table1_rows
+from latent_sindy.study.evaluation import Stat
+from latent_sindy.study.report import Report
 from latent_sindy.worlds.push.config import WORLD_ABOUT
+from latent_sindy.worlds.push.study import figures
+from latent_sindy.worlds.push.study.overview import overview, overview_table, reproduction_notes
+from latent_sindy.worlds.push.study.results import Study
+from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.table import format_stat, table1_rows
 
 __all__ = ["findings", "write_report"]
 

@@ -1,1 +1,0 @@
-"""The paper's study and our additions: experiments, figures and the report."""
