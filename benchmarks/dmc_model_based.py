@@ -29,6 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=int, default=4)
     p.add_argument("--samples", type=int, default=300)
     p.add_argument("--horizon", type=int, default=12)
+    p.add_argument("--warm-updates", type=int, default=100,
+                   help="updates of each refit after the first, continuing the last model; "
+                        "0: every fit from scratch (as the smoke run of RESULTS.md)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
@@ -62,6 +65,7 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = ModelBasedConfig(seed_episodes=args.seed_episodes, iterations=args.iterations,
                            episode_steps=args.steps, steps_per_action=repeat, seed=args.seed,
+                           warm_updates=args.warm_updates,
                            mppi=MPPIConfig(samples=args.samples, horizon=args.horizon,
                                            sigma=0.3, lambda_=1.0, shift="repeat"))
     t0 = time.perf_counter()

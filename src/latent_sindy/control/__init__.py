@@ -1,7 +1,8 @@
 """Control in latent space: MPPI over any latent model's batched ``step``, its costs, a planner
 toward goal images, the world interface and the one closed loop every world runs through
 (policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`), and the
-model-based loop that plans against a learned reward (:mod:`.model_based`).
+model-based loop that plans against a learned reward (:mod:`.model_based`, warm-started
+refits :mod:`.warm_start`, several models side by side :mod:`.model_based_compare`).
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
 >>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
@@ -21,6 +22,7 @@ from latent_sindy.control.episodes import (
     success_rates,
 )
 from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult, model_based
+from latent_sindy.control.model_based_compare import compare_models
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
 from latent_sindy.control.sindy_step import SparseSindyStep
@@ -47,6 +49,7 @@ __all__ = [
     "Task",
     "World",
     "collect_random",
+    "compare_models",
     "latent_step",
     "model_based",
     "run_closed_loop",

@@ -11,9 +11,16 @@ returns a reward; any estimator with ``fit(data)`` and ``planner(mppi, seed=, ob
                                                        episode_steps=100), out="runs/mbrl")
     result.log["episodes"]     # per episode: iteration, kind, return, env_steps so far
 
-With ``out`` the folder holds the data so far (``data.h5``) and the log (``log.json``, the
-settings, every episode's return and each iteration's times), both written whole after the
-seed episodes and after every iteration; run again with the same settings (more iterations
+Refits are warm-started by default (``warm_updates``, :mod:`.warm_start`): the first
+iteration fits from scratch with the fit settings, each later one continues the last model
+and optimiser for ``warm_updates`` mini-batch updates on all the data so far, keeping the
+first fit's normaliser; ``warm_updates=0`` fits every iteration from scratch.
+
+With ``out`` the folder holds the data so far (``data.h5``), the log (``log.json``, the
+settings, every episode's return and each iteration's times, equations and active terms)
+and, when warm-started, the last iteration's model and optimiser (``model_<iteration>.pt``,
+read back with ``torch.load(weights_only=True)``), all written after the seed episodes and
+after every iteration, the log last; run again with the same settings (more iterations
 allowed), it goes on after the last iteration written (a kill -9 loses the iteration in
 progress only). Every draw is seeded from ``seed`` and the episode's number, and each fit
 from ``make_estimator(iteration)``'s seed, so a resumed run gives an uninterrupted run's
@@ -36,6 +43,13 @@ from latent_sindy.configs import to_json
 from latent_sindy.control.collect import collect_random
 from latent_sindy.control.episodes import Observation, run_loop
 from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.control.warm_start import (
+    WarmState,
+    first_fit,
+    load_state,
+    save_state,
+    warm_fit,
+)
 from latent_sindy.control.world import World
 from latent_sindy.data import SequenceData, concatenate, read_sequences, write_sequences
 from latent_sindy.errors import UserError
@@ -70,13 +84,17 @@ class ModelBasedConfig:
     ``env_steps``."""
     seed: int = 0
     """Seeds the tasks, the random actions, the exploration noise and the planner."""
+    warm_updates: int = 100
+    """Mini-batch updates of each refit after the first, continuing the last iteration's
+    model and optimiser (PlaNet trains 100 updates an episode); 0: every iteration fits
+    from scratch with the fit settings."""
     mppi: MPPIConfig = field(default_factory=lambda: MPPIConfig(
         samples=300, horizon=12, sigma=0.3, lambda_=1.0, shift="repeat"))
     """The planner's settings (λ on the scale of a horizon's summed reward)."""
 
     def __post_init__(self) -> None:
         for name in ("seed_episodes", "iterations", "episodes_per_iteration", "episode_steps",
-                     "validation_every", "steps_per_action"):
+                     "validation_every", "steps_per_action", "warm_updates"):
             v = getattr(self, name)
             least = 1 if name in ("seed_episodes", "episode_steps", "steps_per_action") else 0
             if isinstance(v, bool) or not isinstance(v, int) or v < least:
@@ -198,14 +216,18 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                                    * per_action, seconds) for i in range(data.n)],
                "iterations": []}
         _save(folder, data, log)
-    estimator = None
+    estimator, state = None, None
+    if cfg.warm_updates and 0 < log["done"] < cfg.iterations:
+        state = load_state(_state_path(folder, log["done"]), log["done"])
     progress.start(cfg.iterations, min(log["done"], cfg.iterations))
     env = world.make_env() if log["done"] < cfg.iterations else None
     try:
         for iteration in range(log["done"] + 1, cfg.iterations + 1):
-            progress.note(f"iteration {iteration}: fitting on {data.n} episodes")
+            progress.note(f"iteration {iteration}: fitting on {data.n} episodes"
+                          + (" (warm-started)" if state is not None else ""))
             t0 = time.perf_counter()
-            estimator = make_estimator(iteration).fit(data, **(fit_settings or {}))
+            estimator, state = _fit(make_estimator(iteration), data, fit_settings or {}, cfg,
+                                    state)
             fit_s = time.perf_counter() - t0
             planner = estimator.planner(cfg.mppi, seed=cfg.seed * 1000 + iteration,
                                         objective="reward")
@@ -218,10 +240,13 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                                       time.perf_counter() - t1) | {"episode": index})
             data = concatenate(parts)
             log["episodes"] += entries
-            log["iterations"].append({"iteration": iteration, "fit_seconds": round(fit_s, 3),
-                                      "equations": _equations(estimator)})
+            log["iterations"].append({
+                "iteration": iteration, "fit_seconds": round(fit_s, 3),
+                "plan_seconds": round(sum(e["seconds"] for e in entries), 3),
+                "updates": None if state is None else state.updates,
+                "equations": _equations(estimator), "active_terms": _active(estimator)})
             log["done"] = iteration
-            _save(folder, data, log)
+            _save(folder, data, log, state)
             mean = float(np.mean([e["return"] for e in entries])) if entries else None
             progress.update(iteration, {"return": mean, "env_steps": float(
                 log["episodes"][-1]["env_steps"])})
@@ -232,6 +257,32 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
     return ModelBasedResult(data, log, estimator)
 
 
+def _fit(estimator: Any, data: SequenceData, settings: dict[str, Any], cfg: ModelBasedConfig,
+         state: WarmState | None) -> tuple[Any, WarmState | None]:
+    """The iteration's fit: from scratch (the first, or every one without warm starts), or
+    continued from ``state``."""
+    if not cfg.warm_updates:
+        return estimator.fit(data, **settings), None
+    if not callable(getattr(estimator, "train_config", None)):
+        raise UserError(f"warm-started refits continue a LatentSINDy's training; "
+                        f"{type(estimator).__name__} has none: use warm_updates=0")
+    if state is None:
+        return first_fit(estimator, data, settings)
+    return warm_fit(estimator, data, settings, state, cfg.warm_updates)
+
+
+def _active(estimator: Any) -> int | None:
+    """The SINDy model's active terms (nonzero coefficients); None for other dynamics."""
+    try:
+        return int(np.count_nonzero(estimator.coefficients()))
+    except (UserError, AttributeError, NotImplementedError):
+        return None
+
+
+def _state_path(folder: Path, iteration: int) -> Path:
+    return folder / f"model_{iteration}.pt"
+
+
 def _equations(estimator: Any) -> list[str] | None:
     try:
         return list(estimator.equations())
@@ -239,15 +290,22 @@ def _equations(estimator: Any) -> list[str] | None:
         return None  # (an MLP's dynamics have none to show)
 
 
-def _save(folder: Path | None, data: SequenceData, log: dict[str, Any]) -> None:
-    """The data, then the log: a kill between them leaves episodes the log does not count,
-    which a resume drops."""
+def _save(folder: Path | None, data: SequenceData, log: dict[str, Any],
+          state: WarmState | None = None) -> None:
+    """The data and the iteration's model, then the log: a kill before the log leaves
+    episodes the log does not count, which a resume drops, and a model of an iteration it
+    does not count, which a resume ignores (the earlier model is removed after the log)."""
     if folder is None:
         return
     folder.mkdir(parents=True, exist_ok=True)
     write_sequences(folder / "data.h5", data)
+    if state is not None:
+        save_state(_state_path(folder, log["done"]), state, log["done"])
     write_atomic(folder / "log.json", lambda f: f.write(json.dumps(log, indent=1)),
                  binary=False)
+    for old in folder.glob("model_*.pt"):
+        if old.name != _state_path(folder, log["done"]).name:
+            old.unlink(missing_ok=True)
 
 
 def _resume(folder: Path, settings: dict[str, Any]
@@ -267,7 +325,7 @@ def _resume(folder: Path, settings: dict[str, Any]
         count = len(log["episodes"])
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise UserError(f"{path} is damaged ({e}): delete {folder} to start again") from e
-    was = {k: v for k, v in log["settings"].items() if k != "iterations"}
+    was = {"warm_updates": 0} | {k: v for k, v in log["settings"].items() if k != "iterations"}
     now = {k: v for k, v in settings.items() if k != "iterations"}
     if was != now:
         changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))
