@@ -35,6 +35,7 @@ from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
 from latent_sindy.plugins import get_world, hook
 from latent_sindy.progress import bar
+from latent_sindy.study.commands import configured_world
 from latent_sindy.training.config import TrainConfig
 
 Flat = tyro.conf.OmitArgPrefixes
@@ -99,17 +100,9 @@ class Collect:
                                   _bar("collect", "traj") if self.progress else None)
 
     def _collect_world(self) -> None:
-        from dataclasses import is_dataclass
-
-        from latent_sindy.configs import from_pairs
         from latent_sindy.data.store import write_sequences
 
-        world = get_world(self.world)
-        if self.world_config:  # a world is its class built on its settings
-            if not is_dataclass(getattr(world, "config", None)):
-                raise UserError(f"--world {self.world} has no settings for --world-config")
-            world = type(world)(from_pairs(type(world.config), self.world_config,
-                                           "--world-config"))
+        world = configured_world(self.world, self.world_config)
         make = hook(world, "collect")
         if make is None:
             raise UserError(f"--world {self.world} does not collect data (no collect hook): "
@@ -274,47 +267,14 @@ class Control:
         out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
         if run.world is not None and run.world != DEFAULT_WORLD:
-            self._control_world(run, s, check_output_dir(
-                self.out or run_dir.path / f"control-{s.space}", "--out"))
+            from latent_sindy.study.commands import control_world
+
+            control_world(self.run_dir, run, s, check_output_dir(
+                self.out or run_dir.path / f"control-{s.space}", "--out"),
+                ControlSettings(), GENERIC, DEFAULT_WORLD)
             return
         COMMAND_OF["control"].run(self.run_dir, run, s, out,
                                   _bar("episodes", "ep") if self.progress else None)
-
-    def _control_world(self, run, s: ControlSettings, out: Path) -> None:
-        """Another world's closed loop: its own tasks and criteria, MPPI in the run's space."""
-        import json
-
-        from latent_sindy.api import LatentSINDy
-        from latent_sindy.atomic import write_atomic
-        from latent_sindy.control import ImagePolicy, run_closed_loop, success_rates
-        from latent_sindy.control.mppi import MPPIConfig
-
-        default = ControlSettings()
-        own = [f"--{k.replace('_', '-')}" for k in vars(default) if k not in GENERIC
-               and getattr(s, k) != getattr(default, k)]
-        if own or s.space not in ("latent", "image"):
-            raise UserError(f"{', '.join(own) or f'--space {s.space}'}: the "
-                            f"{DEFAULT_WORLD} world's; a "
-                            f"{run.world} run takes --episodes, --max-steps, --seed, --space "
-                            "latent or image and the planner's options")
-        if not callable(getattr(plugin := get_world(run.world), "make_env", None)):
-            raise UserError(f"the {run.world} world has no closed loop: plan with the estimator")
-        world = type(plugin)(run.world_config)
-        mppi = world.planner() if s.mppi == MPPIConfig() and hook(world, "planner") else s.mppi
-        planner = LatentSINDy.load(self.run_dir).planner(mppi, space=s.space, seed=s.seed)
-        results = run_closed_loop(world, ImagePolicy(planner), s.episodes, s.max_steps, s.seed)
-        rates = success_rates(results)
-        out.mkdir(parents=True, exist_ok=True)
-        record = {"world": run.world, **{k: getattr(s, k) for k in ("episodes", "max_steps",
-                  "seed", "space")}, "success": rates,
-                  "results": [{"steps": r.steps, "reached": r.reached, "actions": r.actions}
-                              for r in results]}
-        write_atomic(out / "results.json", lambda f: f.write(json.dumps(record, indent=1)),
-                     binary=False)
-        print(f"{self.run_dir} in the {run.world} world, {s.episodes} episode(s) of at most "
-              f"{s.max_steps} steps, {s.space}-space MPPI: "
-              + ", ".join(f"{k} {100 * v:.0f} %" for k, v in rates.items()))
-        print(f"wrote {out}/results.json")
 
 
 @dataclass
@@ -338,11 +298,19 @@ class Reproduce:
     # No default instance: its fields' own defaults show (--seeds: the scale's, not the push
     # study's 0 that a constructed default would hold).
     config: Annotated[StudySettings, tyro.conf.arg(name=""), Flat]
+    world_config: tuple[str, ...] = ()
+    """KEY=VALUE settings of a --world with a study of its own (fields of its config
+    dataclass, the others at their defaults), e.g. `task=reacher-easy` for dmc."""
 
     def run(self) -> None:
         from latent_sindy.study.runner import reproduce_world, study_worlds
 
         world = study_worlds().get(self.config.world)
+        if self.world_config and world is None:
+            raise UserError(f"--world-config sets the settings of a world with a study of "
+                            f"its own ({', '.join(study_worlds())}); --world "
+                            f"{self.config.world} takes the options below")
+        world = configured_world(self.config.world, self.world_config) if world else None
         report = (COMMAND_OF["reproduce"].run(self.config) if world is None
                   else reproduce_world(world, self.config))
         print(f"report: {report}")

@@ -17,8 +17,10 @@ closed loop toward a goal image refuses them. Importing this module does not imp
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -89,6 +91,27 @@ class DmcWorld:
     @property
     def action_names(self) -> tuple[str, ...]:
         return _describe(self.config).action_names
+
+    # ------------------------------------------------------ latent-sindy reproduce
+    about = ("a DeepMind Control task from pixels (--world-config task=...; cartpole-swingup "
+             "by default): PlaNet's model-based loop with SINDy, linear and MLP latent "
+             "dynamics side by side, return against environment steps")
+
+    @property
+    def scales(self) -> dict[str, str]:
+        """``reproduce --scale`` names of this world's study, with what each runs."""
+        from latent_sindy.worlds.dmc.study import SCALES
+
+        return {name: s.about for name, s in SCALES.items()}
+
+    def reproduce(self, scale: str, out: Path, seeds: tuple[int, ...] | None = None,
+                  device: str = "auto", threads: int = 1,
+                  say: Callable[[str], None] = print) -> Any:
+        """The model-based study of this world's task at ``scale`` in ``out`` (finished
+        loops reused): a :class:`~latent_sindy.world_study.WorldStudy` for the report."""
+        from latent_sindy.worlds.dmc.study_report import reproduce_dmc
+
+        return reproduce_dmc(self.config, scale, out, seeds, device, threads, say)
 
     # ------------------------------------------------------ what the core asks of its data
     @staticmethod

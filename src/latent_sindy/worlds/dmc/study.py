@@ -1,0 +1,217 @@
+"""The DeepMind Control study of ``latent-sindy reproduce --world dmc``: PlaNet's model-based
+loop from pixels (seed episodes of random actions, then fit, plan with MPPI against the
+learned reward, collect, refit warm-started) with three latent dynamics side by side, SINDy,
+linear (E2C-like) and MLP, on the same seed episodes, planner and seeds; the return against
+environment steps per model, beside the published lines at 100k steps (CURL's table).
+
+    latent-sindy reproduce --world dmc --scale tiny --out /tmp/dmc
+    latent-sindy reproduce --world dmc --world-config task=cartpole-swingup --scale demo \\
+        --out results/dmc
+
+Each (seed, model) loop is its own resumable folder, ``OUT/seed<S>/<model>/`` (data.h5,
+log.json, the last model): a re-run reuses finished iterations and seeds. The study's
+settings are in ``OUT/dmc_study.json``; a folder of other settings is refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from latent_sindy.atomic import write_atomic
+from latent_sindy.configs import to_json
+from latent_sindy.errors import UserError
+from latent_sindy.worlds.dmc.config import DmcConfig
+
+__all__ = ["MODELS", "SCALES", "DmcScale", "run_dmc_study", "study_scale"]
+
+Say = Callable[[str], None]
+
+#: The dynamics compared, in the report's order.
+MODELS = ("sindy", "linear", "mlp")
+
+
+@dataclass(frozen=True)
+class DmcScale:
+    """One ``--scale`` of the study: the loop, the models and the planner."""
+
+    about: str
+    seeds: tuple[int, ...]
+    size: int
+    """Image side (unless --world-config gives size)."""
+    frames: int
+    """Frames stacked (unless --world-config gives frames)."""
+    seed_episodes: int
+    iterations: int
+    episode_steps: int
+    """Actions an episode (× the action repeat: environment steps)."""
+    epochs: int
+    """Epochs of the first fit, from scratch."""
+    warm_updates: int
+    """Updates of every later refit, continuing the last model."""
+    window: int
+    latent_dim: int
+    encoder: str
+    samples: int
+    horizon: int
+    reward_head: int = 64
+
+
+SCALES: dict[str, DmcScale] = {
+    "tiny": DmcScale(
+        "about a minute on 2 cores, for tests: 16x16 single frames, 2 seed episodes and 2 "
+        "planned ones of 8 actions, 2 epochs then 4 updates a refit, MPPI K 16 H 3; seed 0",
+        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16),
+    "demo": DmcScale(
+        "a short measurable run: 32x32, 2 frames, 5 seed episodes and 5 planned ones of 125 "
+        "actions (1000 environment steps each at the cartpole's repeat 8, 10k in all), 40 "
+        "epochs then 100 updates a refit, MPPI K 300 H 12; seeds 0..2",
+        (0, 1, 2), 32, 2, 5, 5, 125, 40, 100, 4, 6, "conv", 300, 12),
+    "benchmark": DmcScale(
+        "the 100k-step benchmark (PlaNet's and CURL's setting): 64x64, 2 frames, 5 seed "
+        "episodes and 95 planned ones of 1000 environment steps (100k in all), 100 epochs then "
+        "100 updates a refit, MPPI K 1000 H 12; seeds 0..4; days on a CPU, for a GPU",
+        (0, 1, 2, 3, 4), 64, 2, 5, 95, 125, 100, 100, 4, 8, "conv", 1000, 12),
+}
+
+#: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
+#: CURL (Laskin et al. 2020), Table 1, and DrQ (Kostrikov et al. 2021) for DrQ.
+REFERENCE = {"PlaNet": (297, 39), "Dreamer": (326, 27), "SAC+AE": (311, 11),
+             "pixel SAC": (419, 40), "CURL": (582, 146), "DrQ": (759, 92),
+             "SAC from states": (835, 22)}
+REFERENCE_TASK, REFERENCE_STEPS = "cartpole-swingup", 100_000
+
+
+def study_scale(scale: str, seeds: tuple[int, ...] | None) -> DmcScale:
+    if scale not in SCALES:
+        raise UserError(f"--scale {scale}: the dmc world's scales are {', '.join(SCALES)}")
+    s = SCALES[scale]
+    return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
+
+
+def _world_config(config: DmcConfig, s: DmcScale) -> DmcConfig:
+    """The world's settings with the scale's image size and frames where the world keeps
+    the defaults (a --world-config size or frames wins)."""
+    default = DmcConfig(task=config.task)
+    size = s.size if config.size == default.size else config.size
+    frames = s.frames if config.frames == default.frames else config.frames
+    return dataclasses.replace(config, size=size, frames=frames)
+
+
+class _Say:
+    """The loop's progress as lines for ``say``."""
+
+    def __init__(self, say: Say, name: str) -> None:
+        self.say, self.name = say, name
+
+    def start(self, total: int, initial: int) -> None:
+        if initial:
+            self.say(f"{self.name}: {initial} of {total} iterations done before, reused")
+
+    def update(self, iteration: int, metrics: dict[str, Any]) -> None:
+        self.say(f"{self.name}: iteration {iteration}, return {metrics['return']:.1f} at "
+                 f"{metrics['env_steps']:.0f} environment steps")
+
+    def note(self, text: str) -> None:
+        self.say(f"{self.name}: {text}")
+
+    def close(self) -> None: ...
+
+
+def _check_folder(out: Path, settings: dict[str, Any]) -> None:
+    path = out / "dmc_study.json"
+    if path.is_file():
+        try:
+            was = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise UserError(f"{path} is damaged ({e}): delete {out} to start again") from e
+        if was != settings:
+            changed = sorted(k for k in set(was) | set(settings) if was.get(k) != settings.get(k))
+            raise UserError(f"{out} holds a dmc study of other settings ({', '.join(changed)}): "
+                            "use its settings (the seeds may change), or another --out")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, lambda f: f.write(json.dumps(settings, indent=1)), binary=False)
+
+
+def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+                  device: str, threads: int, say: Say) -> dict[str, Any]:
+    """Every (seed, model) loop of the scale in ``out`` (finished ones reused): the study's
+    settings and, per model and seed, the log of its loop and its wall time."""
+    import torch
+
+    from latent_sindy import LatentSINDy
+    from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
+    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, ModelConfig
+    from latent_sindy.training.config import resolve_device
+    from latent_sindy.worlds.dmc.plugin import DmcWorld
+
+    s = study_scale(scale, seeds)
+    world = DmcWorld(_world_config(config, s))
+    on = resolve_device(device)
+    torch.set_num_threads(threads)
+    loop = {k: v for k, v in dataclasses.asdict(s).items() if k not in ("about", "seeds")}
+    settings = {"scale": scale, "world": to_json(world.config), "loop": loop}
+    _check_folder(out, settings)
+    say(f"dmc {world.config.task}, {scale} scale: {world.config.size}x{world.config.size}, "
+        f"{world.config.frames} frame(s), repeat {world.config.action_repeat}; models "
+        f"{', '.join(MODELS)}; seeds {', '.join(map(str, s.seeds))}; device {on}")
+
+    def maker(kind: str, seed: int) -> Callable[[int], Any]:
+        model = ModelConfig(dynamics=DYNAMICS_KINDS[kind](), reward_head=s.reward_head,
+                            observation=AutoencoderConfig(latent_dim=s.latent_dim,
+                                                          encoder_kind=s.encoder,
+                                                          decoder_kind=s.encoder))
+        return lambda iteration: LatentSINDy(model=model, seed=seed * 1000 + iteration,
+                                             device=on)
+
+    runs: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in MODELS}
+    for seed in s.seeds:
+        cfg = ModelBasedConfig(
+            seed_episodes=s.seed_episodes, iterations=s.iterations,
+            episode_steps=s.episode_steps, steps_per_action=world.config.action_repeat,
+            warm_updates=s.warm_updates, seed=seed,
+            mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3, lambda_=1.0,
+                            shift="repeat"))
+        for kind in MODELS:  # one at a time: each model's wall time its own
+            t0 = time.perf_counter()
+            result = compare_models(world, {kind: maker(kind, seed)}, cfg,
+                                    out=out / f"seed{seed}",
+                                    progress=lambda name, seed=seed: _Say(
+                                        say, f"seed {seed} {name}"),
+                                    fit_settings={"epochs": s.epochs, "window": s.window}
+                                    )[kind]
+            runs[kind][seed] = {"log": result.log, "wall_s": _wall(result.log),
+                                "this_call_s": time.perf_counter() - t0}
+    return {"settings": settings, "seeds": list(s.seeds), "runs": runs,
+            "reference": {k: list(v) for k, v in REFERENCE.items()},
+            "reference_task": REFERENCE_TASK, "reference_steps": REFERENCE_STEPS,
+            "interval": "mean ± t(0.975, n-1)·sd/√n over seeds"}
+
+
+def _wall(log: dict[str, Any]) -> float:
+    """A loop's time from its log (so a resumed loop counts its earlier calls): its
+    episodes' collection and planning, and its fits."""
+    return (sum(e["seconds"] for e in log["episodes"])
+            + sum(it["fit_seconds"] for it in log["iterations"]))
+
+
+def mean_interval(values: list[float]) -> tuple[float, float | None, float | None]:
+    """Mean, and the half-width of its 95% t-interval and the sd over seeds (None for one)."""
+    n = len(values)
+    mean = sum(values) / n
+    if n < 2:
+        return mean, None, None
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
+    return mean, _T975.get(n - 1, 1.96 + 2.5 / (n - 1)) * sd / math.sqrt(n), sd
+
+
+#: Student's t at 0.975 by degrees of freedom (beyond 10: 1.96 + 2.5/df, within 0.002).
+_T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
+         9: 2.262, 10: 2.228}

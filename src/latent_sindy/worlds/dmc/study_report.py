@@ -1,0 +1,156 @@
+"""The DeepMind Control study as ``latent-sindy reproduce`` writes it: the
+:class:`~latent_sindy.world_study.WorldStudy` of :func:`.study.run_dmc_study`'s runs (tables
+of return against environment steps per model with intervals over seeds, the published
+reference rows, costs, active terms; the last SINDy equations; a figure).
+
+    study = reproduce_dmc(DmcConfig(), "tiny", Path("/tmp/dmc"), None, "cpu", 1, print)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from latent_sindy.atomic import atomic_path
+from latent_sindy.world_study import Table, WorldStudy
+from latent_sindy.worlds.dmc.config import DmcConfig
+from latent_sindy.worlds.dmc.study import MODELS, mean_interval, run_dmc_study
+
+__all__ = ["reproduce_dmc"]
+
+Say = Callable[[str], None]
+
+
+def _fmt(mean: float, half: float | None) -> str:
+    return f"{mean:.1f}" if half is None else f"{mean:.1f} ± {half:.1f}"
+
+
+def _curves(runs: dict[str, dict[int, dict[str, Any]]]) -> dict[str, list[dict[str, Any]]]:
+    """Per model, per planned iteration: environment steps, each seed's return (mean of the
+    iteration's episodes), their mean, 95% half-width and sd."""
+    curves: dict[str, list[dict[str, Any]]] = {}
+    for model, by_seed in runs.items():
+        points: dict[int, dict[str, Any]] = {}
+        for seed, run in by_seed.items():
+            for e in run["log"]["episodes"]:
+                it = e["iteration"]
+                p = points.setdefault(it, {"iteration": it, "env_steps": 0, "by_seed": {}})
+                p["env_steps"] = max(p["env_steps"], e["env_steps"])
+                p["by_seed"].setdefault(seed, []).append(e["return"])
+        rows = []
+        for it in sorted(points):
+            p = points[it]
+            per_seed = [sum(v) / len(v) for v in p["by_seed"].values()]
+            mean, half, sd = mean_interval(per_seed)
+            rows.append({"iteration": it, "env_steps": p["env_steps"], "mean": mean,
+                         "half_width": half, "sd": sd, "seeds": len(per_seed),
+                         "returns": per_seed})
+        curves[model] = rows
+    return curves
+
+
+def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[float]],
+            show_reference: bool, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
+    for model, rows in curves.items():
+        x = [r["env_steps"] for r in rows]
+        y = [r["mean"] for r in rows]
+        ax.plot(x, y, marker="o", label=model)
+        if any(r["half_width"] is not None for r in rows):
+            h = [r["half_width"] or 0.0 for r in rows]
+            ax.fill_between(x, [a - b for a, b in zip(y, h, strict=True)],
+                            [a + b for a, b in zip(y, h, strict=True)], alpha=0.2)
+    if show_reference:
+        for name, (mean, _) in reference.items():
+            ax.axhline(mean, ls=":", lw=0.8, color="gray")
+            ax.annotate(name, (ax.get_xlim()[1], mean), fontsize=6, ha="right", va="bottom")
+    ax.set(xlabel="environment steps", ylabel="episode return",
+           title="return against environment steps (iteration 0: random seed episodes)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    return path
+
+
+def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+                  device: str, threads: int, say: Say) -> WorldStudy:
+    """The study at ``scale`` in ``out`` (finished loops reused), as a WorldStudy."""
+    result = run_dmc_study(config, scale, out, seeds, device, threads, say)
+    runs, task = result["runs"], result["settings"]["world"]["task"]
+    curves = _curves(runs)
+    is_reference = task == result["reference_task"]
+    rows = [[m, str(r["iteration"]), str(r["env_steps"]), _fmt(r["mean"], r["half_width"]),
+             str(r["seeds"])] for m in MODELS for r in curves[m]]
+    last = {m: curves[m][-1] for m in MODELS}
+    final = [[m, str(last[m]["env_steps"]), _fmt(last[m]["mean"], last[m]["sd"]),
+              "this study"] for m in MODELS]
+    final += [[name, f"{result['reference_steps']:,}", f"{mean} ± {sd}",
+               "published: " + ("DrQ's paper, Table 1" if name == "DrQ" else
+                                "CURL's paper, Table 1")]
+              for name, (mean, sd) in result["reference"].items()]
+    costs, equations, numbers = [], {}, {}
+    for m in MODELS:
+        for seed, run in sorted(runs[m].items()):
+            its = run["log"]["iterations"]
+            fit = [it["fit_seconds"] for it in its]
+            plan = [it["plan_seconds"] for it in its]
+            active = its[-1]["active_terms"] if its else None
+            costs.append([m, str(seed), f"{fit[0]:.1f}" if fit else "-",
+                          f"{sum(fit[1:]) / len(fit[1:]):.1f}" if fit[1:] else "-",
+                          f"{sum(plan) / len(plan):.1f}" if plan else "-",
+                          f"{run['wall_s']:.0f}", "-" if active is None else str(active)])
+            if m == "sindy" and its and its[-1]["equations"]:
+                equations[f"sindy_seed{seed}"] = "\n".join(its[-1]["equations"])
+            numbers[f"{m}/seed{seed}"] = {
+                "returns": [e["return"] for e in run["log"]["episodes"]],
+                "env_steps": [e["env_steps"] for e in run["log"]["episodes"]],
+                "kinds": [e["kind"] for e in run["log"]["episodes"]],
+                "fit_seconds": fit, "plan_seconds": plan, "active_terms": active,
+                "wall_s": run["wall_s"]}
+    figure = _figure(curves, result["reference"], is_reference, out / "returns.png")
+    best = max(MODELS, key=lambda m: last[m]["mean"])
+    findings = [
+        f"{task} from {result['settings']['world']['size']}-pixel images, {scale} scale: "
+        f"after {last[best]['env_steps']:,} environment steps the best mean return is "
+        f"{best}'s {last[best]['mean']:.1f} over {last[best]['seeds']} seed(s) (random seed "
+        f"episodes: {curves[best][0]['mean']:.1f}).",
+        "Each model ran its own loop from the same seed episodes with the same planner and "
+        "seeds; refits after the first are warm-started (the last model and optimiser, a "
+        "fixed budget of updates, the first fit's normaliser)."]
+    if is_reference:
+        findings.append(f"The published rows are at {result['reference_steps']:,} steps; "
+                        "compare only at equal steps (this scale's steps are in the table).")
+    else:
+        findings.append(f"The published rows are cartpole-swingup's, not {task}'s: shown "
+                        "for scale only.")
+    tables = [
+        Table("Return against environment steps", ["model", "iteration", "env steps",
+              "mean return (95% interval over seeds)", "seeds"], rows,
+              "Iteration 0: the seed episodes of random actions; then one planned episode an "
+              "iteration (with exploration noise). Interval: " + result["interval"] + "."),
+        Table("Last return and the published lines", ["model", "env steps",
+              "return (mean ± sd over seeds)", "source"], final),
+        Table("Costs and sparsity", ["model", "seed", "first fit s", "refit s (mean)",
+              "planned episode s (mean)", "wall s", "active terms"], costs,
+              "Wall: the loop's episodes and fits as its log records them (resumed runs "
+              "included). Active terms: the last model's nonzero coefficients (SINDy's after "
+              "pruning; the linear model's A, B, c; none for the MLP).")]
+    return WorldStudy(
+        title=f"DeepMind Control from pixels: {task}, model-based, SINDy / linear / MLP",
+        settings=result["settings"], seeds=result["seeds"],
+        numbers={"curves": curves, "runs": numbers,
+                 "reference": {"task": result["reference_task"],
+                               "steps": result["reference_steps"],
+                               "returns": result["reference"]}},
+        findings=findings, tables=tables, figures=[(figure, "Mean return per model against "
+                                                    "environment steps (band: 95% interval "
+                                                    "over seeds)")],
+        equations=equations)

@@ -1,0 +1,78 @@
+"""The DeepMind Control study (``latent-sindy reproduce --world dmc``): its scales, the tiny
+scale end to end through the CLI in the common format, resumed after an interruption to the
+uninterrupted study's returns, and the task chosen through --world-config."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from latent_sindy.cli import main
+from latent_sindy.plugins import get_world
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_the_scales_and_the_benchmark_setting():
+    from latent_sindy.worlds.dmc.study import SCALES
+
+    assert set(get_world("dmc").scales) == {"tiny", "demo", "benchmark"}
+    b = SCALES["benchmark"]
+    assert (b.seed_episodes + b.iterations) * b.episode_steps * 8 == 100_000  # repeat 8
+
+
+def test_world_config_is_for_a_world_with_a_study_of_its_own(tmp_path, capsys):
+    assert main(["reproduce", "--scale", "tiny", "--out", str(tmp_path / "p"),
+                 "--world-config", "task=reacher-easy"]) == 2
+    assert "--world-config" in capsys.readouterr().err
+    assert main(["reproduce", "--world", "pendulum", "--scale", "tiny", "--out",
+                 str(tmp_path / "q"), "--world-config", "nothing=1"]) == 2
+    assert "nothing" in capsys.readouterr().err
+
+
+def _returns(out):
+    summary = json.loads((out / "summary.json").read_text())
+    return {k: v["returns"] for k, v in summary["results"]["runs"].items()}
+
+
+def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, capsys):
+    pytest.importorskip("dm_control")
+    from latent_sindy.worlds.dmc.config import DmcConfig
+    from latent_sindy.worlds.dmc.study import run_dmc_study
+
+    whole = tmp_path / "whole"
+    assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(whole)]) == 0
+    assert "seed 0 sindy: iteration 2" in capsys.readouterr().err  # progress
+    summary = json.loads((whole / "summary.json").read_text())
+    assert summary["world"] == "dmc" and summary["study"]["world"]["task"] == "cartpole-swingup"
+    assert {"table.md", "report.html", "equations_sindy_seed0.txt",
+            "returns.png"} <= set(summary["files"])
+    table = (whole / "table.md").read_text()
+    assert "| CURL | 100,000 | 582 ± 146 |" in table and "| DrQ | 100,000 | 759 ± 92 |" in table
+    assert "z0[t+1] = z0" in (whole / "equations_sindy_seed0.txt").read_text()
+    runs = summary["results"]["runs"]
+    assert set(runs) == {"sindy/seed0", "linear/seed0", "mlp/seed0"}
+    assert all(len(r["returns"]) == 4 for r in runs.values())  # 2 seed + 2 planned episodes
+
+    # interrupted while the linear model's loop runs: then run again to the end
+    part = tmp_path / "part"
+
+    def stop(line: str) -> None:
+        if line.startswith("seed 0 linear: iteration 2:"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_dmc_study(DmcConfig(), "tiny", part, None, "cpu", 1, stop)
+    sindy_log = (part / "seed0" / "sindy" / "log.json").read_text()
+    assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(part)]) == 0
+    err = capsys.readouterr().err
+    assert "seed 0 sindy: 2 of 2 iterations done before, reused" in err
+    assert "seed 0 linear: 1 of 2 iterations done before, reused" in err
+    assert (part / "seed0" / "sindy" / "log.json").read_text() == sindy_log
+    assert _returns(part) == _returns(whole)
+
+    # another task into the same folder is refused; the task is the world's setting
+    assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(part),
+                 "--world-config", "task=pendulum-swingup"]) == 2
+    assert "other settings (world)" in capsys.readouterr().err
