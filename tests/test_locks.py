@@ -124,6 +124,29 @@ def test_a_second_holder_in_the_same_process_is_refused_too(tmp_path):
         pass
 
 
+def test_a_parent_folder_another_process_makes_at_the_same_moment_is_taken(tmp_path,
+                                                                          monkeypatch):
+    """Two study workers locking runs/seed0/a and runs/seed0/b both find seed0 missing, and
+    one of them makes it first: the other takes it (it is not a failure, and not its own to
+    remove afterwards)."""
+    from latent_sindy import locks
+
+    shared = tmp_path / "runs" / "seed0"
+    real_mkdir = Path.mkdir
+
+    def racing_mkdir(self, *args, **kwargs):
+        if self == shared and not shared.exists():  # the other worker gets there first
+            real_mkdir(self)
+        return real_mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", racing_mkdir)
+    with locks.exclusive(shared / "a", "run folder"):
+        assert (shared / ".a.lock").is_file()
+    monkeypatch.undo()
+    assert shared.is_dir()  # made by the other: left for it
+    assert not any(shared.iterdir())
+
+
 def test_an_unusable_place_for_the_lock_is_one_line_naming_the_output(tmp_path):
     from latent_sindy.locks import exclusive
 

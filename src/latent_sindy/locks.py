@@ -77,11 +77,17 @@ def exclusive(path: str | os.PathLike, what: str, option: str = "--out") -> Iter
 
 
 def _make_parents(folder: Path, made: list[Path]) -> None:
-    """Make ``folder`` and its missing parents, adding each one made to ``made``."""
+    """Make ``folder`` and its missing parents, adding each one made to ``made``; a folder
+    another process makes at the same moment (a study's workers) is taken as it is."""
     if folder.exists() or folder == folder.parent:
         return
     _make_parents(folder.parent, made)
-    folder.mkdir()
+    try:
+        folder.mkdir()
+    except FileExistsError:
+        if not folder.is_dir():
+            raise
+        return
     made.append(folder)
 
 
