@@ -36,7 +36,13 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
-from latent_sindy.training.core import BestValidation, FitResult, TrainingDiverged, fit
+from latent_sindy.training.core import (
+    BestValidation,
+    FitResult,
+    TrainingDiverged,
+    fit,
+    to_cpu,
+)
 from latent_sindy.training.memory import check_training_memory
 from latent_sindy.training.prepare import (
     TrainingTensors,
@@ -130,8 +136,7 @@ class Session:
         self.model.load_state_dict(result.state)
         if self.cfg.sindy_fit == "after":
             fit_after(self.model, self.data, self.norm, self.cfg, self.device)
-            result.state = {k: v.detach().cpu().clone()
-                            for k, v in self.model.state_dict().items()}
+            result.state = to_cpu(self.model.state_dict())
         return self.model
 
 
