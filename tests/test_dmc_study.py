@@ -44,6 +44,10 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
     whole = tmp_path / "whole"
     assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(whole)]) == 0
     assert "seed 0 sindy: iteration 2" in capsys.readouterr().err  # progress
+    # every fit in the scale's batches of 8 windows; SINDy pruned by its warm refit
+    its = json.loads((whole / "seed0" / "sindy" / "log.json").read_text())["iterations"]
+    assert [it["batch_size"] for it in its] == [8, 8]
+    assert its[1]["pruned"] > 0 and its[1]["active_terms"] < its[0]["active_terms"]
     summary = json.loads((whole / "summary.json").read_text())
     assert summary["world"] == "dmc" and summary["study"]["world"]["task"] == "cartpole-swingup"
     assert {"table.md", "report.html", "equations_sindy_seed0.txt",
@@ -76,3 +80,20 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
     assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(part),
                  "--world-config", "task=pendulum-swingup"]) == 2
     assert "other settings (world)" in capsys.readouterr().err
+
+
+def test_the_tiny_study_of_the_pendulum_swingup(tmp_path):
+    pytest.importorskip("dm_control")
+    from latent_sindy.worlds.dmc.config import DmcConfig
+    from latent_sindy.worlds.dmc.study import run_dmc_study
+
+    lines: list[str] = []
+    result = run_dmc_study(DmcConfig(task="pendulum-swingup"), "tiny", tmp_path, None, "cpu",
+                           1, lines.append)
+    assert result["settings"]["world"]["action_repeat"] == 4
+    for model, by_seed in result["runs"].items():
+        episodes = by_seed[0]["log"]["episodes"]
+        assert [e["kind"] for e in episodes] == ["random"] * 2 + ["planned"] * 2, model
+        # (a sparse reward: 1 a control step within 8 degrees of upright, 4 steps an action)
+        assert all(0 <= e["return"] <= 8 * 4 for e in episodes), model
+    assert any("sindy: iteration 2" in line and "active terms" in line for line in lines)

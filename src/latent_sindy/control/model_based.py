@@ -13,8 +13,12 @@ returns a reward; any estimator with ``fit(data)`` and ``planner(mppi, seed=, ob
 
 Refits are warm-started by default (``warm_updates``, :mod:`.warm_start`): the first
 iteration fits from scratch with the fit settings, each later one continues the last model
-and optimiser for ``warm_updates`` mini-batch updates on all the data so far, keeping the
-first fit's normaliser; ``warm_updates=0`` fits every iteration from scratch.
+and optimiser for ``warm_updates`` mini-batch updates on windows drawn from all the data so
+far, keeping the first fit's normaliser; ``warm_updates=0`` fits every iteration from
+scratch. Every fit takes mini-batches of ``batch_size`` windows (32), not a size chosen
+from the data, so a refit costs the same however much data there is; and a SINDy model is
+pruned before each warm refit (``prune_rate`` of its active terms, down to ``prune_to``),
+so its active terms fall across the refits, as the log's ``active_terms`` records.
 
 With ``out`` the folder holds the data so far (``data.h5``), the log (``log.json``, the
 settings, every episode's return and each iteration's times, equations and active terms)
@@ -88,6 +92,17 @@ class ModelBasedConfig:
     """Mini-batch updates of each refit after the first, continuing the last iteration's
     model and optimiser (PlaNet trains 100 updates an episode); 0: every iteration fits
     from scratch with the fit settings."""
+    batch_size: int | None = 32
+    """Windows per mini-batch of every fit and refit, fixed so that a refit's cost does not
+    grow with the data (the fit settings' ``batch_size`` wins where they give one); None:
+    chosen from the data, as a plain fit does."""
+    prune_rate: float = 0.3
+    """Share of a SINDy model's active terms each warm refit prunes before its updates (the
+    smallest by the fit's ``--prune`` measure, after those below its threshold); 0: refits
+    prune only on the fit's own schedule."""
+    prune_to: int = 48
+    """Active SINDy terms below which the refits' pruning by share stops (the threshold may
+    still remove terms)."""
     mppi: MPPIConfig = field(default_factory=lambda: MPPIConfig(
         samples=300, horizon=12, sigma=0.3, lambda_=1.0, shift="repeat"))
     """The planner's settings (λ on the scale of a horizon's summed reward)."""
@@ -101,6 +116,16 @@ class ModelBasedConfig:
                 raise UserError(f"model_based {name} {v!r}: use an integer >= {least}")
         if not (0 <= self.explore < float("inf")):
             raise UserError(f"model_based explore {self.explore!r}: use a number >= 0")
+        b = self.batch_size
+        if b is not None and (isinstance(b, bool) or not isinstance(b, int) or b < 1):
+            raise UserError(f"model_based batch_size {b!r}: use an integer >= 1 (or None: "
+                            "chosen from the data)")
+        if not 0 <= self.prune_rate < 1:
+            raise UserError(f"model_based prune_rate {self.prune_rate!r}: use a share in "
+                            "[0, 1) (0: no pruning between refits)")
+        if isinstance(self.prune_to, bool) or not isinstance(self.prune_to, int) or (
+                self.prune_to < 0):
+            raise UserError(f"model_based prune_to {self.prune_to!r}: use an integer >= 0")
 
 
 @dataclass
@@ -240,16 +265,20 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                                       time.perf_counter() - t1) | {"episode": index})
             data = concatenate(parts)
             log["episodes"] += entries
+            active = _active(estimator)
             log["iterations"].append({
                 "iteration": iteration, "fit_seconds": round(fit_s, 3),
                 "plan_seconds": round(sum(e["seconds"] for e in entries), 3),
                 "updates": None if state is None else state.updates,
-                "equations": _equations(estimator), "active_terms": _active(estimator)})
+                "batch_size": None if state is None else state.batch_size,
+                "pruned": None if state is None else state.pruned,
+                "equations": _equations(estimator), "active_terms": active})
             log["done"] = iteration
             _save(folder, data, log, state)
             mean = float(np.mean([e["return"] for e in entries])) if entries else None
             progress.update(iteration, {"return": mean, "env_steps": float(
-                log["episodes"][-1]["env_steps"])})
+                log["episodes"][-1]["env_steps"]), "sindy/active": active,
+                "fit_seconds": fit_s})
     finally:
         if env is not None and hasattr(env, "close"):
             env.close()
@@ -261,6 +290,8 @@ def _fit(estimator: Any, data: SequenceData, settings: dict[str, Any], cfg: Mode
          state: WarmState | None) -> tuple[Any, WarmState | None]:
     """The iteration's fit: from scratch (the first, or every one without warm starts), or
     continued from ``state``."""
+    if cfg.batch_size is not None:
+        settings = {"batch_size": cfg.batch_size} | settings
     if not cfg.warm_updates:
         return estimator.fit(data, **settings), None
     if not callable(getattr(estimator, "train_config", None)):
@@ -268,7 +299,8 @@ def _fit(estimator: Any, data: SequenceData, settings: dict[str, Any], cfg: Mode
                         f"{type(estimator).__name__} has none: use warm_updates=0")
     if state is None:
         return first_fit(estimator, data, settings)
-    return warm_fit(estimator, data, settings, state, cfg.warm_updates)
+    return warm_fit(estimator, data, settings, state, cfg.warm_updates, cfg.prune_rate,
+                    cfg.prune_to)
 
 
 def _active(estimator: Any) -> int | None:
@@ -325,7 +357,9 @@ def _resume(folder: Path, settings: dict[str, Any]
         count = len(log["episodes"])
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise UserError(f"{path} is damaged ({e}): delete {folder} to start again") from e
-    was = {"warm_updates": 0} | {k: v for k, v in log["settings"].items() if k != "iterations"}
+    # (a log of before a setting existed: the behaviour it had then)
+    was = {"warm_updates": 0, "batch_size": None, "prune_rate": 0.0, "prune_to": 0} | {
+        k: v for k, v in log["settings"].items() if k != "iterations"}
     now = {k: v for k, v in settings.items() if k != "iterations"}
     if was != now:
         changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))

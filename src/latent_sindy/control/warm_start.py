@@ -13,8 +13,15 @@ What a continued fit keeps and what it changes:
   from them;
 * the mini-batch generator is seeded from the estimator's seed of the iteration, and a
   SINDy mask prunes on its own schedule counted within each fit;
-* the budget: ``updates`` mini-batch updates, rounded up to whole epochs of the data so far
-  (with the automatic batch size an epoch is about 16 updates however much data there is).
+* the budget: ``updates`` mini-batch updates. Where the data so far hold more than that
+  many batches, the refit is one pass over ``updates`` batches of windows drawn at random
+  (without replacement) from all of them, so a refit's cost does not grow with the data;
+  otherwise whole epochs, rounded up;
+* pruning across refits (``prune_rate`` > 0, SINDy only): before its updates each refit
+  drops the coefficients below the fit's threshold (as ``--prune`` measures them) and then
+  the smallest ``prune_rate`` of the active ones by the same measure, never below
+  ``prune_to``; the refit's updates then adapt the others to the new mask (AdamW's moments
+  of the pruned entries cleared).
 
 :class:`WarmState` is all a continued fit needs; :func:`save_state` / :func:`load_state`
 write it beside the loop's log and read it back with ``torch.load(weights_only=True)``, so a
@@ -22,7 +29,8 @@ resumed loop continues exactly as an uninterrupted one. Works with
 :class:`latent_sindy.LatentSINDy` (any estimator with its ``train_config``).
 
     est, state = first_fit(make(1), data, {"epochs": 60})
-    est, state = warm_fit(make(2), more_data, {"epochs": 60}, state, updates=100)
+    est, state = warm_fit(make(2), more_data, {"epochs": 60}, state, updates=100,
+                          prune_rate=0.3, prune_to=48)
 """
 
 from __future__ import annotations
@@ -41,7 +49,8 @@ import torch
 from latent_sindy.atomic import write_atomic
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
-from latent_sindy.training.core import FitResult, to_cpu
+from latent_sindy.training.config import resolve_prune
+from latent_sindy.training.core import FitResult, prune, share_scale, to_cpu
 from latent_sindy.training.session import Session, fit_in_memory, prepare
 
 __all__ = ["STATE_FORMAT", "WarmState", "first_fit", "load_state", "save_state", "warm_fit"]
@@ -59,6 +68,10 @@ class WarmState:
     record: dict[str, Any]
     epochs: int
     updates: int
+    pruned: int = 0
+    """SINDy terms the fit's own prune step removed before its updates (not saved)."""
+    batch_size: int = 0
+    """The fit's batch size, in windows (its ``batch_size``, resolved; not saved)."""
 
 
 def _adopt(estimator: Any, session: Session, result: FitResult, metrics: list[dict]) -> Any:
@@ -72,11 +85,12 @@ def _adopt(estimator: Any, session: Session, result: FitResult, metrics: list[di
     return estimator
 
 
-def _state(session: Session, epochs: int, updates: int) -> WarmState:
+def _state(session: Session, epochs: int, updates: int, pruned: int = 0) -> WarmState:
     # (copies: the state dicts' tensors are the live model's and optimiser's)
     return WarmState(copy.deepcopy(to_cpu(session.model.state_dict())),
                      copy.deepcopy(to_cpu(session.opt.state_dict())),
-                     json.loads(json.dumps(session.record)), epochs, updates)
+                     json.loads(json.dumps(session.record)), epochs, updates, pruned,
+                     session.cfg.batch_size)
 
 
 def _updates_per_epoch(session: Session) -> int:
@@ -94,17 +108,30 @@ def first_fit(estimator: Any, data: SequenceData, settings: dict[str, Any]
 
 
 def warm_fit(estimator: Any, data: SequenceData, settings: dict[str, Any], state: WarmState,
-             updates: int) -> tuple[Any, WarmState]:
+             updates: int, prune_rate: float = 0.0, prune_to: int = 0
+             ) -> tuple[Any, WarmState]:
     """``estimator`` holding ``state``'s model trained on for ``updates`` more mini-batch
-    updates (whole epochs of ``data``) with its optimiser, normaliser and model settings;
-    the estimator's own settings give the batches (seed, batch size, window, loss)."""
+    updates with its optimiser, normaliser and model settings (one pass over a random sample
+    of ``updates`` batches of ``data``'s windows where it holds more, else whole epochs);
+    a SINDy model first pruned (``prune_rate``, ``prune_to``: the module's docstring). The
+    estimator's own settings give the batches (seed, batch size, window, loss)."""
     if updates < 1:
         raise UserError(f"warm-started refit of {updates} updates: use 1 or more")
+    if not 0 <= prune_rate < 1:
+        raise UserError(f"warm-started refit's prune_rate {prune_rate!r}: use a share in "
+                        "[0, 1) (0: no pruning between refits)")
     cfg = estimator.train_config(**settings)
     record = json.loads(json.dumps(state.record))
     session = prepare(cfg, data, record=record, earlier=record, resumed=True)
     session.model.load_state_dict(state.model)
     session.opt.load_state_dict(state.optimizer)
+    train, per_batch = session.tensors.train, session.tensors.per_batch
+    if _updates_per_epoch(session) > updates:  # the budget, whatever the data so far
+        take = torch.randperm(len(train[0]), generator=session.gen)[:updates * per_batch]
+        take = take.sort().values.to(train[0].device)
+        sample = tuple(None if t is None else t[take] for t in train)
+        session.tensors = dataclasses.replace(session.tensors, train=sample)
+    pruned = _prune_step(session, prune_rate, prune_to) if prune_rate else 0
     epochs = math.ceil(updates / _updates_per_epoch(session))
     session.cfg = dataclasses.replace(session.cfg, epochs=epochs,
                                       refine_epochs=min(session.cfg.refine_epochs, epochs))
@@ -113,7 +140,28 @@ def warm_fit(estimator: Any, data: SequenceData, settings: dict[str, Any], state
     result = session.fit()
     session.finish(result).cpu().eval()
     return (_adopt(estimator, session, result, list(result.metrics)),
-            _state(session, epochs, epochs * _updates_per_epoch(session)))
+            _state(session, epochs, epochs * _updates_per_epoch(session), pruned))
+
+
+def _prune_step(session: Session, rate: float, floor: int) -> int:
+    """Prune the session's SINDy model below its threshold, then its smallest ``rate`` of
+    active terms (never below ``floor``), measured on its training windows; the count."""
+    model = session.model
+    if not model.dynamics.sparse:
+        return 0
+    x, u = session.tensors.train[0], session.tensors.train[1]
+    with torch.no_grad():
+        scale = (share_scale(model, x, u) if resolve_prune(session.cfg) == "relative"
+                 else None)
+    pruned = prune(model, session.opt, session.cfg.threshold, scale)
+    dyn = model.dynamics
+    active = dyn.n_active()
+    keep = max(floor, math.ceil(active * (1 - rate)))
+    if active > keep:
+        size = dyn.psi.detach().abs() * (1.0 if scale is None else scale)
+        smallest_kept = size[dyn.mask].sort(descending=True).values[keep - 1]
+        pruned += prune(model, session.opt, float(smallest_kept), scale)
+    return pruned
 
 
 def save_state(path: Path, state: WarmState, iteration: int) -> None:

@@ -61,22 +61,34 @@ class DmcScale:
     samples: int
     horizon: int
     reward_head: int = 64
+    batch_size: int = 32
+    """Windows per mini-batch of every fit and refit (fixed: a refit's cost does not grow
+    with the data)."""
+    prune_rate: float = 0.3
+    """Share of SINDy's active terms each warm refit prunes first (the smallest shares)."""
+    prune_to: int = 48
+    """Active SINDy terms below which the refits stop pruning by share."""
 
+
+#: How the demo's and the benchmark's fits batch and prune, for --help.
+_FITS = ("; batches of 32 windows, each warm refit first pruning SINDy's smallest 30% of "
+         "terms, down to 48")
 
 SCALES: dict[str, DmcScale] = {
     "tiny": DmcScale(
         "about a minute on 2 cores, for tests: 16x16 single frames, 2 seed episodes and 2 "
-        "planned ones of 8 actions, 2 epochs then 4 updates a refit, MPPI K 16 H 3; seed 0",
-        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16),
+        "planned ones of 8 actions, 2 epochs then 4 updates a refit in batches of 8, MPPI K "
+        "16 H 3; seed 0",
+        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16, batch_size=8),
     "demo": DmcScale(
         "a short measurable run: 32x32, 2 frames, 5 seed episodes and 5 planned ones of 125 "
         "actions (1000 environment steps each at the cartpole's repeat 8, 10k in all), 40 "
-        "epochs then 100 updates a refit, MPPI K 300 H 12; seeds 0..2",
+        "epochs then 100 updates a refit, MPPI K 300 H 12; seeds 0..2" + _FITS,
         (0, 1, 2), 32, 2, 5, 5, 125, 40, 100, 4, 6, "conv", 300, 12),
     "benchmark": DmcScale(
         "the 100k-step benchmark (PlaNet's and CURL's setting): 64x64, 2 frames, 5 seed "
         "episodes and 95 planned ones of 1000 environment steps (100k in all), 100 epochs then "
-        "100 updates a refit, MPPI K 1000 H 12; seeds 0..4; days on a CPU, for a GPU",
+        "100 updates a refit, MPPI K 1000 H 12; seeds 0..4; days on a CPU, for a GPU" + _FITS,
         (0, 1, 2, 3, 4), 64, 2, 5, 95, 125, 100, 100, 4, 8, "conv", 1000, 12),
 }
 
@@ -115,8 +127,12 @@ class _Say:
             self.say(f"{self.name}: {initial} of {total} iterations done before, reused")
 
     def update(self, iteration: int, metrics: dict[str, Any]) -> None:
+        active = metrics.get("sindy/active")
+        fit = metrics.get("fit_seconds")
         self.say(f"{self.name}: iteration {iteration}, return {metrics['return']:.1f} at "
-                 f"{metrics['env_steps']:.0f} environment steps")
+                 f"{metrics['env_steps']:.0f} environment steps"
+                 + ("" if fit is None else f", fit {fit:.1f} s")
+                 + ("" if active is None else f", {active:.0f} active terms"))
 
     def note(self, text: str) -> None:
         self.say(f"{self.name}: {text}")
@@ -176,7 +192,8 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
         cfg = ModelBasedConfig(
             seed_episodes=s.seed_episodes, iterations=s.iterations,
             episode_steps=s.episode_steps, steps_per_action=world.config.action_repeat,
-            warm_updates=s.warm_updates, seed=seed,
+            warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
+            prune_rate=s.prune_rate, prune_to=s.prune_to,
             mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3, lambda_=1.0,
                             shift="repeat"))
         for kind in MODELS:  # one at a time: each model's wall time its own
