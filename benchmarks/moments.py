@@ -19,7 +19,8 @@ import torch
 
 from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import Normalizer
-from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
+from latent_sindy.models.autoencoder import MomentEncoder
+from latent_sindy.models.autoencoder_parts import MomentEncoderConfig
 
 
 def main() -> None:
@@ -29,8 +30,7 @@ def main() -> None:
     data = read_sequences(args.data)
     order = round(2 * math.pi / data.env_config.angle_period)
     _, _, c, s, _ = data.images.shape
-    enc = MomentEncoder(AutoencoderConfig(channels=c, image_size=s, latent_dim=4,
-                                          encoder="moments", moment_order=order))
+    enc = MomentEncoder(MomentEncoderConfig(order=order), (c, s, s))
     norm = Normalizer.from_trajectories(data)
     enc.fit_statistics(norm.normalize(data.split("train").images).reshape(-1, c, s, s))
     with torch.no_grad():

@@ -126,7 +126,7 @@ def _moment_reading(train, test) -> tuple[np.ndarray, np.ndarray]:
     n = round(2 * math.pi / period)
     cfg = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite", moment_order=n,
                             channels=train.images.shape[2], image_size=train.images.shape[-1])
-    encoder = MomentEncoder(cfg)
+    encoder = MomentEncoder(cfg.encoder_part(), cfg.image_shape)
     norm = Normalizer.from_trajectories(train)
     encoder.fit_statistics(norm.normalize(train.images).flatten(0, 1))
 

@@ -25,7 +25,8 @@ import time
 import numpy as np
 import torch
 
-from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
+from latent_sindy.models.autoencoder import MomentEncoder
+from latent_sindy.models.autoencoder_parts import MomentEncoderConfig
 from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
 from latent_sindy.worlds.push.scene import CameraView, draw_look
 
@@ -58,8 +59,7 @@ def score(cfg: PushEnvConfig, images: np.ndarray, poses: np.ndarray) -> dict[str
     """The moments encoder's errors on the second half, fitted on the first."""
     n, c, s, _ = images.shape
     order = round(2 * math.pi / cfg.angle_period)
-    enc = MomentEncoder(AutoencoderConfig(channels=c, image_size=s, latent_dim=4,
-                                          encoder="moments", moment_order=order))
+    enc = MomentEncoder(MomentEncoderConfig(order=order), (c, s, s))
     x = torch.from_numpy(images).float() / 255
     train, test = slice(0, n // 2), slice(n // 2, n)
     enc.fit_statistics(x[train])

@@ -90,7 +90,7 @@ def test_forward_mode_derivatives_equal_finite_differences_along_a_path() -> Non
     torch.manual_seed(0)
     cfg = AutoencoderConfig(channels=1, image_size=8, latent_dim=3, encoder_kind="mlp",
                             decoder_kind="mlp")
-    enc = MlpEncoder(cfg).double()
+    enc = MlpEncoder(cfg.encoder_part(), cfg.image_shape, cfg.latent_dim).double()
     x, dx, ddx = torch.randn(3, 5, 1, 8, 8, dtype=torch.float64).unbind(0)
     z, dz, ddz = along(enc, x, dx, ddx)
     h = 1e-4

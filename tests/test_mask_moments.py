@@ -56,6 +56,11 @@ def config(**kw) -> AutoencoderConfig:
                                 "encoder": "mask_moments", "decoder": "sprite", **kw})
 
 
+def mask_encoder(**kw) -> MaskMomentEncoder:
+    cfg = config(**kw)
+    return MaskMomentEncoder(cfg.encoder_part(), cfg.image_shape)
+
+
 def half_mask(enc: MaskMomentEncoder) -> MaskMomentEncoder:
     """The encoder with a mask of 0.5 everywhere (last convolution zero)."""
     with torch.no_grad():
@@ -76,7 +81,7 @@ def test_the_latent_follows_a_square_moved_and_turned() -> None:
     p = poses(40, seed=1)
     x = images(p)
     torch.manual_seed(0)
-    enc = half_mask(MaskMomentEncoder(config()))
+    enc = half_mask(mask_encoder())
     enc.fit_statistics(x)
     with torch.no_grad():
         z = enc(x)
@@ -95,7 +100,7 @@ def test_the_refined_pose_is_the_objects_wherever_the_mask_puts_its_weight() -> 
     torch.manual_seed(0)
     errors = {}
     for steps in (0, 3):
-        enc = half_mask(MaskMomentEncoder(config(mask_refine=steps)))
+        enc = half_mask(mask_encoder(mask_refine=steps))
         enc.fit_statistics(x)
         offsets = torch.tensor(p[:, :2] + 1.5)  # a blob 1.5 pixels down and right
 
@@ -148,7 +153,7 @@ def test_the_order_chooser_finds_the_visible_symmetry(half, order) -> None:
     # the encoder's own chooser, on drawings, whatever order it is set to
     x = images(poses(30, seed=2), half=half)
     torch.manual_seed(0)
-    enc = MaskMomentEncoder(config(moment_order=6 - order))
+    enc = mask_encoder(moment_order=6 - order)
     enc.fit_statistics(x)
     assert enc.symmetry_order(x) == order
 

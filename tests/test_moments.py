@@ -44,7 +44,7 @@ def encoder(order: int = 4):
 
     cfg = AutoencoderConfig(channels=1, image_size=SIDE, latent_dim=4, encoder="moments",
                             moment_order=order)
-    return MomentEncoder(cfg)
+    return MomentEncoder(cfg.encoder_part(), cfg.image_shape)
 
 
 def poses(n: int, seed: int) -> np.ndarray:

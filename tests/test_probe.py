@@ -354,15 +354,15 @@ def test_the_moment_frame_turns_the_images_angle_into_the_worlds(world):
     degrees (the moments read the orientation to about 4°, modulo the face's 90°)."""
     import math
 
-    from latent_sindy.models import AutoencoderConfig
     from latent_sindy.models.autoencoder import MomentEncoder
+    from latent_sindy.models.autoencoder_parts import MomentEncoderConfig
     from latent_sindy.worlds.push.camera import moment_frame
     from latent_sindy.worlds.push.library import face_variables
 
     poses = random_poses(world, 40, seed=5)
     images = torch.tensor(np.stack([world.observe(p) for p in poses]), dtype=torch.float32)
-    enc = MomentEncoder(AutoencoderConfig(channels=1, image_size=world.cfg.image_size,
-                                          latent_dim=4, encoder_kind="moments", moment_order=4))
+    side = world.cfg.image_size
+    enc = MomentEncoder(MomentEncoderConfig(order=4), (1, side, side))
     x = (images - 180.0) / 17.0
     enc.fit_statistics(torch.cat([x, x.roll(1, 0)]))  # the median is the empty table's
     z = enc(x).double()

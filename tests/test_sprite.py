@@ -173,7 +173,8 @@ def test_sprite_side_follows_the_image_side_unless_given():
     assert base.resolve(1, 16).sprite_size == 5
     given = dataclasses.replace(base, sprite_size=7).resolve(1, 64)
     assert given.sprite_size == 7
-    assert SpriteDecoder(base.resolve(1, 64)).template.shape == (1, 23, 23)
+    big = base.resolve(1, 64)
+    assert SpriteDecoder(big.decoder_part(), big.image_shape).template.shape == (1, 23, 23)
 
 
 def test_on_a_non_square_image_moments_and_sprite_share_isotropic_coordinates() -> None:

@@ -2,9 +2,11 @@
 
 The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments";
 "mask_moments"; "mlp") and :mod:`.decoders` ("fc", the course's; "conv"; "sprite"; "mlp");
-:data:`ENCODERS` and :data:`DECODERS` name them. Both work on normalised images (see
-:class:`latent_sindy.data.windows.Normalizer`) of any shape (C, H, W), so the decoder's output
-is unbounded. Dimensions: B batch, C channels, H × W image, nz latent size.
+:data:`ENCODERS` and :data:`DECODERS` name them, and each is built from its own settings
+(:mod:`.autoencoder_parts`; ``encoder_part()`` and ``decoder_part()`` of the config). Both
+work on normalised images (see :class:`latent_sindy.data.windows.Normalizer`) of any shape
+(C, H, W), so the decoder's output is unbounded. Dimensions: B batch, C channels, H × W
+image, nz latent size.
 
     >>> ae = Autoencoder(AutoencoderConfig(channels=3, image_size=(20, 28), latent_dim=16))
     >>> AutoencoderConfig().resolve(channels=1, image_size=32)  # the shape taken from data
@@ -25,11 +27,17 @@ import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.autoencoder_parts import (
+    DECODER_PARTS,
+    ENCODER_PARTS,
+    DecoderPart,
+    EncoderPart,
+    conv_shape,
+)
 from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.decoders import Decoder, MlpDecoder, SpriteDecoder
 from latent_sindy.models.encoders import (
     ACTIVATIONS,
-    KERNEL,
     Encoder,
     KeypointEncoder,
     MaskMomentEncoder,
@@ -272,12 +280,7 @@ class AutoencoderConfig:
 
     def conv_shape(self) -> tuple[int, int]:
         """(H', W') of the feature maps after both conv + pool stages (5 x 5 for 32 x 32)."""
-        out = []
-        for s in self.hw:
-            for _ in range(2):
-                s = (s - KERNEL + 1) // 2
-            out.append(s)
-        return out[0], out[1]
+        return conv_shape(self.hw)
 
     @property
     def sprite_side(self) -> int:
@@ -316,6 +319,16 @@ class AutoencoderConfig:
         resolved = dataclasses.replace(self, channels=channels, image_size=size)
         return dataclasses.replace(resolved, sprite_size=resolved.sprite_side)
 
+    def encoder_part(self) -> EncoderPart:
+        """The encoder's own settings: its kind's, from this config's."""
+        cls = ENCODER_PARTS[self.encoder_kind]
+        return cls(**{name: getattr(self, flat) for name, flat in cls.flat.items()})
+
+    def decoder_part(self) -> DecoderPart:
+        """The decoder's own settings (the sprite's size: a resolved config's)."""
+        cls = DECODER_PARTS[self.decoder_kind]
+        return cls(**{name: getattr(self, flat) for name, flat in cls.flat.items()})
+
     def build(self) -> Autoencoder:
         return Autoencoder(self)
 
@@ -328,9 +341,9 @@ class Autoencoder(nn.Module):
         if not cfg.resolved:
             raise ValueError("AutoencoderConfig needs channels and image_size: resolve() first")
         self.config = cfg
-        self.image_shape = cfg.image_shape  # (C, H, W)
-        self.encoder = ENCODERS[cfg.encoder_kind](cfg)
-        self.decoder = DECODERS[cfg.decoder_kind](cfg)
+        self.image_shape = shape = cfg.image_shape  # (C, H, W)
+        self.encoder = ENCODERS[cfg.encoder_kind](cfg.encoder_part(), shape, cfg.latent_dim)
+        self.decoder = DECODERS[cfg.decoder_kind](cfg.decoder_part(), shape, cfg.latent_dim)
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, H, W) -> z (..., nz); any leading dimensions."""

@@ -1,6 +1,7 @@
 """Image decoders: latents z (..., nz) -> normalised images x̂ (..., C, H, W).
 
-Four kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DECODERS`):
+Four kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DECODERS`),
+each built from its settings (:mod:`.autoencoder_parts`), the image shape and nz:
 
 * ``"fc"`` (:class:`Decoder`, the course's): fully connected, latent → 500 → 500 → C·H·W;
 * ``"conv"`` (:class:`Decoder`): latent → 256 → a c × H/4 × W/4 feature map, then two 4×4
@@ -16,23 +17,27 @@ Four kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DE
 
 The images are normalised, so the output is unbounded.
 
-    >>> dec = Decoder(AutoencoderConfig(channels=3, image_size=(20, 28), decoder_kind="conv"))
+    >>> dec = Decoder(ConvDecoderConfig(), (3, 20, 28), latent_dim=16)
     >>> dec(torch.zeros(5, 16)).shape
     torch.Size([5, 3, 20, 28])
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import torch
 from torch import nn
 
+from latent_sindy.models.autoencoder_parts import (
+    ConvDecoderConfig,
+    FcDecoderConfig,
+    ImageShape,
+    MlpDecoderConfig,
+    SpriteDecoderConfig,
+)
 from latent_sindy.models.encoders import median_background, mlp
 from latent_sindy.models.front import LinearMap
-
-if TYPE_CHECKING:
-    from latent_sindy.models.autoencoder import AutoencoderConfig
 
 __all__ = ["Decoder", "MlpDecoder", "SpriteDecoder"]
 
@@ -80,27 +85,28 @@ class _ImageConvTranspose2d(nn.ConvTranspose2d):
 class Decoder(nn.Module):
     """z (..., nz) -> x̂ (..., C, H, W) normalised images: the "fc" or the "conv" kind."""
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: FcDecoderConfig | ConvDecoderConfig, shape: ImageShape,
+                 latent_dim: int) -> None:
         super().__init__()
-        self.shape = (cfg.channels, cfg.height, cfg.width)
+        self.shape = shape
         self.conv: nn.Module | None = None
-        if cfg.decoder_kind == "fc":
+        if isinstance(cfg, FcDecoderConfig):
             layers: list[nn.Module] = []
-            width = cfg.latent_dim
-            for hidden in cfg.decoder_hidden:
+            width = latent_dim
+            for hidden in cfg.hidden:
                 layers += [nn.Linear(width, hidden), nn.ReLU()]
                 width = hidden
-            layers.append(nn.Linear(width, cfg.channels * cfg.height * cfg.width))
+            layers.append(nn.Linear(width, shape[0] * shape[1] * shape[2]))
             self.net = nn.Sequential(*layers)
             return
-        c, h, w = cfg.decoder_channels, cfg.height // 4, cfg.width // 4
+        c, h, w = cfg.channels, shape[1] // 4, shape[2] // 4
         self.map_shape = (c, h, w)
         self.net = nn.Sequential(  # (in-place ReLUs: no layer here keeps its output)
-            nn.Linear(cfg.latent_dim, 256), nn.ReLU(inplace=True),
+            nn.Linear(latent_dim, 256), nn.ReLU(inplace=True),
             nn.Linear(256, c * h * w), nn.ReLU(inplace=True))
         self.conv = nn.Sequential(  # each transposed convolution doubles both sides
             nn.ConvTranspose2d(c, c, 4, stride=2, padding=1), nn.ReLU(inplace=True),
-            _ImageConvTranspose2d(c, cfg.channels, 4, stride=2, padding=1))
+            _ImageConvTranspose2d(c, shape[0], 4, stride=2, padding=1))
         self.conv.to(memory_format=torch.channels_last)  # 1.9x faster here, like the encoder
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -115,12 +121,11 @@ class MlpDecoder(nn.Module):
     """The fully connected decoder: z (..., nz) -> x̂ (..., C, H, W) through the reversed
     ``mlp_widths``."""
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: MlpDecoderConfig, shape: ImageShape, latent_dim: int) -> None:
         super().__init__()
-        self.shape = (cfg.channels, cfg.height, cfg.width)
-        pixels, k = cfg.channels * cfg.height * cfg.width, cfg.pca_components
-        self.net = mlp([cfg.latent_dim, *reversed(cfg.mlp_widths), k or pixels],
-                       cfg.mlp_activation)
+        self.shape = shape
+        pixels, k = shape[0] * shape[1] * shape[2], cfg.pca_components
+        self.net = mlp([latent_dim, *reversed(cfg.widths), k or pixels], cfg.activation)
         if k:  # back from the principal components (fitted with the model's statistics)
             self.net.append(LinearMap(k, pixels))
 
@@ -162,11 +167,12 @@ class SpriteDecoder(nn.Module):
     template units.
     """
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: SpriteDecoderConfig, shape: ImageShape, latent_dim: int = 4
+                 ) -> None:
         super().__init__()
-        c, h, w, p = cfg.channels, cfg.height, cfg.width, cfg.sprite_side
-        self.order = cfg.moment_order
-        self.supersample = cfg.sprite_supersample
+        (c, h, w), p = shape, cfg.size
+        self.order = cfg.order
+        self.supersample = cfg.supersample
         self.shape = (c, h, w)
         side = max(h, w) - 1
         self._to_template = side / p  # image units -> template units

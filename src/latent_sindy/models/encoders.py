@@ -1,6 +1,7 @@
 """Image encoders: normalised images x (B, C, H, W) -> latents z (B, nz).
 
-Five kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`):
+Five kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`),
+each built from its settings (:mod:`.autoencoder_parts`), the image shape and nz:
 
 * ``"conv"`` (:class:`Encoder`, the course's): two stages of 5×5 convolution + ReLU + 2×2
   max-pool, a fully connected layer and a linear map to the latent size;
@@ -18,7 +19,7 @@ Every kind takes any image shape (C, H, W). Image coordinates, where a latent is
 run from -1 to 1 across the image (x to the right, y down; pixel centres); the moments'
 are isotropic (see :func:`image_coordinates`).
 
-    >>> enc = Encoder(AutoencoderConfig(channels=3, image_size=(20, 28), latent_dim=8))
+    >>> enc = Encoder(ConvEncoderConfig(), (3, 20, 28), latent_dim=8)
     >>> enc(torch.zeros(5, 3, 20, 28)).shape
     torch.Size([5, 8])
 """
@@ -26,23 +27,18 @@ are isotropic (see :func:`image_coordinates`).
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
+import latent_sindy.models.autoencoder_parts as parts
 from latent_sindy.errors import UserError
+from latent_sindy.models.autoencoder_parts import KERNEL, ImageShape, conv_shape
 from latent_sindy.models.front import LinearMap
-
-if TYPE_CHECKING:
-    from latent_sindy.models.autoencoder import AutoencoderConfig
 
 __all__ = ["ACTIVATIONS", "KERNEL", "Encoder", "KeypointEncoder", "MaskMomentEncoder",
            "MlpEncoder", "MomentEncoder", "angular_moments", "image_coordinates",
            "median_background", "mlp", "moment_pose", "symmetry_order"]
-
-#: The side of every learned encoder's convolution kernels.
-KERNEL = 5
 
 #: The activations of the fully connected ("mlp") encoder and decoder, by name.
 ACTIVATIONS: dict[str, type[nn.Module]] = {"sigmoid": nn.Sigmoid, "relu": nn.ReLU,
@@ -62,10 +58,10 @@ def mlp(widths: list[int], activation: str) -> nn.Sequential:
 class MlpEncoder(nn.Module):
     """The fully connected encoder: x (B, C, H, W) -> z (B, nz) through ``mlp_widths``."""
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: parts.MlpEncoderConfig, shape: ImageShape, latent_dim: int) -> None:
         super().__init__()
-        pixels, k = cfg.channels * cfg.height * cfg.width, cfg.pca_components
-        self.net = mlp([k or pixels, *cfg.mlp_widths, cfg.latent_dim], cfg.mlp_activation)
+        pixels, k = shape[0] * shape[1] * shape[2], cfg.pca_components
+        self.net = mlp([k or pixels, *cfg.widths, latent_dim], cfg.activation)
         if k:  # the principal components in front (fitted with the model's statistics)
             self.net.insert(0, LinearMap(pixels, k))
 
@@ -83,24 +79,24 @@ class MlpEncoder(nn.Module):
 class Encoder(nn.Module):
     """The conv encoder: x (B, C, H, W) normalised images -> z (B, nz)."""
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: parts.ConvEncoderConfig, shape: ImageShape, latent_dim: int) -> None:
         super().__init__()
-        c1, c2 = cfg.conv_channels
-        h, w = cfg.conv_shape()
+        c1, c2 = cfg.channels
+        h, w = conv_shape(shape[1:])
         # Max-pooling before the ReLU (they commute: max(relu(a)) = relu(max(a))) applies
         # the ReLU to a quarter of the values; the layers' indices, hence the state dict's
         # keys, are those of the course's conv, ReLU, pool order.
         self.net = nn.Sequential(
-            nn.Conv2d(cfg.channels, c1, KERNEL),
+            nn.Conv2d(shape[0], c1, KERNEL),
             nn.MaxPool2d(2),
             nn.ReLU(inplace=True),
             nn.Conv2d(c1, c2, KERNEL),
             nn.MaxPool2d(2),
             nn.ReLU(inplace=True),
             nn.Flatten(),
-            nn.Linear(c2 * h * w, cfg.encoder_hidden),
+            nn.Linear(c2 * h * w, cfg.hidden),
             nn.ReLU(),
-            nn.Linear(cfg.encoder_hidden, cfg.latent_dim),
+            nn.Linear(cfg.hidden, latent_dim),
         )
         # Channels-last conv weights (and input) take oneDNN's NHWC path on CPU: about 2.5x
         # faster convolution backward for these few-channel convs (benchmarks/train.py).
@@ -120,17 +116,18 @@ class KeypointEncoder(nn.Module):
     it, by construction rather than learnt.
     """
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: parts.KeypointEncoderConfig, shape: ImageShape, latent_dim: int
+                 ) -> None:
         super().__init__()
-        c, k = cfg.keypoint_channels, cfg.latent_dim // 2
+        c, k = cfg.channels, latent_dim // 2
         pad = KERNEL // 2
         self.net = nn.Sequential(
-            nn.Conv2d(cfg.channels, c, KERNEL, padding=pad), nn.ReLU(),
+            nn.Conv2d(shape[0], c, KERNEL, padding=pad), nn.ReLU(),
             nn.Conv2d(c, c, KERNEL, padding=pad), nn.ReLU(),
             nn.Conv2d(c, k, KERNEL, padding=pad))
         self.log_temperature = nn.Parameter(torch.zeros(()))
-        rows, cols = torch.meshgrid(torch.linspace(-1.0, 1.0, cfg.height),
-                                    torch.linspace(-1.0, 1.0, cfg.width), indexing="ij")
+        rows, cols = torch.meshgrid(torch.linspace(-1.0, 1.0, shape[1]),
+                                    torch.linspace(-1.0, 1.0, shape[2]), indexing="ij")
         self.register_buffer("grid", torch.stack([cols.flatten(), rows.flatten()], -1),
                              persistent=False)  # (H·W, 2): x right, y down
         self.net.to(memory_format=torch.channels_last)
@@ -160,11 +157,12 @@ class _PoseFrame(nn.Module):
     """What both moments encoders hold: the order n, the background buffer (C, H, W) and the
     pixel coordinates xs (W,), ys (H,) of :func:`image_coordinates`."""
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
+    def __init__(self, cfg: parts.MomentEncoderConfig | parts.MaskMomentEncoderConfig,
+                 shape: ImageShape, latent_dim: int = 4) -> None:
         super().__init__()
-        self.order = cfg.moment_order
-        self.register_buffer("background", torch.zeros(cfg.channels, cfg.height, cfg.width))
-        xs, ys = image_coordinates(cfg.height, cfg.width)
+        self.order = cfg.order
+        self.register_buffer("background", torch.zeros(shape))
+        xs, ys = image_coordinates(shape[1], shape[2])
         self.register_buffer("xs", xs, persistent=False)
         self.register_buffer("ys", ys, persistent=False)
 
@@ -304,12 +302,13 @@ class MaskMomentEncoder(_PoseFrame):
     it reads the block's position where the moments encoder cannot.
     """
 
-    def __init__(self, cfg: AutoencoderConfig) -> None:
-        super().__init__(cfg)
-        self.normalise, self.kind = cfg.mask_normalise, cfg.mask_weight
-        self.window_pixels, self.refine = cfg.mask_window, cfg.mask_refine
-        c, layers, width = cfg.channels, [], cfg.mask_channels
-        for _ in range(cfg.mask_layers):
+    def __init__(self, cfg: parts.MaskMomentEncoderConfig, shape: ImageShape,
+                 latent_dim: int = 4) -> None:
+        super().__init__(cfg, shape, latent_dim)
+        self.normalise, self.kind = cfg.normalise, cfg.weight
+        self.window_pixels, self.refine = cfg.window, cfg.refine
+        c, layers, width = shape[0], [], cfg.channels
+        for _ in range(cfg.layers):
             layers += [nn.Conv2d(c, width, 3, padding=1), nn.ReLU()]
             c = width
         layers.append(nn.Conv2d(c, 1, 3, padding=1))
