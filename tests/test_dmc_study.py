@@ -17,7 +17,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def test_the_scales_and_the_benchmark_setting():
     from latent_sindy.worlds.dmc.study import SCALES
 
-    assert set(get_world("dmc").scales) == {"tiny", "demo", "benchmark"}
+    assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark"}
     b = SCALES["benchmark"]
     assert (b.seed_episodes + b.iterations) * b.episode_steps * 8 == 100_000  # repeat 8
 

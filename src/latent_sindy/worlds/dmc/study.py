@@ -70,7 +70,7 @@ class DmcScale:
     """Active SINDy terms below which the refits stop pruning by share."""
 
 
-#: How the demo's and the benchmark's fits batch and prune, for --help.
+#: How the larger scales' fits batch and prune, for --help.
 _FITS = ("; batches of 32 windows, each warm refit first pruning SINDy's smallest 30% of "
          "terms, down to 48")
 
@@ -80,6 +80,11 @@ SCALES: dict[str, DmcScale] = {
         "planned ones of 8 actions, 2 epochs then 4 updates a refit in batches of 8, MPPI K "
         "16 H 3; seed 0",
         (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16, batch_size=8),
+    "small": DmcScale(
+        "a few minutes a model on a CPU core: 32x32, 2 frames, 5 seed episodes and 6 planned "
+        "ones of 125 actions, latent size 6 (SINDy's 252 terms), 15 epochs then 100 updates "
+        "a refit, MPPI K 300 H 12; seed 0" + _FITS,
+        (0,), 32, 2, 5, 6, 125, 15, 100, 4, 6, "conv", 300, 12),
     "demo": DmcScale(
         "a short measurable run: 32x32, 2 frames, 5 seed episodes and 5 planned ones of 125 "
         "actions (1000 environment steps each at the cartpole's repeat 8, 10k in all), 40 "
