@@ -20,6 +20,7 @@ or a Savitzky-Golay smoothing differentiator for noisy frames.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -29,7 +30,8 @@ from torch.func import jvp
 
 from latent_sindy.errors import UserError
 
-__all__ = ["DERIVATIVE_METHODS", "along", "along_layers", "estimate_derivatives"]
+__all__ = ["DERIVATIVE_METHODS", "along", "along_layers", "characteristic_time",
+           "estimate_derivatives"]
 
 #: How :func:`estimate_derivatives` differentiates frames.
 DERIVATIVE_METHODS = ("central", "smooth")
@@ -124,3 +126,15 @@ def estimate_derivatives(frames: np.ndarray, dt: float, order: int,
         second = sg(first, 1) if dx is not None else sg(v, 2)
     out = (first,) if order == 1 else (first, second)
     return tuple(a.astype(np.float32) for a in out)
+
+
+def characteristic_time(frames: np.ndarray, rate: np.ndarray, order: int) -> float:
+    """How long the data take to change, from frames (N, ...) and their ``order``-th time
+    derivatives ``rate`` (same shape): rms(x − x̄) / rms(ẋ), or √(rms(x − x̄) / rms(ẍ)), the
+    means over samples and pixels. For x = a sin(ω t) both are 1/ω; a video of a system twice
+    as fast has half the time."""
+    x = np.asarray(frames, np.float64).reshape(len(frames), -1)
+    spread = float(np.sqrt(((x - x.mean(0)) ** 2).mean()))
+    speed = float(np.sqrt((np.asarray(rate, np.float64) ** 2).mean()))
+    ratio = spread / speed if speed > 0 else math.inf
+    return ratio if order == 1 else math.sqrt(ratio)

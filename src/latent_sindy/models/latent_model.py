@@ -379,6 +379,10 @@ class LatentModel(nn.Module):
         recon = (x_hat[0] - frames[0]).square().mean()
         pred_x = (x_hat[k] - frames[k]).square().mean()
         pred_z = latent_error(top, z[k], weights.relative_pred_z)
+        unit = self.dynamics.time_unit ** (2 * k)  # the derivative terms in the model's time
+        if unit != 1.0:
+            pred_x = pred_x * unit
+            pred_z = pred_z if weights.relative_pred_z else pred_z * unit
         l1 = self.l1_penalty()
         objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
         return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,

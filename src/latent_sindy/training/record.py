@@ -13,17 +13,20 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import OBSERVATIONS
 from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics.continuous import time_unit_for
 from latent_sindy.models.latent_model import ModelConfig
 from latent_sindy.plugins import get_world, hook
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
 __all__ = ["CONTEXT_KEYS", "PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
-           "check_derivatives", "check_description", "data_identity", "resolve_model",
-           "run_record"]
+           "check_derivatives", "check_description", "data_identity", "data_time",
+           "resolve_model", "run_record"]
 
 RUN_FORMAT = "latent-sindy-run"
 RUN_FORMAT_VERSION = 2
@@ -71,11 +74,40 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     dyn = cfg.dynamics
     if dyn.kind == "continuous" and dyn.dt is None and data.dt is not None:
         cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(dyn, dt=data.dt))
+    if dyn.kind == "continuous" and dyn.time_unit is None:
+        unit = time_unit_for(data_time(data, dyn.derivative_order, where))
+        cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(cfg.dynamics,
+                                                                    time_unit=unit))
     world = get_world(data.world) if data.world is not None else None
     prepare = hook(world, "prepare_model")
     if prepare is not None:
         return prepare(cfg, data, where)
     return cfg
+
+
+#: Training sequences :func:`data_time` reads at most (it estimates their derivatives).
+TIME_SEQUENCES = 64
+
+
+def data_time(data: SequenceData, order: int, where: str) -> float:
+    """The characteristic time of ``data``'s training frames
+    (:func:`~latent_sindy.models.derivatives.characteristic_time`) from their ``order``-th
+    derivatives: the data's own, else central differences, on at most
+    :data:`TIME_SEQUENCES` sequences."""
+    from latent_sindy.models.derivatives import characteristic_time, estimate_derivatives
+
+    part = data.split("train")
+    if part.n == 0:
+        raise UserError(f"{where} has no training sequences to choose a time unit from")
+    keep = slice(0, TIME_SEQUENCES)
+    given = (part.images_dot, part.images_ddot)[order - 1]
+    frames = np.asarray(part.images[keep])
+    if given is not None:
+        rate = np.asarray(given[keep])
+    else:
+        rate = estimate_derivatives(frames, data.dt or 1.0, order)[order - 1]
+    return characteristic_time(frames.reshape(-1, *frames.shape[2:]),
+                               rate.reshape(-1, *rate.shape[2:]), order)
 
 
 def check_derivatives(cfg: TrainConfig, data: SequenceData) -> None:

@@ -9,6 +9,15 @@ or s = (z, ż) (second order, 2 nz coordinates). The library is over the phase s
 actions: for a second-order model its variables z{nz}..z{2nz-1} are ż, written z0', z1', ...
 in every name, so the equations read ``z0'' = -0.98 sin(z0)``.
 
+With a ``time_unit`` T other than 1 the coefficients Ψ are those of the model in its own
+time t/T (where a video at another frequency looks like the one a recipe's weights were set
+on: :func:`time_unit_for`), while everything the model shows and does is in the data's time:
+``derivative`` and ``step`` take and give real-time rates, ``coefficients()`` and the
+equations are real-time (a term's coefficient times T^(its time order − k); a sine of a
+velocity keeps its model-time argument, written ``sin(0.841 z0')``). The L1 penalty and the
+pruning act on Ψ, and the latent model's loss weighs its derivative terms by T^(2k), so a fit
+in real time is the fit in model time.
+
     >>> model = ContinuousSindyConfig(derivative_order=2, order=3).build(nz=1, nu=0)
     >>> model.names[:4]
     ['1', 'z0', "z0'", 'z0^2']
@@ -37,10 +46,30 @@ from latent_sindy.models.dynamics.base import (
 from latent_sindy.models.dynamics.sindy import SindyDynamics
 from latent_sindy.sindy import VALID_ORDERS, Polynomial, SindyLibrary, Sine
 
-__all__ = ["DERIVATIVE_ORDERS", "ContinuousSindyConfig", "ContinuousSindyDynamics"]
+__all__ = ["DERIVATIVE_ORDERS", "TIME_UNIT_REFERENCE", "ContinuousSindyConfig",
+           "ContinuousSindyDynamics", "time_unit_for"]
 
 #: The derivative orders a continuous-time model may have.
 DERIVATIVE_ORDERS = (1, 2)
+
+#: The characteristic time :func:`time_unit_for` maps data to: the pendulum video's at ω² = 1
+#: (0.141 s, its 100 training trajectories), where the continuous-time recipe's weights were set.
+TIME_UNIT_REFERENCE = 0.141
+#: Time units are whole powers of this, so that data near the reference (a subset of the
+#: benchmark's trajectories) keep the unit 1 exactly.
+TIME_UNIT_STEP = 2 ** (1 / 4)
+
+
+def time_unit_for(tau: float) -> float:
+    """The time unit of data whose characteristic time is ``tau`` (in the data's time:
+    :func:`~latent_sindy.models.derivatives.characteristic_time`): ``tau`` over
+    :data:`TIME_UNIT_REFERENCE`, rounded to a whole power of :data:`TIME_UNIT_STEP`, so a
+    video of the pendulum at ω is the ω = 1 video in the model's time, its ω within 9 %."""
+    if not (math.isfinite(tau) and tau > 0):
+        raise UserError(f"characteristic time {tau}: the data do not move (or their "
+                        "derivatives are not finite); give time_unit a number")
+    steps = round(math.log(tau / TIME_UNIT_REFERENCE) / math.log(TIME_UNIT_STEP))
+    return TIME_UNIT_STEP ** steps if steps else 1.0
 
 
 def check_derivative_order(order: Any) -> int:
@@ -69,6 +98,7 @@ class ContinuousSindyDynamics(SparseDynamics):
         dt: the time step of :meth:`step` (time units of the data's derivatives); the
             config passes the data's.
         circle: see :class:`LatentDynamics` (the circle's pair of z is projected after a step).
+        time_unit: the model's own time unit T in the data's (see the module docstring).
     """
 
     kind = "continuous"
@@ -80,7 +110,7 @@ class ContinuousSindyDynamics(SparseDynamics):
                  init_scale: float = 1e-3,
                  init: Literal["normal", "constant"] = "normal", seed: int | None = None,
                  dt: float = 0.1, circle: Sequence[int] | None = None,
-                 turn: bool = False) -> None:
+                 turn: bool = False, time_unit: float = 1.0) -> None:
         super().__init__(nz, nu, circle)
         if turn:
             raise ValueError("turn is for discrete-time models: a continuous-time model's "
@@ -90,7 +120,9 @@ class ContinuousSindyDynamics(SparseDynamics):
             raise UserError(f"dt {dt}: the time step must be a positive number")
         if init not in ("normal", "constant"):
             raise UserError(f"init {init!r}: use normal or constant")
-        self.dt = float(dt)
+        if not (math.isfinite(time_unit) and time_unit > 0):
+            raise UserError(f"time_unit {time_unit}: use a positive number (1: the data's)")
+        self.dt, self.time_unit = float(dt), float(time_unit)
         spec = Polynomial(("z", "u"), order, bias=include_constant)
         if include_sine:
             spec = spec + Sine("z")
@@ -106,19 +138,50 @@ class ContinuousSindyDynamics(SparseDynamics):
         self._init = {"derivative_order": self.derivative_order, "order": order,
                       "include_sine": include_sine, "include_constant": include_constant,
                       "init_scale": init_scale, "init": init,
-                      "seed": seed, "dt": self.dt}
+                      "seed": seed, "dt": self.dt, "time_unit": self.time_unit}
         rename = {f"z{nz * k + j}": f"z{j}" + "'" * k
                   for k in range(derivative_order) for j in range(nz)}
         self._names = [re.sub(r"\bz(\d+)\b", lambda m: rename[m[0]], name)
                        for name in self.library.names]
+        # model time t/T: a phase variable z^(j) is T^j times its real-time value, and a
+        # term's real-time coefficient is T^(its monomial time order - k) times its Ψ
+        n = nz * derivative_order
+        self.register_buffer("_phase_scale", torch.tensor(
+            [self.time_unit ** (i // nz) for i in range(n)]), persistent=False)  # (k nz,)
+        table = self.library.table  # (p, width) feature indices, [z, ż] first
+        orders = torch.where(table < n, table // nz, 0).sum(1)  # (p,)
+        self.register_buffer("_term_scale", torch.tensor(
+            [self.time_unit ** (int(o) - derivative_order) for o in orders]
+        )[:, None], persistent=False)  # (p, 1)
+        if self.time_unit != 1.0:
+            self._names = [re.sub(r"\b(sin|cos)\((z\d+)('+)\)", lambda m: (
+                f"{m[1]}({self.time_unit ** len(m[3]):.4g} {m[2]}{m[3]})"), name)
+                for name in self._names]
 
     # The mask, the pruning and the coefficient rows are the discrete model's, read from
     # the same Ψ, M and names: one implementation for both.
-    coefficients = SindyDynamics.coefficients
     threshold = SindyDynamics.threshold
-    set_coefficients = SindyDynamics.set_coefficients
     coefficient_rows = SindyDynamics.coefficient_rows
     n_candidates = SindyDynamics.n_candidates
+
+    def coefficients(self) -> torch.Tensor:
+        """The effective coefficients in the data's time: M ⊙ Ψ, times T^(time order − k)
+        per term where the time unit T is not 1; (p, nz)."""
+        own = self.psi * self.mask
+        return own if self.time_unit == 1.0 else own * self._term_scale
+
+    def set_coefficients(self, coef: torch.Tensor, mask: torch.Tensor | None = None
+                         ) -> ContinuousSindyDynamics:
+        """Set the real-time coefficients ``coef`` (p, nz) (Ψ is them in the model's time)
+        and M = ``mask`` (default ``coef != 0``); returns ``self``."""
+        coef = torch.as_tensor(coef)
+        if self.time_unit != 1.0:
+            coef = coef / self._term_scale.to(coef.device, coef.dtype)
+        return SindyDynamics.set_coefficients(self, coef, mask)
+
+    def l1_penalty(self) -> torch.Tensor:
+        """‖M ⊙ Ψ‖₁ in the model's time, a scalar tensor with gradient."""
+        return (self.psi * self.mask).abs().sum()
 
     def _free_turned_column(self) -> None:  # (set_coefficients' hook: never turned here)
         pass
@@ -132,8 +195,12 @@ class ContinuousSindyDynamics(SparseDynamics):
         return {**super().hparams(), **self._init}
 
     def derivative(self, phase: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """The model's z^(k): phase (K, k nz) = (z[, ż]), u (K, nu) -> (K, nz)."""
-        return self.library(phase, u) @ self.coefficients()
+        """The model's z^(k): phase (K, k nz) = (z[, ż]), u (K, nu) -> (K, nz), in the
+        data's time."""
+        if self.time_unit == 1.0:
+            return self.library(phase, u) @ self.coefficients()
+        own = self.library(phase * self._phase_scale, u) @ (self.psi * self.mask)
+        return own * self.time_unit ** -self.derivative_order
 
     def field(self, phase: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """d/dt of the phase state: (K, k nz) -> (K, k nz)."""
@@ -172,9 +239,11 @@ class ContinuousSindyDynamics(SparseDynamics):
         p, nz = self.mask.shape
         lhs = "z" + "'" * self.derivative_order
         args = "z, z'" if self.derivative_order == 2 else "z"
+        unit = (f"; coefficients fitted in time units of {self.time_unit:.4g}"
+                if self.time_unit != 1.0 else "")
         return [f"continuous-time SINDy latent dynamics, library {self.library.spec} over "
                 f"({args}{', u' if self.nu else ''}) ({p} candidate terms x {nz} states), "
-                f"{lhs} = Θ({args}{', u' if self.nu else ''}) (M ⊙ Ψ)",
+                f"{lhs} = Θ({args}{', u' if self.nu else ''}) (M ⊙ Ψ){unit}",
                 f"active coefficients: {self.n_active()} of {self.n_candidates()} (sparsity "
                 f"{100 * self.sparsity():.1f}%); terms used by some state: "
                 f"{int(self.mask.any(dim=1).sum())} of {p}", *self._circle_note()]
@@ -183,7 +252,7 @@ class ContinuousSindyDynamics(SparseDynamics):
         return {"library": self.library.spec.to_dict(), "n_active": self.n_active(),
                 "n_coefficients": self.n_candidates(), "sparsity": self.sparsity(),
                 "terms": self.names, "derivative_order": self.derivative_order,
-                "dt": self.dt, **super().export_info()}
+                "dt": self.dt, "time_unit": self.time_unit, **super().export_info()}
 
     def extra_repr(self) -> str:
         return (f"nz={self.nz}, nu={self.nu}, derivative_order={self.derivative_order}, "
@@ -216,6 +285,11 @@ class ContinuousSindyConfig:
     dt: float | None = None
     """Time step of the model's step (RK4) and of the estimated derivatives' units; None: the
     data's dt (1 where the data has none)."""
+    time_unit: float | None = 1.0
+    """The unit of the model's own time, in the data's, in which its coefficients are fitted
+    (the equations are shown in the data's time): 1, the data's; None: chosen from the data
+    (:func:`time_unit_for` of their characteristic time), so that a video of a faster or
+    slower system trains as the one the recipe's loss weights were set on."""
 
     def __post_init__(self) -> None:
         check_derivative_order(self.derivative_order)
@@ -227,6 +301,10 @@ class ContinuousSindyConfig:
         if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
             raise UserError(f"--dt {self.dt}: use a positive time step, or leave it unset to "
                             "take the data's")
+        if self.time_unit is not None and (isinstance(self.time_unit, bool) or not (
+                math.isfinite(self.time_unit) and self.time_unit > 0)):
+            raise UserError(f"time_unit {self.time_unit}: use a positive number (1: the "
+                            "data's time), or None to choose it from the data")
 
     def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
               turn: bool = False) -> ContinuousSindyDynamics:
@@ -236,4 +314,5 @@ class ContinuousSindyConfig:
         return ContinuousSindyDynamics(nz, nu, self.derivative_order, self.order,
                                        self.include_sine, self.include_constant,
                                        self.init_scale, self.init,
-                                       dt=1.0 if self.dt is None else self.dt, circle=circle)
+                                       dt=1.0 if self.dt is None else self.dt, circle=circle,
+                                       time_unit=self.time_unit or 1.0)

@@ -119,7 +119,7 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     t0 = time.perf_counter()
     model_cfg = ModelConfig(
         dynamics=ContinuousSindyConfig(derivative_order=2, order=3, include_sine=True,
-                                       init=s.init, init_scale=s.init_scale),
+                                       init=s.init, init_scale=s.init_scale, time_unit=None),
         encoder=AutoencoderConfig(latent_dim=1, encoder_kind="mlp", decoder_kind="mlp"))
     cfg = TrainConfig(model=model_cfg, loss=weights(s, data, k, span), seed=seed,
                       epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
@@ -254,7 +254,7 @@ class VideoStudyConfig:
         return {"schedule": self.schedule, "derivatives": self.derivatives,
                 "components": self.components, "splits": list(self.splits),
                 "steps": self.steps, **asdict(self.resolved_schedule()),
-                **({} if self.omega2 == 1 else {"omega2": self.omega2}),
+                **({} if self.omega2 == 1 else {"omega2": self.omega2, "time_unit": "data"}),
                 **({} if self.starts == "own_time" else {"starts": self.starts})}
 
 
