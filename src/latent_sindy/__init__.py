@@ -9,7 +9,7 @@ worlds (``latent_sindy.worlds``) plug in by name. Importing the package loads no
 
 from latent_sindy.version import __version__
 
-__all__ = ["LatentSINDy", "Phase", "SequenceData", "UserError", "__version__"]
+__all__ = ["LatentSINDy", "Phase", "Restarts", "SequenceData", "UserError", "__version__"]
 
 
 def __getattr__(name: str):
@@ -18,10 +18,10 @@ def __getattr__(name: str):
         from latent_sindy.api import LatentSINDy
 
         return LatentSINDy
-    if name == "Phase":
-        from latent_sindy.training.session import Phase
+    if name in ("Phase", "Restarts"):
+        from latent_sindy.training import session
 
-        return Phase
+        return getattr(session, name)
     if name == "SequenceData":
         from latent_sindy.data import SequenceData
 

@@ -37,12 +37,9 @@ from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress
-from latent_sindy.training.config import (
-    TrainConfig,
-    check_fit_settings,
-)
+from latent_sindy.training.config import TrainConfig, check_fit_settings
 from latent_sindy.training.runs import RunDir
-from latent_sindy.training.session import Phase, fit_in_memory
+from latent_sindy.training.session import Phase, Restarts, fit_in_memory
 
 __all__ = ["AllTermsPruned", "LatentSINDy"]
 
@@ -144,21 +141,24 @@ class LatentSINDy:
     # ------------------------------------------------------------------ fitting
     def fit(self, data: SequenceData, epochs: int | None = None, *,
             out: str | os.PathLike | None = None, progress: Progress | None = None,
-            phases: Sequence[Phase] = (), **settings: Any) -> LatentSINDy:
+            phases: Sequence[Phase] = (), warmup: Sequence[Phase] = (),
+            restarts: Restarts | None = None, **settings: Any) -> LatentSINDy:
         """Train on ``data`` (its training split; its validation split selects the kept
         weights). In memory, or into the run folder ``out`` (with checkpoints; resumable).
-        ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...). ``phases``:
-        :class:`~latent_sindy.Phase` stretches trained after it, each with settings of its
-        own (a calibration: ``Phase(300, "calibration", {"lr": 1e-3, "loss": ...})``), in
-        memory only."""
+        ``settings``: TrainConfig fields for this fit (``window``, ``lr``, ...). In memory
+        only: ``phases``, :class:`~latent_sindy.Phase` stretches trained after it from its
+        kept weights, each with settings of its own (a calibration: ``Phase(300,
+        "calibration", {"lr": 1e-3, "loss": ...})``); ``warmup``, phases before it; and
+        ``restarts``, a :class:`~latent_sindy.Restarts` rule for fresh starts."""
         if not isinstance(data, SequenceData):
             raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
         check_fit_settings(settings, out)
         if epochs is not None:
             settings["epochs"] = epochs
-        if out is not None and phases:
-            raise UserError("phases train in memory: drop out= (save the model afterwards)")
         if out is not None:
+            if phases or warmup or restarts:
+                raise UserError("phases, warmup and restarts train in memory: drop out= (save "
+                                "the model afterwards)")
             from latent_sindy.training.loop import train
 
             cfg = self.train_config(out=Path(out), data=Path(data.source), **settings)
@@ -166,10 +166,10 @@ class LatentSINDy:
             self._adopt(RunDir(out))
         else:
             session, result, metrics = fit_in_memory(self.train_config(**settings), data,
-                                                     progress, phases)
+                                                     progress, phases, warmup=warmup,
+                                                     restarts=restarts)
             self.model_, self.normalizer_, record = session.model, session.norm, session.record
-            self.description_ = record["description"]
-            self.world_record_ = record["world"]["record"]
+            self.description_, self.world_record_ = record["description"], record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}
             self.metrics_, self.kept_ = metrics, result.kept
         if note := pruned_note(self.model_.dynamics):
@@ -297,13 +297,11 @@ class LatentSINDy:
         nu = len(self.description_["action_low"])
         if action_names is not None and (isinstance(action_names, str)
                                          or len(action_names) != nu):
-            given = ([action_names] if isinstance(action_names, str)
-                     else list(action_names))
+            given = [action_names] if isinstance(action_names, str) else list(action_names)
             raise UserError(f"action_names {given}: give a list of {nu} name(s), one per "
                             "action of this model")
-        lines = self.model_.dynamics.equations(precision)
-        return name_actions(lines, list(action_names or self.description_.get("action_names")
-                                        or []))
+        names = action_names or self.description_.get("action_names") or []
+        return name_actions(self.model_.dynamics.equations(precision), list(names))
 
     def print(self, action_names: list[str] | None = None, precision: int = 3) -> None:
         """Print :meth:`equations` (with the data's action names unless others are given), or

@@ -55,7 +55,8 @@ from latent_sindy.training.prepare import (
 )
 from latent_sindy.training.record import run_record
 
-__all__ = ["Phase", "Session", "fit_in_memory", "prepare", "start_seed"]
+__all__ = ["Phase", "Restarts", "Session", "fit_in_memory", "kept_value", "prepare",
+           "start_seed"]
 
 
 @dataclass(frozen=True)
@@ -192,26 +193,105 @@ def prepare(cfg: TrainConfig, data: SequenceData, device: str | torch.device | N
     return candidate(cfg.seed) if cfg.starts == 1 else _choose_start(cfg, candidate, progress)
 
 
+@dataclass(frozen=True)
+class Restarts:
+    """The rule for fresh starts of a fit (the pendulum video's: RESULTS.md). A start whose
+    main fit keeps weights that reconstruct the validation frames poorly (``val/recon`` above
+    ``recon_above``) is followed by another (seed + 1000 r) before anything more is trained on
+    it; of those waiting, the best reconstruction goes on to the phases. If then its last
+    phase's kept validation latent term (``val/pred_z``: with ``relative_pred_z`` the
+    fraction of the encoder's z^(k) the equations leave unexplained) is above ``fvu_above``,
+    another start follows while ``count`` allows; of the starts trained through, the one
+    with the smallest such term is kept."""
+
+    count: int = 1
+    """Fresh starts allowed after the first."""
+    recon_above: float = 0.1
+    fvu_above: float = math.inf
+
+    def __post_init__(self) -> None:
+        if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 0:
+            raise UserError(f"restarts count {self.count!r}: use a whole number >= 0")
+        if not (self.recon_above >= 0 and self.fvu_above >= 0):
+            raise UserError(f"restarts recon_above {self.recon_above}, fvu_above "
+                            f"{self.fvu_above}: use numbers >= 0 (inf: never)")
+
+
 def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | None = None,
-                  phases: Sequence[Phase] = ()) -> tuple[Session, FitResult, list[dict]]:
-    """Train ``cfg``'s model on ``data`` without a run folder: the fit to ``cfg.epochs``,
-    then each of ``phases`` in turn. Returns the session (its model holding the kept weights,
-    on the CPU, in eval mode), the last fit's result and every epoch's metrics rows."""
-    if not all(isinstance(p, Phase) for p in phases):
-        raise UserError("phases: give a sequence of latent_sindy.Phase")
+                  phases: Sequence[Phase] = (), *, warmup: Sequence[Phase] = (),
+                  restarts: Restarts | None = None
+                  ) -> tuple[Session, FitResult, list[dict]]:
+    """Train ``cfg``'s model on ``data`` without a run folder: ``warmup`` phases, the fit to
+    ``cfg.epochs`` (its epochs counting the warm-up's), then each of ``phases`` in turn, from
+    the kept weights of the stretch before; with ``restarts``, fresh starts by its rule.
+    Returns the session (its model holding the kept weights, on the CPU, in eval mode), the
+    last fit's result (``kept["restarts"]``: starts trained and the one kept, with
+    ``restarts``) and every epoch's metrics rows of the kept start."""
+    if not all(isinstance(p, Phase) for p in (*phases, *warmup)):
+        raise UserError("phases, warmup: give a sequence of latent_sindy.Phase")
+    if restarts is not None and not isinstance(restarts, Restarts):
+        raise UserError(f"restarts: give a latent_sindy.Restarts, got {type(restarts).__name__}")
     progress = progress or Silent()
-    session = prepare(cfg, data, progress=progress)
-    progress.start(session.cfg.epochs + sum(p.epochs for p in phases), session.done)
-    try:
-        result = session.fit(on_epoch=progress.update)
-        metrics = list(result.metrics)
+    rule = restarts or Restarts(count=0)
+
+    def main(start: int) -> dict[str, Any]:
+        seed = cfg.seed + 1000 * start
+        session = prepare(cfg if start == 0 else dataclasses.replace(cfg, seed=seed), data,
+                          progress=progress)
+        if start:
+            progress.close()
+            progress.note(f"restart {start} of {rule.count} (seed {seed})")
+        progress.start(session.cfg.epochs + sum(p.epochs for p in phases), session.done)
+        metrics: list[dict] = []
+        for phase in warmup:
+            metrics += session.fit(phase, on_epoch=progress.update).metrics
+        if warmup:  # the main fit chooses among its own epochs, as a phase does
+            result = session.fit(Phase(session.cfg.epochs - session.done, "main"),
+                                 on_epoch=progress.update)
+        else:
+            result = session.fit(on_epoch=progress.update)
+            if phases:  # the phases go on from the kept weights
+                session.model.load_state_dict(result.state)
+        return {"session": session, "result": result, "metrics": metrics + result.metrics,
+                "recon": kept_value(result, "val/recon"), "start": start}
+
+    def finish_phases(c: dict[str, Any]) -> None:
         for phase in phases:
-            result = session.fit(phase, on_epoch=progress.update)
-            metrics += result.metrics
+            c["result"] = c["session"].fit(phase, on_epoch=progress.update)
+            c["metrics"] += c["result"].metrics
+        c["fvu"] = kept_value(c["result"], "val/pred_z") if phases else 0.0
+
+    waiting: list[dict[str, Any]] = []
+    done: list[dict[str, Any]] = []
+    try:
+        for start in range(1 + rule.count):
+            waiting.append(main(start))
+            if waiting[-1]["recon"] > rule.recon_above and start < rule.count:
+                continue
+            pick = min(waiting, key=lambda c: c["recon"])
+            waiting.remove(pick)
+            finish_phases(pick)
+            done.append(pick)
+            if pick["fvu"] <= rule.fvu_above:
+                break
     finally:
         progress.close()
+    kept = min(done, key=lambda c: c["fvu"])
+    session, result = kept["session"], kept["result"]
+    if restarts is not None:
+        result.kept["restarts"] = {"starts": start + 1, "kept": kept["start"]}
     session.finish(result).cpu().eval()
-    return session, result, metrics
+    return session, result, kept["metrics"]
+
+
+def kept_value(result: FitResult, key: str) -> float:
+    """A validation figure (``val/recon``, ``val/pred_z``) at the epoch a fit kept (inf if
+    not validated)."""
+    epoch = result.kept["epoch"]
+    for row in result.metrics:
+        if row["epoch"] == epoch and row.get(key) is not None:
+            return float(row[key])
+    return math.inf
 
 
 def start_seed(seed: int, k: int) -> int:

@@ -24,6 +24,7 @@ import json
 import math
 import statistics
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -103,77 +104,59 @@ def verdict(model) -> dict[str, Any]:
 
 def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: float,
                span: float, device: str = "cpu", omega2: float = 1.0) -> dict[str, Any]:
-    """One model: ``s.warmup`` epochs of reconstruction alone (no ẍ, z̈ or L1 term, no
-    pruning), then the schedule's epochs with the published terms, pruning and refinement,
-    through the project's training loop on ``device`` (cpu, cuda or auto), then
-    ``s.calibrate_epochs`` of refinement with the calibration weights; the best validation
-    epoch of each phase kept."""
+    """One model, through the estimator (:class:`~latent_sindy.LatentSINDy`): ``s.warmup``
+    epochs of reconstruction alone (no ẍ, z̈ or L1 term, no pruning), then the schedule's
+    epochs with the published terms, pruning and refinement on ``device`` (cpu, cuda or
+    auto), then ``s.calibrate_epochs`` of refinement with the calibration weights; the best
+    validation epoch of each kept, fresh starts by the schedule's rule
+    (:class:`~latent_sindy.Restarts`)."""
+    from latent_sindy.api import AllTermsPruned, LatentSINDy
     from latent_sindy.data.windows import Normalizer
     from latent_sindy.models import AutoencoderConfig, LossWeights, ModelConfig
     from latent_sindy.models.dynamics import ContinuousSindyConfig
     from latent_sindy.training import TrainConfig
     from latent_sindy.training.config import resolve_device
-    from latent_sindy.training.record import run_record
-    from latent_sindy.training.session import Phase, prepare
+    from latent_sindy.training.session import Phase, Restarts
 
     t0 = time.perf_counter()
     model_cfg = ModelConfig(
         dynamics=ContinuousSindyConfig(derivative_order=2, order=3, include_sine=True,
                                        init=s.init, init_scale=s.init_scale, time_unit=None),
         encoder=AutoencoderConfig(latent_dim=1, encoder_kind="mlp", decoder_kind="mlp"))
-    cfg = TrainConfig(model=model_cfg, loss=weights(s, data, k, span), seed=seed,
-                      epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
+    cfg = TrainConfig(epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
                       weight_decay=0.0, batch_size=s.batch, threshold=s.threshold,
                       threshold_every=s.threshold_every, eval_every=s.eval_every, starts=1)
-    record = run_record(cfg, data)
-    on = torch.device(resolve_device(device))
-    norm = Normalizer.from_dict(record["normalizer"])
     reconstruct = LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0)
-
-    def first_phase(start: int) -> dict[str, Any]:
-        session = prepare(replace(cfg, seed=seed + 1000 * start), data, on, record=record)
-        if s.warmup:  # its last epoch's weights go on (nothing to select on yet)
-            session.fit(Phase(s.warmup, "warm-up", {"loss": reconstruct, "refine_epochs": 0,
-                                                    "threshold_every": 0}, adopt=False))
-        result = session.fit(Phase(s.epochs, "main"))
-        return {"recon": kept_value(result, "val/recon"), "session": session,
-                "result": result, "start": start, "fvu": float("inf")}
-
+    # (its last epoch's weights go on: nothing to select on yet)
+    warmup = [Phase(s.warmup, "warm-up", {"loss": reconstruct, "refine_epochs": 0,
+                                          "threshold_every": 0}, adopt=False)] * bool(s.warmup)
+    phases = [calibration(s, data, k, span)] if s.calibrate_epochs else []
     # A start whose first phase reconstructs the validation frames poorly, or whose
     # calibrated equations leave much of the encoder's z̈ unexplained, found another system
     # (RESULTS.md): the next start draws new weights; of those calibrated, the best is kept.
-    waiting: list[dict[str, Any]] = []
-    done: list[dict[str, Any]] = []
-    for start in range(1 + s.restarts):
-        waiting.append(first_phase(start))
-        if waiting[-1]["recon"] > s.restart_above and start < s.restarts:
-            continue
-        pick = min(waiting, key=lambda c: c["recon"])
-        waiting.remove(pick)
-        if s.calibrate_epochs:
-            calibrate_start(pick, s, data, k, span)
-        else:
-            pick["fvu"] = 0.0  # nothing calibrated, nothing more to judge
-        done.append(pick)
-        if pick["fvu"] <= s.restart_fvu:
-            break
-    kept = min(done, key=lambda c: c["fvu"])
-    model, result, chosen = kept["session"].model, kept["result"], kept["start"]
-    model = model.cpu().eval()
+    rule = Restarts(s.restarts, s.restart_above, s.restart_fvu)
+    est = LatentSINDy(1, model=model_cfg, loss=weights(s, data, k, span), settings=cfg,
+                      seed=seed, device=device)
+    with warnings.catch_warnings():  # (a seed that lost every term is a row of the study)
+        warnings.simplefilter("ignore", AllTermsPruned)
+        est.fit(data, phases=phases, warmup=warmup, restarts=rule)
+    model, kept = est.model_, est.kept_
+    norm = Normalizer.from_dict(est.record_["normalizer"])
     steps = s.warmup + s.epochs + s.calibrate_epochs
+    last = s.warmup + (s.epochs if phases else 0)  # the last stretch's epochs follow
     row = {"seed": seed, **verdict(model), **evaluate(model, norm, video, lo, span, omega2),
-           "kept_epoch": result.kept["epoch"], "time_s": time.perf_counter() - t0,
-           "train_s": sum(r["time_s"] for r in result.metrics), "epochs": steps,
-           "device": str(on), "starts": start + 1, "start_kept": chosen + 1}
+           "kept_epoch": kept["epoch"], "time_s": time.perf_counter() - t0,
+           "train_s": sum(r["time_s"] for r in est.metrics_ if r["epoch"] > last),
+           "epochs": steps, "device": str(torch.device(resolve_device(device))),
+           "starts": kept["restarts"]["starts"], "start_kept": kept["restarts"]["kept"] + 1}
     c = row["coefficient"]
     return {**row, "recovered": bool(row["exact_sin"] and abs(c / omega2 + 1) <= 0.02)}
 
 
-def calibrate_start(c: dict[str, Any], s: Schedule, data, k: int, span: float) -> None:
-    """The schedule's calibration of one start ``c`` (in place): a phase of refinement with
-    the calibration weights and learning rate, thresholding when asked; ``c["fvu"]`` becomes
-    the kept epoch's validation z̈ term (the unexplained fraction when the term is
-    scale-free)."""
+def calibration(s: Schedule, data, k: int, span: float):
+    """The schedule's calibration: a :class:`~latent_sindy.Phase` of refinement with the
+    calibration weights and learning rate, thresholding when asked (the z̈ term scale-free
+    with ``calibrate_relative``)."""
     from latent_sindy.training.session import Phase
 
     raised = replace(s, pred_x=s.calibrate_x or s.pred_x, pred_z=s.calibrate_z or s.pred_z)
@@ -182,20 +165,9 @@ def calibrate_start(c: dict[str, Any], s: Schedule, data, k: int, span: float) -
         loss = replace(loss, lambda_pred_z=s.calibrate_relative, relative_pred_z=True)
     prune = s.calibrate_prune_every
     refine = s.calibrate_epochs - (2 * s.calibrate_epochs // 3 if prune else 0)
-    result = c["session"].fit(Phase(s.calibrate_epochs, "calibration", {
+    return Phase(s.calibrate_epochs, "calibration", {
         "lr": s.calibrate_lr or s.lr, "loss": loss, "refine_epochs": refine,
-        "threshold_every": prune}))
-    c["result"], c["fvu"] = result, kept_value(result, "val/pred_z")
-
-
-def kept_value(result, key: str) -> float:
-    """A validation figure (``val/recon``, ``val/pred_z``) at the epoch a fit kept (inf if
-    not validated)."""
-    epoch = result.kept["epoch"]
-    for row in result.metrics:
-        if row["epoch"] == epoch and row.get(key) is not None:
-            return float(row[key])
-    return float("inf")
+        "threshold_every": prune})
 
 
 @dataclass(frozen=True)
