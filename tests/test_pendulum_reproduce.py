@@ -300,3 +300,27 @@ def test_a_poor_first_start_is_restarted_and_the_calibration_can_prune():
         video_study.Schedule(1, 1e-3, 10, 5, 1, 0, calibrate_prune_every=-1)
     with pytest.raises(Exception, match="restart_fvu"):
         video_study.Schedule(1, 1e-3, 10, 5, 1, 0, restart_fvu=0.01)
+
+
+def test_the_video_at_another_frequency_is_a_world_setting(tmp_path, monkeypatch):
+    """``--world-config omega2=...`` makes the video at that ω²: its seeds train on it and
+    are judged against -ω², and its rows are not those of the ω² = 1 study."""
+    seen: list[float] = []
+
+    def fake(seed, s, data, k, video, lo, span, device, omega2):
+        seen.append(omega2)
+        c = -2.25 * 1.01
+        return {"seed": seed, "equation": f"z0'' = {c} sin(z0)", "exact_sin": True,
+                "coefficient": c, "coefficients": {"sin(z0)": c}, "fvu_x": 0.1,
+                "fvu_ddx": 0.2, "fvu_ddz": 0.3, "time_s": 1.0,
+                "recovered": abs(c / omega2 + 1) <= 0.02}
+
+    monkeypatch.setattr(video_study, "train_seed", fake)
+    out = tmp_path / "study"
+    assert main(["reproduce", "--world", "pendulum-video", "--world-config", "omega2=2.25",
+                 "--scale", "tiny", "--out", str(out), "--device", "cpu"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert seen == [2.25] and summary["results"]["summary"]["recovered"] == 1
+    assert summary["results"]["config"]["omega2"] == 2.25
+    key = json.loads((out / "seeds.jsonl").read_text().splitlines()[0])["key"]
+    assert key["omega2"] == 2.25 and key["time_unit"] == "data"

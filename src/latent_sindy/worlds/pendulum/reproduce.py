@@ -81,8 +81,10 @@ def _save(fig, path: Path) -> Path:
 
 
 # ----------------------------------------------------------------------------- the video
-def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads: int):
-    """The :class:`~.video_study.VideoStudyConfig` of a scale (``seeds`` None: the scale's)."""
+def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads: int,
+                 omega2: float = 1.0, starts: str = "own_time"):
+    """The :class:`~.video_study.VideoStudyConfig` of a scale (``seeds`` None: the scale's)
+    for the video at ``omega2`` with its ``starts``."""
     from latent_sindy.worlds.pendulum.video_study import VideoStudyConfig
 
     _scale(scale, VIDEO_SCALES, "pendulum-video")
@@ -95,7 +97,8 @@ def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads
             "published": dict(seeds=tuple(range(10)), schedule="published")}[scale]
     if seeds:
         base["seeds"] = tuple(seeds)
-    return VideoStudyConfig(**base, device=device, threads=threads)
+    return VideoStudyConfig(**base, device=device, threads=threads, omega2=omega2,
+                            starts=starts)
 
 
 def _video_figure(rows: list[dict[str, Any]], path: Path) -> Path:
@@ -126,13 +129,15 @@ def _video_figure(rows: list[dict[str, Any]], path: Path) -> Path:
 
 
 def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
-                    device: str = "auto", threads: int = 1,
-                    say: Say = print) -> WorldStudy:
-    """The pendulum-video recovery study at ``scale`` in ``out`` (finished seeds reused)."""
+                    device: str = "auto", threads: int = 1, say: Say = print,
+                    omega2: float = 1.0, starts: str = "own_time") -> WorldStudy:
+    """The pendulum-video recovery study at ``scale`` in ``out`` (finished seeds reused), of
+    the video at ``omega2`` (θ̈ = −ω² sin θ) with its ``starts``."""
     from latent_sindy.worlds.pendulum.video_study import run_video_study, to_record
 
-    cfg = video_config(scale, seeds, device, threads)
-    say(f"pendulum video, {scale} scale: schedule {cfg.schedule}, seeds "
+    cfg = video_config(scale, seeds, device, threads, omega2, starts)
+    video = "" if omega2 == 1 else f" at ω² = {omega2:g} ({starts} starts)"
+    say(f"pendulum video{video}, {scale} scale: schedule {cfg.schedule}, seeds "
         f"{', '.join(map(str, cfg.seeds))}, {cfg.components} components, derivatives "
         f"{cfg.derivatives}, device {resolve_device(cfg.device)}")
     result = run_video_study(cfg, out, say)
