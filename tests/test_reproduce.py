@@ -14,13 +14,16 @@ import pytest
 
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
+from latent_sindy.executors import Inline
 from latent_sindy.study.evaluation import Stat, aggregate, baseline_errors, mean_std
 from latent_sindy.training import RunDir
 from latent_sindy.worlds.push.study.catalogue import model_specs
-from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
 from latent_sindy.worlds.push.study.jobs import ensure_trained
+from latent_sindy.worlds.push.study.outputs import model_figures, submit_model_figures
 from latent_sindy.worlds.push.study.pipeline import reproduce
 from latent_sindy.worlds.push.study.scales import SCALES
+from latent_sindy.worlds.push.study.stages import run_stage
 from latent_sindy.worlds.push.study.table import PAPER, ROWS, format_stat
 from test_report import CHECK, _chromium, _render_title
 
@@ -258,3 +261,40 @@ def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, 
         (run / "config.json").write_text(json.dumps(record))
         with pytest.raises(UserError, match="sprite_size"):
             ensure_trained(cfg)
+
+
+def test_figures_drawn_on_an_executor_are_the_pipelines(study, tmp_path):
+    """The figures of trained models, queued on an executor (as the study does with two or
+    more workers), are the files the pipeline drew itself, byte for byte; one not queued is
+    drawn in this process."""
+    out = study["out"]
+    shutil.copytree(out / "runs", tmp_path / "runs")
+    plan = StudyPlan.of(replace(study["cfg"], out=tmp_path))
+    pool = Inline()
+    queued = set(MODELS) - {"state_sindy"}  # drawn here instead (not in the rollouts)
+    started = submit_model_figures(plan, queued, out / "data.h5", pool)
+    assert set(started) == {"rollouts", *queued} and not any(f.done() for f in started.values())
+    drawn = model_figures(plan, set(MODELS), out / "data.h5", started, pool)
+    assert all(f.done() for f in started.values())
+    for name in ("rollouts", *(f"coefficients_{m}" for m in MODELS if "sindy" in m)):
+        mine = tmp_path / "figures" / f"{name}.png"
+        assert mine.read_bytes() == (out / "figures" / f"{name}.png").read_bytes(), name
+    assert drawn["state_sindy"] == tmp_path / "figures" / "coefficients_state_sindy.png"
+    assert drawn["mlp"] is None  # not a sparse model: no map
+
+
+def test_the_trained_hook_runs_once_after_the_last_training(study):
+    """run_stage tells once, after every training and before the last evaluation, which of
+    the first seed's models trained."""
+    plan = StudyPlan.of(study["cfg"])
+    lines: list[str] = []
+    calls: list[tuple[set[str], int, int]] = []
+
+    def trained(names: set[str]) -> None:
+        said = " ".join(lines)
+        calls.append((names, said.count("reused "), said.count("evaluated ")))
+
+    run_stage(plan, study["out"] / "data.h5", Inline(), lines.append, trained)
+    assert len(calls) == 1
+    names, reused, evaluated = calls[0]
+    assert names == set(MODELS) and reused == len(MODELS) and evaluated < len(MODELS)

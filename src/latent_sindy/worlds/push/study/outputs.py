@@ -9,28 +9,36 @@ itself, and summary.json: :mod:`latent_sindy.worlds.push.study.pipeline`).
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from latent_sindy.atomic import write_atomic
-from latent_sindy.data import SequenceData
+from latent_sindy.data import SequenceData, read_sequences
+from latent_sindy.executors import Executor, Resources
 from latent_sindy.study.evaluation import BASELINES
 from latent_sindy.training import RunDir, load_run, read_metrics
 from latent_sindy.worlds.push.study import figures
+from latent_sindy.worlds.push.study.config import StudyPlan
 from latent_sindy.worlds.push.study.jobs import held_out
 from latent_sindy.worlds.push.study.results import Study
 from latent_sindy.worlds.push.study.table import write_sweep_table, write_table1
 
-__all__ = ["output_stage", "write_equations"]
+__all__ = ["model_figure_jobs", "model_figures", "output_stage", "submit_model_figures",
+           "write_equations"]
 
 Say = Callable[[str], None]
 
 
-def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
-    """Figures, equations and tables of a finished study; returns what the report shows."""
+def output_stage(study: Study, data: SequenceData, say: Say,
+                 started: Mapping[str, Future] | None = None,
+                 pool: Executor | None = None) -> dict[str, Any]:
+    """Figures, equations and tables of a finished study; returns what the report shows.
+    ``started``: the :func:`submit_model_figures` of ``pool``, drawn while the evaluations
+    ran; a figure it lacks is drawn here."""
     out, cfg = study.config.out, study.config
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -57,24 +65,6 @@ def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
             ylabel="block position error (cm)", yscale="linear", cap=10.0,
             title="block position in open-loop predictions (state rows: predicted poses), "
                   "test trajectories")
-
-    # Fig. 8: the single- and multi-step SINDy-2 (the paper's), then the other headline
-    # image models (what the representation work bought).
-    single, multi = study.single_step, study.multistep
-    strip = [(runs[s.name], f"{kind} {s.label}\n(trained on H={s.window})")
-             for kind, s in (("single-step", single), ("multi-step", multi))
-             if s is not None and s.name in ok]
-    strip += [(runs[s.name], s.label.replace(", ", ",\n", 1) if len(s.label) > 24 else s.label)
-              for s in study.specs if s.headline and s.name in ok and s not in (single, multi)
-              and s.model.observation.kind == "image"]
-    if strip:
-        files["rollouts"] = _rollout_figure(strip, held_out(data), fig_dir / "rollouts.png")
-    for spec in study.specs:
-        if spec.name in ok:
-            dyn = load_run(runs[spec.name]).model.dynamics
-            if hasattr(dyn, "mask"):  # a sparse model: its coefficient map
-                files["coefficients"][spec.name] = figures.coefficient_map(
-                    dyn, spec.label, fig_dir / f"coefficients_{spec.name}.png")
 
     conditions = study.scale.all_conditions()
     bars, plan_ms = {}, {}
@@ -104,8 +94,78 @@ def output_stage(study: Study, data: SequenceData, say: Say) -> dict[str, Any]:
     if cfg.sweep:
         files["sweep"] = write_sweep_table(out / "sweep.md", study.models, study.labels,
                                            study.per_seed, cfg.seeds)
+    # last: what the pool drew meanwhile (or, without one, drawn now)
+    for key, path in model_figures(study, ok, data, started or {}, pool).items():
+        if key == "rollouts":
+            files["rollouts"] = path
+        elif path is not None:
+            files["coefficients"][key] = path
     say(f"[3/4] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
     return files
+
+
+# ------------------------------------------------------------ figures of trained models
+def model_figure_jobs(plan: StudyPlan, trained: Collection[str], data: Path | SequenceData
+                      ) -> list[tuple[str, Callable, tuple]]:
+    """The figures of the first seed's ``trained`` models that need no evaluation, as
+    (key, function, arguments): "rollouts" (Fig. 8: the single- and multi-step SINDy-2, the
+    paper's, then the other headline image models, what the representation work bought) and
+    each model's coefficient map (key: its name; None for a model without one)."""
+    fig_dir, threads = plan.config.out / "figures", plan.config.threads
+    runs = plan.runs[plan.config.seeds[0]]
+    single, multi = plan.single_step, plan.multistep
+    strip = [(runs[s.name], f"{kind} {s.label}\n(trained on H={s.window})")
+             for kind, s in (("single-step", single), ("multi-step", multi))
+             if s is not None and s.name in trained]
+    strip += [(runs[s.name], s.label.replace(", ", ",\n", 1) if len(s.label) > 24 else s.label)
+              for s in plan.specs if s.headline and s.name in trained
+              and s not in (single, multi) and s.model.observation.kind == "image"]
+    jobs: list[tuple[str, Callable, tuple]] = []
+    if strip:
+        jobs.append(("rollouts", rollout_job, (strip, data, fig_dir / "rollouts.png", threads)))
+    jobs += [(s.name, coefficient_job, (runs[s.name], s.label,
+                                        fig_dir / f"coefficients_{s.name}.png", threads))
+             for s in plan.specs if s.name in trained]
+    return jobs
+
+
+def submit_model_figures(plan: StudyPlan, trained: Collection[str], data: Path,
+                         pool: Executor) -> dict[str, Future]:
+    """:func:`model_figure_jobs` started on ``pool`` (queued behind its jobs: they fill the
+    slots the last evaluations leave idle); key -> future of the figure's path."""
+    (plan.config.out / "figures").mkdir(parents=True, exist_ok=True)
+    return {key: pool.submit(fn, *args, resources=Resources(cpus=plan.config.threads),
+                             name=f"drawing the figure {key}")
+            for key, fn, args in model_figure_jobs(plan, trained, data)}
+
+
+def model_figures(plan: StudyPlan, trained: Collection[str], data: Path | SequenceData,
+                  started: Mapping[str, Future], pool: Executor | None = None
+                  ) -> dict[str, Path | None]:
+    """Key -> path of each :func:`model_figure_jobs` figure: as ``started`` drew it (on
+    ``pool``), else drawn here."""
+    jobs = model_figure_jobs(plan, trained, data)
+    waiting = {started[key]: key for key, _, _ in jobs if key in started}
+    while waiting and pool is not None:
+        for fut in pool.wait_one(waiting):
+            waiting.pop(fut, None)
+    return {key: started[key].result() if key in started else fn(*args)
+            for key, fn, args in jobs}
+
+
+def coefficient_job(run_dir: Path, label: str, path: Path, threads: int) -> Path | None:
+    """The coefficient map of the run in ``run_dir`` (None if its dynamics are not sparse)."""
+    torch.set_num_threads(threads)
+    dyn = load_run(run_dir).model.dynamics
+    return figures.coefficient_map(dyn, label, path) if hasattr(dyn, "mask") else None
+
+
+def rollout_job(models: list[tuple[Path, str]], data: Path | SequenceData, path: Path,
+                threads: int) -> Path:
+    """Fig. 8 (:func:`_rollout_figure`) from the trajectories ``data`` (or their file)."""
+    torch.set_num_threads(threads)
+    data = read_sequences(data) if isinstance(data, Path) else data
+    return _rollout_figure(models, held_out(data), path)
 
 
 def write_equations(study: Study) -> dict[str, Path]:

@@ -51,6 +51,7 @@ import dataclasses
 import json
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +66,7 @@ from latent_sindy.progress import say_stderr
 from latent_sindy.study.evaluation import BASELINES, Stat
 from latent_sindy.study.runner import json_safe, machine, reproduce_world, study_folder, versions
 from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
-from latent_sindy.worlds.push.study.outputs import output_stage
+from latent_sindy.worlds.push.study.outputs import output_stage, submit_model_figures
 from latent_sindy.worlds.push.study.results import Study
 from latent_sindy.worlds.push.study.stages import (
     baseline_stage,
@@ -146,19 +147,25 @@ def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path
                 data_path = collect_stage(config, pool, say)
                 timings = {"collect": time.perf_counter() - t_start}
                 t = time.perf_counter()
-                evaluations = run_stage(plan, data_path, pool, say)
+                # the figures of trained models queue behind the last evaluations, on the
+                # slots those leave idle (one slot has none: drawn with the outputs)
+                started: dict[str, Future] = {}
+                draw = None if pool.slots < 2 else (lambda trained: started.update(
+                    submit_model_figures(plan, trained, data_path, pool)))
+                evaluations = run_stage(plan, data_path, pool, say, draw)
                 timings["train_evaluate_control"] = time.perf_counter() - t
+                if not evaluations.results.get(config.seeds[0]):
+                    raise UserError(f"no model of seed {config.seeds[0]} finished training: "
+                                    + "; ".join(evaluations.failures))
+                t = time.perf_counter()
+                data = read_sequences(data_path)
+                study = Study(config=plan.config, specs=plan.specs, runs=plan.runs,
+                              evaluations=evaluations, baselines=baseline_stage(data),
+                              timings=timings)
+                files = output_stage(study, data, say, started, pool)
             except BaseException:
                 pool.shutdown(wait=False, cancel_futures=True)  # no queued job starts after this
                 raise
-        if not evaluations.results.get(config.seeds[0]):
-            raise UserError(f"no model of seed {config.seeds[0]} finished training: "
-                            + "; ".join(evaluations.failures))
-        t = time.perf_counter()
-        data = read_sequences(data_path)
-        study = Study(config=plan.config, specs=plan.specs, runs=plan.runs,
-                      evaluations=evaluations, baselines=baseline_stage(data), timings=timings)
-        files = output_stage(study, data, say)
         study = dataclasses.replace(study, timings={
             **timings, "outputs": time.perf_counter() - t,
             "total": time.perf_counter() - t_start})

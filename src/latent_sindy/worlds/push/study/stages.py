@@ -128,9 +128,12 @@ def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
 
 
 # ----------------------------------------------------------------------------- stage 2: runs
-def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say) -> Evaluations:
+def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say,
+              trained: Callable[[set[str]], Any] | None = None) -> Evaluations:
     """Every (seed, model): train (or reuse), then evaluate and control, on the executor;
-    returns what was measured of every run that finished training."""
+    returns what was measured of every run that finished training. ``trained`` is called
+    once, when the last training is done, with the first seed's models that finished
+    training (it may queue work of its own on the executor behind the evaluations)."""
     cfg, scale = plan.config, plan.scale
     jobs = []
     for seed in cfg.seeds:
@@ -142,19 +145,21 @@ def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say) -> Evaluati
     say(f"[2/4] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
         f"({scale.epochs} epochs; {episodes} control episodes per seed), "
         f"{cfg.executor} executor, {min(pool.slots, len(jobs))} at once")
-    results, per_seed, train_status, failures = _drain(pool, jobs, plan, data, say)
+    results, per_seed, train_status, failures = _drain(pool, jobs, plan, data, say,
+                                                         trained)
     stats = {name: aggregate([per_seed[s][name] for s in cfg.seeds
                               if name in per_seed.get(s, {})])
              for name in plan.models}
     return Evaluations(results, per_seed, stats, train_status, tuple(failures))
 
 
-def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, say: Say
+def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, say: Say,
+           trained: Callable[[set[str]], Any] | None = None
            ) -> tuple[dict[int, dict[str, RunResult]],
                       dict[int, dict[str, dict[str, float | None]]], dict[str, str], list[str]]:
     """Run the training jobs; each finished one queues its evaluation; until all are done.
     Returns the results and metrics per seed and model, the training status per run and
-    the failures."""
+    the failures. ``trained``: as :func:`run_stage`'s."""
     scale, threads, n = plan.scale, plan.config.threads, len(jobs)
     train_needs = Resources(cpus=threads, gpus=plan.config.gpus)
     eval_needs = Resources(cpus=threads)
@@ -163,7 +168,8 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
     train_status: dict[str, str] = {}
     failures: list[str] = []
     t0 = time.perf_counter()
-    done_eval = 0
+    done_eval, trainings, first = 0, n, plan.config.seeds[0]
+    ready: set[str] = set()  # the first seed's models that finished training
     pending: dict[Future, tuple[str, Any]] = {
         pool.submit(train_job, j, resources=train_needs,
                     name=f"training {j.name} (seed {j.seed})"): ("train", j) for j in jobs}
@@ -173,11 +179,15 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
             result = fut.result()
             elapsed = time.perf_counter() - t0
             if kind == "train":
+                trainings -= 1
                 train_status[f"{job.name}/seed{job.seed}"] = result["status"]
+                if not result["error"] and job.seed == first:
+                    ready.add(job.name)
                 if result["error"]:
                     failures.append(f"{job.name} (seed {job.seed}): {result['error']}")
                     say(f"  [{elapsed:5.0f} s] {job.name} (seed {job.seed}) FAILED: "
                         f"{result['error']}")
+                    _after_training(trainings, trained, ready)
                     continue
                 say(f"  [{elapsed:5.0f} s] {result['status']} {job.name} (seed {job.seed})"
                     f" in {result['seconds']:.0f} s")
@@ -187,6 +197,7 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
                 ev = EvalJob(job.config.out, data, job.name, job.seed, controls, threads)
                 pending[pool.submit(eval_job, ev, resources=eval_needs,
                                     name=f"evaluating {ev.name} (seed {ev.seed})")] = ("eval", ev)
+                _after_training(trainings, trained, ready)
             else:
                 done_eval += 1
                 results.setdefault(job.seed, {})[job.name] = result
@@ -197,6 +208,13 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
                     f"random-task success {_pct(m.get('control/random/latent/success_rate'))}"
                     f" ({done_eval}/{n})")
     return results, per_seed, train_status, failures
+
+
+def _after_training(left: int, trained: Callable[[set[str]], Any] | None, ready: set[str]
+                    ) -> None:
+    """Call ``trained`` with ``ready`` once no training is ``left``."""
+    if left == 0 and trained is not None:
+        trained(set(ready))
 
 
 def _pct(v: float | None) -> str:
