@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,7 +30,7 @@ from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planner import ImagePlanner, Objective
 from latent_sindy.data import SequenceData
 from latent_sindy.data.inputs import check_actions, check_frames
-from latent_sindy.equations import name_actions, pruned_note
+from latent_sindy.equations import coefficient_table, name_actions, pruned_note
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
@@ -67,6 +66,9 @@ class LatentSINDy:
             latent's time derivative is Θ(...) Ξ, trained on the images' derivatives, which
             the data gives or its frames, dt apart, estimate).
         derivative_order: continuous time: 1 (z' = Θ(z, u) Ξ) or 2 (z'' = Θ(z, z', u) Ξ).
+        time_unit: continuous time: the unit of time the coefficients are fitted in (the
+            equations are shown in the data's): 1, the data's; None, chosen from the data
+            (the video recipe's, so a faster or slower system trains alike).
         loss: weights of the loss terms (reconstruction, prediction, L1 of the coefficients).
         settings: the training settings (epochs, learning rate, pruning threshold, ...),
             a :class:`~latent_sindy.training.TrainConfig`; ``seed`` and ``device`` override it.
@@ -84,7 +86,8 @@ class LatentSINDy:
                  model: ModelConfig | None = None, seed: int = 0,
                  device: Literal["cpu", "cuda", "auto"] = "cpu",
                  time: Literal["discrete", "continuous"] = "discrete",
-                 derivative_order: int = 1, pca_components: int = 0) -> None:
+                 derivative_order: int = 1, pca_components: int = 0,
+                 time_unit: float | None = 1.0) -> None:
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
@@ -96,7 +99,7 @@ class LatentSINDy:
         self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
         self.library, self.include_sine = library, include_sine
         self.encoder, self.decoder, self.seed, self.device = encoder, decoder, seed, device
-        self.pca_components = pca_components
+        self.pca_components, self.time_unit = pca_components, time_unit
         self.loss = loss or LossWeights()
         self.settings = settings or TrainConfig(lr=1e-3)
         self.model = model
@@ -116,12 +119,13 @@ class LatentSINDy:
             raise UserError(f"time='continuous' is for SINDy on the poly library, got dynamics "
                             f"{self.dynamics!r}, library {self.library!r}: use "
                             "dynamics='sindy', library='poly'")
-        if self.time == "discrete" and self.derivative_order != 1:
-            raise UserError(f"derivative_order {self.derivative_order} is for "
-                            "time='continuous': add it, or drop derivative_order")
+        if self.time == "discrete" and (self.derivative_order, self.time_unit) != (1, 1.0):
+            raise UserError(f"derivative_order {self.derivative_order}, time_unit "
+                            f"{self.time_unit} are for time='continuous': add it, or drop them")
         if self.time == "continuous":
             dyn: Any = ContinuousSindyConfig(derivative_order=self.derivative_order,
-                                             order=self.order, include_sine=self.include_sine)
+                                             order=self.order, include_sine=self.include_sine,
+                                             time_unit=self.time_unit)
         elif self.dynamics == "sindy":
             extra = {"order": self.order, "library": self.library,
                      "include_sine": self.include_sine}
@@ -323,18 +327,7 @@ class LatentSINDy:
 
     def _table(self) -> tuple[list[str], np.ndarray]:
         self._check_fitted()
-        dyn = self.model_.dynamics
-        rows = dyn.coefficient_rows()
-        if rows is None:
-            raise UserError(f"{dyn.kind} dynamics have no coefficients to show")
-        if hasattr(dyn, "coefficients"):
-            return list(dyn.names), dyn.coefficients().detach().numpy().copy()
-        states = sorted({s for s, _, _ in rows}, key=_natural)
-        terms = list(dict.fromkeys(t for _, t, _ in rows))
-        out = np.zeros((len(terms), len(states)))
-        for s, t, v in rows:
-            out[terms.index(t), states.index(s)] = v
-        return terms, out
+        return coefficient_table(self.model_.dynamics)
 
     # ------------------------------------------------------------------ files and control
     def save(self, path: str | os.PathLike) -> Path:
@@ -393,6 +386,3 @@ class LatentSINDy:
         return (f"LatentSINDy(latent_dim={self.latent_dim}, dynamics={self.dynamics!r}, "
                 f"order={self.order}, library={self.library!r}{time}; {state})")
 
-
-def _natural(name: str) -> tuple:
-    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))

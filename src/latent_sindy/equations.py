@@ -26,7 +26,31 @@ from typing import Any
 from latent_sindy.atomic import write_atomic
 from latent_sindy.training.runs import RunDir
 
-__all__ = ["equations_report", "name_actions", "pruned_note"]
+__all__ = ["coefficient_table", "equations_report", "name_actions", "pruned_note"]
+
+
+def coefficient_table(dyn: Any) -> tuple[list[str], Any]:
+    """A model's coefficients as pysindy lays them out: the term names and an array (terms,
+    states), pruned entries 0; UserError for dynamics without coefficients (an MLP)."""
+    import numpy as np
+
+    from latent_sindy.errors import UserError
+
+    rows = dyn.coefficient_rows()
+    if rows is None:
+        raise UserError(f"{dyn.kind} dynamics have no coefficients to show")
+    if hasattr(dyn, "coefficients"):
+        return list(dyn.names), dyn.coefficients().detach().numpy().copy()
+
+    def natural(name: str) -> tuple:
+        return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
+
+    states = sorted({s for s, _, _ in rows}, key=natural)
+    terms = list(dict.fromkeys(t for _, t, _ in rows))
+    out = np.zeros((len(terms), len(states)))
+    for s, t, v in rows:
+        out[terms.index(t), states.index(s)] = v
+    return terms, out
 
 
 def name_actions(lines: list[str], names: Sequence[str]) -> list[str]:
