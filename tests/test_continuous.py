@@ -304,8 +304,8 @@ def test_bad_settings_are_one_line_user_errors() -> None:
         LatentSINDy(1, time="continuous", derivative_order=3)
     with pytest.raises(UserError, match="derivative_order 2, .* are for time='continuous'"):
         LatentSINDy(1, derivative_order=2)
-    with pytest.raises(UserError, match="time_unit None are for time='continuous'"):
-        LatentSINDy(1, time_unit=None)
+    with pytest.raises(UserError, match="time_unit 2.0 are for time='continuous'"):
+        LatentSINDy(1, time_unit=2.0)
     with pytest.raises(UserError, match="time_unit -1"):
         LatentSINDy(1, time="continuous", derivative_order=2, encoder="mlp", decoder="mlp",
                     time_unit=-1.0)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from latent_sindy import LatentSINDy, SequenceData
+from latent_sindy import LatentSINDy, Restarts, SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.training.runs import RunDir
@@ -173,7 +173,7 @@ def test_an_autonomous_discrete_time_model_fits_and_simulates(dynamics: str) -> 
 def test_a_first_order_continuous_time_model_simulates(fitted) -> None:
     data = _data(nu=0, dt=0.1)
     model = LatentSINDy(1, time="continuous", encoder="mlp", decoder="mlp", order=1,
-                        seed=0).fit(data, epochs=1)
+                        seed=0).fit(data, epochs=1, phases=[], restarts=Restarts(count=0))
     z, images = model.simulate(data.images[0, 0], 4)
     assert z.shape == (5, 1) and images.shape == (5, 1, H, W)
     assert np.all(np.isfinite(z))

@@ -37,6 +37,8 @@ from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, 
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress
 from latent_sindy.training.config import TrainConfig, check_fit_settings
+from latent_sindy.training.loop import train
+from latent_sindy.training.recipe import INIT, apply_recipe, recipe_epochs, recipe_settings
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.session import Phase, Restarts, fit_in_memory
 
@@ -57,11 +59,11 @@ class LatentSINDy:
         library: SINDy's library preset ("poly"; worlds register their own).
         include_sine: SINDy's library also holds sin(z).
         encoder: "conv" (learned), "mlp" (fully connected, 128-64-32 sigmoid), or a kind a
-            world registers; decoder: "conv", "fc" or "mlp".
+            world registers; decoder: "conv", "fc" or "mlp" (None: mlp in continuous time).
         pca_components: with the mlp encoder and decoder, the first this many principal
             components of the training frames in front of the encoder and behind the
             decoder (a fixed linear map; derivatives pass it exactly): much cheaper steps on
-            large frames. 0: none.
+            large frames. 0: none; None: the recipe's in continuous time, else none.
         time: "discrete" (z[t+1] = z + Θ(z, u) Ξ) or "continuous" (SINDy only: the
             latent's time derivative is Θ(...) Ξ, trained on the images' derivatives, which
             the data gives or its frames, dt apart, estimate).
@@ -72,6 +74,8 @@ class LatentSINDy:
         loss: weights of the loss terms (reconstruction, prediction, L1 of the coefficients).
         settings: the training settings (epochs, learning rate, pruning threshold, ...),
             a :class:`~latent_sindy.training.TrainConfig`; ``seed`` and ``device`` override it.
+            Continuous time without ``settings`` or ``model`` follows the recipe
+            (:mod:`latent_sindy.training.recipe`) wherever an argument is not given.
         model: a whole :class:`~latent_sindy.models.ModelConfig` instead of the above.
 
     Attributes after ``fit`` (or ``load``): ``model_`` (the torch module), ``normalizer_``,
@@ -81,13 +85,14 @@ class LatentSINDy:
 
     def __init__(self, latent_dim: int = 4, *, dynamics: Literal["sindy", "linear", "mlp"]
                  = "sindy", order: int | None = None, library: str = "poly",
-                 include_sine: bool = True, encoder: str = "conv", decoder: str = "conv",
+                 include_sine: bool = True, encoder: str | None = None,
+                 decoder: str | None = None,
                  loss: LossWeights | None = None, settings: TrainConfig | None = None,
                  model: ModelConfig | None = None, seed: int = 0,
                  device: Literal["cpu", "cuda", "auto"] = "cpu",
                  time: Literal["discrete", "continuous"] = "discrete",
-                 derivative_order: int = 1, pca_components: int = 0,
-                 time_unit: float | None = 1.0) -> None:
+                 derivative_order: int = 1, pca_components: int | None = None,
+                 time_unit: float | None = None) -> None:
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
@@ -98,10 +103,13 @@ class LatentSINDy:
             order = 3 if time == "continuous" else 2
         self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
         self.library, self.include_sine = library, include_sine
-        self.encoder, self.decoder, self.seed, self.device = encoder, decoder, seed, device
+        net, self.seed, self.device = "mlp" if time == "continuous" else "conv", seed, device
+        self.encoder, self.decoder = encoder or net, decoder or net
         self.pca_components, self.time_unit = pca_components, time_unit
-        self.loss = loss or LossWeights()
-        self.settings = settings or TrainConfig(lr=1e-3)
+        self.recipe = time == "continuous" and model is None and settings is None
+        self._loss_given, self.loss = loss, loss or LossWeights()
+        self.settings = settings or (recipe_settings(TrainConfig()) if self.recipe
+                                     else TrainConfig(lr=1e-3))
         self.model = model
         self.model_config  # noqa: B018  (validates the settings now)
 
@@ -119,13 +127,14 @@ class LatentSINDy:
             raise UserError(f"time='continuous' is for SINDy on the poly library, got dynamics "
                             f"{self.dynamics!r}, library {self.library!r}: use "
                             "dynamics='sindy', library='poly'")
-        if self.time == "discrete" and (self.derivative_order, self.time_unit) != (1, 1.0):
+        if self.time == "discrete" and (self.derivative_order, self.time_unit or 1) != (1, 1):
             raise UserError(f"derivative_order {self.derivative_order}, time_unit "
                             f"{self.time_unit} are for time='continuous': add it, or drop them")
         if self.time == "continuous":
             dyn: Any = ContinuousSindyConfig(derivative_order=self.derivative_order,
                                              order=self.order, include_sine=self.include_sine,
-                                             time_unit=self.time_unit)
+                                             time_unit=self.time_unit,
+                                             **(INIT if self.recipe else {}))
         elif self.dynamics == "sindy":
             extra = {"order": self.order, "library": self.library,
                      "include_sine": self.include_sine}
@@ -135,7 +144,8 @@ class LatentSINDy:
                            encoder=AutoencoderConfig(latent_dim=self.latent_dim,
                                                      encoder_kind=self.encoder,
                                                      decoder_kind=self.decoder,
-                                                     pca_components=self.pca_components))
+                                                     pca_components=self.pca_components
+                                                     or 0))
 
     def train_config(self, **overrides: Any) -> TrainConfig:
         """The training settings of a fit (``overrides``: any TrainConfig field)."""
@@ -145,7 +155,7 @@ class LatentSINDy:
     # ------------------------------------------------------------------ fitting
     def fit(self, data: SequenceData, epochs: int | None = None, *,
             out: str | os.PathLike | None = None, progress: Progress | None = None,
-            phases: Sequence[Phase] = (), warmup: Sequence[Phase] = (),
+            phases: Sequence[Phase] | None = None, warmup: Sequence[Phase] = (),
             restarts: Restarts | None = None, **settings: Any) -> LatentSINDy:
         """Train on ``data`` (its training split; its validation split selects the kept
         weights). In memory, or into the run folder ``out`` (with checkpoints; resumable).
@@ -153,25 +163,28 @@ class LatentSINDy:
         only: ``phases``, :class:`~latent_sindy.Phase` stretches trained after it from its
         kept weights, each with settings of its own (a calibration: ``Phase(300,
         "calibration", {"lr": 1e-3, "loss": ...})``); ``warmup``, phases before it; and
-        ``restarts``, a :class:`~latent_sindy.Restarts` rule for fresh starts."""
+        ``restarts``, a :class:`~latent_sindy.Restarts` rule for fresh starts (None: the
+        recipe's, in continuous time without settings; else none)."""
         if not isinstance(data, SequenceData):
             raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
         check_fit_settings(settings, out)
         if epochs is not None:
             settings["epochs"] = epochs
+        folder = {} if out is None else {"out": Path(out), "data": Path(data.source)}
+        cfg = self.train_config(**folder, **(recipe_epochs(settings) if self.recipe
+                                             else settings))
+        if self.recipe:  # (into a folder: its main fit, the phases and restarts in memory)
+            cfg, phases, restarts = apply_recipe(cfg, data, self._loss_given, self.pca_components,
+                                                 phases, restarts, in_folder=bool(folder))
         if out is not None:
             if phases or warmup or restarts:
                 raise UserError("phases, warmup and restarts train in memory: drop out= (save "
                                 "the model afterwards)")
-            from latent_sindy.training.loop import train
-
-            cfg = self.train_config(out=Path(out), data=Path(data.source), **settings)
             train(cfg, progress, data=data)
             self._adopt(RunDir(out))
         else:
-            session, result, metrics = fit_in_memory(self.train_config(**settings), data,
-                                                     progress, phases, warmup=warmup,
-                                                     restarts=restarts)
+            session, result, metrics = fit_in_memory(cfg, data, progress, phases or (),
+                                                     warmup=warmup, restarts=restarts)
             self.model_, self.normalizer_, record = session.model, session.norm, session.record
             self.description_, self.world_record_ = record["description"], record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}
@@ -381,8 +394,7 @@ class LatentSINDy:
 
     def __repr__(self) -> str:
         state = "fitted" if hasattr(self, "model_") else "not fitted"
-        time = (f", time='continuous', derivative_order={self.derivative_order}"
-                if self.time == "continuous" else "")
+        time = f", time='continuous', derivative_order={self.derivative_order}" * (
+            self.time == "continuous")
         return (f"LatentSINDy(latent_dim={self.latent_dim}, dynamics={self.dynamics!r}, "
                 f"order={self.order}, library={self.library!r}{time}; {state})")
-

@@ -61,6 +61,9 @@ def principal_components(frames: torch.Tensor, k: int) -> tuple[torch.Tensor, to
         basis = torch.linalg.eigh(x.T @ x)[1][:, -k:].flip(1)
     else:
         values, u = torch.linalg.eigh(x @ x.T)
-        scale = values[-k:].flip(0).clamp_min(torch.finfo(x.dtype).tiny).sqrt()
-        basis = (x.T @ u[:, -k:].flip(1)) / scale
+        top = values[-k:].flip(0)
+        scale = top.clamp_min(torch.finfo(x.dtype).tiny).sqrt()
+        # a direction the frames do not vary along (k of M frames, less their mean) is 0
+        flat = top <= values[-1].clamp_min(0) * 1e-12
+        basis = ((x.T @ u[:, -k:].flip(1)) / scale).masked_fill(flat, 0.0)
     return mean.float(), basis.float()

@@ -1,0 +1,114 @@
+"""The continuous-time recipe: what ``LatentSINDy(time="continuous")`` trains with unless
+told otherwise, for any video.
+
+It is the pendulum video's (RESULTS.md, "The pendulum video"), made free of the data's
+scales: the SINDy autoencoder's fully connected networks behind a principal-component front
+(:data:`COMPONENTS`, fewer for smaller frames); the ``scalefree`` schedule (:data:`SCHEDULE`:
+250 epochs at learning rate 3e-3, batch 100, pruning at 0.1 every 25 epochs, 50 of
+refinement; coefficients starting normal with std 1e-3); loss weights set for the frames'
+pixel spread (:func:`recipe_loss`); a time unit chosen from the data (``time_unit=None``);
+then a calibration of 300 epochs (:func:`calibration`) and one fresh start by the rule
+:data:`RESTARTS`.
+
+    from latent_sindy import LatentSINDy
+    model = LatentSINDy(latent_dim=1, time="continuous", derivative_order=2).fit(video)
+    model.print()                       # z0'' = -1.44 sin(z0)  (a pendulum at ω² = 1.44)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from latent_sindy.data import SequenceData
+from latent_sindy.models.loss import LossWeights
+from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.session import Phase, Restarts
+
+__all__ = ["COMPONENTS", "INIT", "RESTARTS", "SCHEDULE", "apply_recipe", "calibration",
+           "components_for", "pixel_spread", "recipe_epochs", "recipe_loss",
+           "recipe_settings"]
+
+#: Principal components in front of the networks (the published model's 48).
+COMPONENTS = 48
+#: The main fit's settings (the pendulum video study's ``scalefree`` schedule).
+SCHEDULE: dict[str, Any] = {"epochs": 250, "lr": 3e-3, "batch_size": 100, "threshold": 0.1,
+                            "threshold_every": 25, "refine_epochs": 50, "weight_decay": 0.0,
+                            "starts": 1}
+#: The coefficients' start.
+INIT: dict[str, Any] = {"init": "normal", "init_scale": 1e-3}
+#: A start that reconstructs the validation frames poorly, or whose calibrated equations
+#: leave over 1 % of the encoder's z^(k) unexplained, is followed by one more.
+RESTARTS = Restarts(count=1, recon_above=0.1, fvu_above=0.01)
+#: The published weights (pixels in [0, 1], means over pixels): ẍ, then z̈ and L1 of the
+#: schedule; both of the latter grow as the frames' spread shrinks (:func:`recipe_loss`).
+PRED_X, PRED_Z, L1 = 5e-4, 5e-7, 1e-9 / 12
+
+
+def pixel_spread(data: SequenceData) -> float:
+    """The training frames' standard deviation (the normaliser's) in pixels of [0, 1]."""
+    return data.pixel_stats()[1] / data.pixel_scale()
+
+
+def recipe_loss(spread: float, pred_x: float = PRED_X, relative_z: float = 0.0) -> LossWeights:
+    """The recipe's weights on frames of pixel spread ``spread``: our reconstruction and ẍ
+    terms are the published ones over spread² (normalised frames), so the z̈ and L1 terms
+    are scaled up by 1/spread² to keep the published balance; ``relative_z`` > 0: the z̈ term
+    scale-free with that weight instead (the calibration's)."""
+    up = 1.0 / max(spread, 1e-12) ** 2
+    loss = LossWeights(lambda_pred_x=pred_x, lambda_pred_z=PRED_Z * up, lambda_l1=L1 * up)
+    return dataclasses.replace(loss, lambda_pred_z=relative_z, relative_pred_z=True) \
+        if relative_z else loss
+
+
+def calibration(spread: float, epochs: int = 300) -> Phase:
+    """The last phase: ``epochs`` at learning rate 1e-3 with the ẍ weight 100 times the
+    main fit's and the z̈ term scale-free (weight 100: it straightens z instead of shrinking
+    it), pruning every 25 epochs through its first two thirds, the last third refining."""
+    return Phase(epochs, "calibration", {
+        "lr": 1e-3, "loss": recipe_loss(spread, pred_x=5e-2, relative_z=100.0),
+        "refine_epochs": epochs - 2 * epochs // 3, "threshold_every": 25})
+
+
+def components_for(data: SequenceData) -> int:
+    """:data:`COMPONENTS`, or fewer where the frames have fewer values or the training split
+    fewer frames (less one: their mean)."""
+    train = data.split("train")
+    frames = train.n * (train.steps + 1) - 1
+    return max(1, min(COMPONENTS, int(np.prod(data.frame_shape)), frames))
+
+
+def recipe_settings(base: TrainConfig) -> TrainConfig:
+    """``base`` (seed, device and the rest) with the recipe's schedule."""
+    return dataclasses.replace(base, **SCHEDULE)
+
+
+def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
+                 components: int | None, phases: Any, restarts: Restarts | None,
+                 in_folder: bool = False
+                 ) -> tuple[TrainConfig, list[Phase], Restarts | None]:
+    """A fit's settings ``cfg`` (its model already the recipe's) on ``data`` with the recipe
+    filled in where the caller left it (None): the loss weights, the principal components,
+    the phases (the calibration) and the restart rule; ``in_folder``: a run folder's fit,
+    which trains the main fit alone (phases and restarts are in memory only)."""
+    spread = pixel_spread(data)
+    model = cfg.model
+    k = components_for(data) if components is None else components
+    model = dataclasses.replace(model, observation=dataclasses.replace(model.observation,
+                                                                       pca_components=k))
+    cfg = dataclasses.replace(cfg, model=model, loss=loss or recipe_loss(spread))
+    if in_folder:
+        return cfg, list(phases or ()), restarts
+    return (cfg, [calibration(spread)] if phases is None else list(phases),
+            RESTARTS if restarts is None else restarts)
+
+
+def recipe_epochs(settings: dict[str, Any]) -> dict[str, Any]:
+    """A fit's ``settings`` with the refinement cut to a fifth of other ``epochs`` given
+    without one (the schedule's 50 of 250)."""
+    if "epochs" in settings and "refine_epochs" not in settings:
+        refine = min(SCHEDULE["refine_epochs"], int(settings["epochs"]) // 5)
+        return {**settings, "refine_epochs": refine}
+    return settings
