@@ -12,6 +12,7 @@ the test sequences:
 
     python benchmarks/suite.py                           # every system, seeds 0 1 2
     python benchmarks/suite.py --systems disc --seeds 0..7
+    python benchmarks/suite.py --systems push --seeds 0 1     # the pushing world
     python benchmarks/suite.py --set batch_size=500 prune=absolute   # another setting, A/B
     python benchmarks/suite.py --systems dmc --seeds 0     # where dm_control is installed
 
@@ -124,6 +125,21 @@ def _pendulum(seed: int):
     return get_world("pendulum").collect(SEQUENCES, STEPS, seed=seed)
 
 
+def _push(seed: int):
+    """The pushing world's 32x32 overhead images of a Panda pushing a block, random pushes
+    (collected into a temporary file and read back, as a user would)."""
+    import tempfile
+    from pathlib import Path
+
+    from latent_sindy.data.store import read_sequences
+    from latent_sindy.worlds.push.collect import CollectionPlan, collect
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = collect(Path(tmp) / "push.h5", CollectionPlan(SEQUENCES, STEPS, seed),
+                       workers=1)
+        return read_sequences(path)
+
+
 def _dmc(seed: int):
     """The DeepMind Control suite's cartpole-swingup, two stacked 32x32 RGB frames, each
     random action held 8 control steps (PlaNet's repeat)."""
@@ -144,6 +160,7 @@ SYSTEMS: dict[str, System] = {
                     "gray 24x24 disc on a circle (no actions), 0.3 rad a step"),
     "lorenz": System(_lorenz, 3, "Lorenz through a fixed 256-point embedding (no actions)"),
     "pendulum": System(_pendulum, 3, "controlled pendulum, two stacked 48x48 frames"),
+    "push": System(_push, 4, "Panda pushing a block, 32x32 overhead RGB, random pushes"),
 }
 if importlib.util.find_spec("dm_control") is not None:  # the dmc extra: a row where installed
     SYSTEMS["dmc"] = System(_dmc, 6, "dm_control cartpole-swingup, two stacked 32x32 RGB frames")
