@@ -171,7 +171,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
     from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, ModelConfig
     from latent_sindy.training.config import resolve_device
-    from latent_sindy.worlds.dmc.plugin import DmcWorld
+    from latent_sindy.worlds.dmc.world import DmcWorld
 
     s = study_scale(scale, seeds)
     world = DmcWorld(_world_config(config, s))
