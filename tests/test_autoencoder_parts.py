@@ -1,5 +1,6 @@
 """Each encoder and decoder kind is built from its own settings (models/autoencoder_parts.py),
-which the autoencoder's config gives it; the parts never import the autoencoder."""
+which the autoencoder's config holds (its flat settings build them); the parts never import
+the autoencoder."""
 
 from __future__ import annotations
 
@@ -10,12 +11,16 @@ from pathlib import Path
 import pytest
 import torch
 
+from latent_sindy.errors import UserError
 from latent_sindy.models import AutoencoderConfig
 from latent_sindy.models.autoencoder import DECODERS, ENCODERS
+from latent_sindy.models.autoencoder_flags import FLAGS
 from latent_sindy.models.autoencoder_parts import (
     DECODER_PARTS,
     ENCODER_PARTS,
     MaskMomentEncoderConfig,
+    MlpDecoderConfig,
+    MlpEncoderConfig,
     SpriteDecoderConfig,
 )
 
@@ -42,12 +47,12 @@ DECODER_SETTINGS = {
 }
 
 
-def test_every_kind_has_its_settings_and_each_names_a_config_setting() -> None:
+def test_every_kind_has_its_settings_and_each_names_a_flat_setting() -> None:
     assert set(ENCODER_PARTS) == set(ENCODERS) and set(DECODER_PARTS) == set(DECODERS)
-    flat = {f.name for f in dataclasses.fields(AutoencoderConfig)} | {"sprite_side"}
+    own = {f.name for f in dataclasses.fields(AutoencoderConfig)}
     for cls in (*ENCODER_PARTS.values(), *DECODER_PARTS.values()):
         assert set(cls.flat) == {f.name for f in dataclasses.fields(cls)}, cls
-        assert set(cls.flat.values()) <= flat, cls
+        assert set(cls.flat.values()) <= set(FLAGS) - own, cls
 
 
 @pytest.mark.parametrize("kind", sorted(ENCODER_SETTINGS))
@@ -59,7 +64,7 @@ def test_an_encoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str
     for name, setting in part.flat.items():
         assert getattr(part, name) == getattr(cfg, setting)
     torch.manual_seed(0)
-    alone = ENCODERS[kind](part, cfg.image_shape, cfg.latent_dim)
+    alone = ENCODERS[kind](part, cfg.image_shape, cfg.latent_dim, **cfg.shared(part))
     torch.manual_seed(0)
     built = cfg.build().encoder
     assert type(alone) is type(built)
@@ -78,16 +83,39 @@ def test_a_decoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str)
         assert getattr(part, name) == getattr(cfg, setting)
     decoder = cfg.build().decoder
     assert [p.shape for p in decoder.parameters()] == [
-        p.shape for p in DECODERS[kind](part, cfg.image_shape, cfg.latent_dim).parameters()]
+        p.shape for p in DECODERS[kind](part, cfg.image_shape, cfg.latent_dim,
+                                        **cfg.shared(part)).parameters()]
     assert decoder(torch.zeros(5, cfg.latent_dim)).shape == (5, 2, 16, 20)
 
 
 def test_the_sprite_takes_the_encoders_order_and_the_resolved_side() -> None:
     cfg = AutoencoderConfig(encoder="mask_moments", decoder="sprite", latent_dim=4,
                             moment_order=2).resolve(1, 64)
-    assert cfg.decoder_part() == SpriteDecoderConfig(size=23, supersample=2, order=2)
-    assert cfg.encoder_part() == MaskMomentEncoderConfig(order=2)
-    assert cfg.build().decoder.order == 2
+    assert cfg.decoder == SpriteDecoderConfig(size=23, supersample=2)
+    assert cfg.encoder == MaskMomentEncoderConfig(order=2)
+    assert cfg.shared(cfg.decoder) == {"order": 2} and cfg.build().decoder.order == 2
+
+
+def test_the_flat_keywords_build_the_parts_and_read_back() -> None:
+    """Flat keywords (and ``dataclasses.replace`` with them) give the same config as the
+    parts; the flat attributes read the parts, or the flat defaults where a part has none."""
+    flat = AutoencoderConfig(encoder_kind="mlp", decoder_kind="mlp", latent_dim=3,
+                             mlp_widths=(9, 5), mlp_activation="tanh", pca_components=4,
+                             mask_channels=7)  # not the mlp's: dropped
+    nested = AutoencoderConfig(latent_dim=3, encoder=MlpEncoderConfig((9, 5), "tanh"),
+                               decoder=MlpDecoderConfig((9, 5), "tanh"), pca_components=4)
+    assert flat == nested and flat.mlp_widths == (9, 5) and flat.mask_channels == 16
+    assert (flat.encoder_kind, flat.decoder_kind, flat.moment_order) == ("mlp", "mlp", 4)
+    mask = AutoencoderConfig(encoder="mask_moments", decoder="sprite", latent_dim=4,
+                             moment_order=0)
+    assert mask.order_from_data and mask.encoder == MaskMomentEncoderConfig(order=0)
+    two = dataclasses.replace(mask, moment_order=2)
+    assert two.encoder == MaskMomentEncoderConfig(order=2) and two.decoder == mask.decoder
+    assert dataclasses.replace(mask, decoder_kind="conv").decoder_kind == "conv"
+    with pytest.raises(UserError, match="encoder 'vit' is unknown"):
+        AutoencoderConfig(encoder="vit")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        mask.moment_order = 3  # type: ignore[misc]
 
 
 def _imports(path: Path) -> set[str]:

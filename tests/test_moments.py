@@ -160,13 +160,13 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
         w = PushEnvConfig.named(world)
         spec = {s.name: s for s in model_specs(SCALES["tiny"], angle_period=w.angle_period,
                                                push=w.push)}["sindy_moments"]
-        assert spec.model.encoder.encoder == "moments"
+        assert spec.model.encoder.encoder_kind == "moments"
         assert spec.model.encoder.moment_order == order
         assert spec.model.dynamics.library == library
         assert spec.loss.lambda_pred_x == 0
         # fitted by sparse regression on its fixed latents, then kept as fitted
         assert spec.init_threshold > 0 and spec.loss.lambda_l1 == 0 and spec.threshold == 0
-        assert spec.model.encoder.decoder == "sprite"
+        assert spec.model.encoder.decoder_kind == "sprite"
 
 
 def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path,

@@ -173,13 +173,13 @@ def test_a_run_recorded_before_a_setting_existed_is_reused(study, tmp_path):
     run = tmp_path / "sindy1"
     shutil.copytree(src, run)
     record = json.loads((run / "config.json").read_text())
-    for key in ("encoder_kind", "keypoint_channels"):  # added with the keypoints encoder
+    for key in ("encoder", "pca_components"):  # the encoder part and the front: defaults
         del record["train"]["model"]["observation"][key]
     (run / "config.json").write_text(json.dumps(record))
     cfg = replace(RunDir(src).train_config(), out=run)
     assert ensure_trained(cfg) == "reused"
     keypoints = replace(cfg.model.observation, encoder_kind="keypoints")
-    with pytest.raises(UserError, match=r"observation\.encoder_kind"):
+    with pytest.raises(UserError, match=r"observation\.encoder\.kind"):
         ensure_trained(replace(cfg, model=replace(cfg.model, observation=keypoints)))
 
 
@@ -248,18 +248,19 @@ def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, 
     shutil.copytree(src, run)
     record = json.loads((run / "config.json").read_text())
     asked = record["train"]["model"]
-    for part, key, before in (("observation", "sprite_size", 11), ("dynamics", "frame_sense", 1),
-                              ("dynamics", "frame_offset", 0.0)):
-        if key in asked[part]:
-            asked[part][key] = before
+    for settings, key, before in ((asked["observation"].get("decoder", {}), "size", 11),
+                                  (asked["dynamics"], "frame_sense", 1),
+                                  (asked["dynamics"], "frame_offset", 0.0)):
+        if key in settings:
+            settings[key] = before
     (run / "config.json").write_text(json.dumps(record))
     cfg = replace(RunDir(src).train_config(), out=run)
     assert ensure_trained(cfg) == "reused"
-    built = record["model"]
-    if "sprite_size" in built["observation"]:
-        built["observation"]["sprite_size"] = 23
+    built = record["model"]["observation"].get("decoder", {})
+    if built.get("kind") == "sprite":
+        built["size"] = 23
         (run / "config.json").write_text(json.dumps(record))
-        with pytest.raises(UserError, match="sprite_size"):
+        with pytest.raises(UserError, match=r"observation\.decoder\.size"):
             ensure_trained(cfg)
 
 

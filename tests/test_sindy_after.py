@@ -55,8 +55,8 @@ def test_the_data_chooses_the_order_and_the_record_states_it(half, order) -> Non
     """A square looks alike every quarter turn (4), a bar every half turn (2); the settings
     keep the 0 asked for, the model the order chosen."""
     est = estimator().fit(moving(half), epochs=2)
-    assert est.record_["model"]["observation"]["moment_order"] == order
-    assert est.record_["train"]["model"]["observation"]["moment_order"] == 0
+    assert est.record_["model"]["observation"]["encoder"]["order"] == order
+    assert est.record_["train"]["model"]["observation"]["encoder"]["order"] == 0
     assert est.model_.autoencoder.encoder.order == order
 
 

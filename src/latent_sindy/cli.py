@@ -33,6 +33,7 @@ import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
+from latent_sindy.models.autoencoder_flags import CLI_REGISTRY
 from latent_sindy.plugins import get_world, hook
 from latent_sindy.progress import bar
 from latent_sindy.study.commands import configured_world
@@ -339,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
                 COMMANDS, prog="latent-sindy", args=argv,
                 description="Sparse latent dynamics (SINDy) learned from images: train on "
                             "your own data, read the equations, plan with them.",
-                config=(tyro.conf.OmitSubcommandPrefixes, tyro.conf.CascadeSubcommandArgs))
+                config=(tyro.conf.OmitSubcommandPrefixes, tyro.conf.CascadeSubcommandArgs),
+                registry=CLI_REGISTRY)  # the image model's flat options
         cmd.run()
     except (UserError, CarriedUserError) as e:
         if os.environ.get("LATENT_SINDY_DEBUG"):

@@ -6,7 +6,8 @@ plain JSON values; :func:`from_json` rebuilds it from them, checking every key a
 against the dataclass, so a hand-edited or foreign file fails with one line naming the key.
 A field typed as a union of dataclasses that carry a ``kind`` class variable (a *tagged
 union*, like the latent dynamics configs) is written with its ``kind`` and read back as the
-class of that kind.
+class of that kind. A dataclass with an ``upgrade_record(data, where)`` reads its records of
+an older layout through it first.
 
     >>> from latent_sindy.training.config import TrainConfig
     >>> d = to_json(TrainConfig(epochs=60))
@@ -100,6 +101,9 @@ def _dataclass(cls: type, data: Any, where: str) -> Any:
     for old, new in getattr(cls, "renamed_settings", {}).items():
         if old in data and new not in data:
             data[new] = data.pop(old)
+    # a record of an older layout that the class reads itself (a flat autoencoder config)
+    if (upgrade := getattr(cls, "upgrade_record", None)) is not None:
+        data = dict(upgrade(data, where))
     kind = data.pop("kind", None)
     own_kind = getattr(cls, "kind", None)
     if kind is not None and kind != own_kind:

@@ -5,7 +5,8 @@ loss. Nothing here knows a world: what a latent coordinate means comes from the 
     dynamics/     one file per kind with its config (base: the interface, SparseDynamics)
     encoders.py   conv, keypoints, moments          decoders.py   fc, conv, sprite
     autoencoder.py  AutoencoderConfig + Autoencoder  state.py      the true state as latent
-    autoencoder_parts.py  each encoder and decoder kind's own settings
+    autoencoder_parts.py  each encoder and decoder kind's own settings (tagged by kind)
+    autoencoder_flags.py  the same settings flat: the command line's, older records'
     pose_head.py  a readout of the pose features     latent_model.py  ModelConfig, the loss
     costs.py      weights of a quadratic latent cost renamed.py    old setting names
     reward_head.py  r̂(z, u), a reward predicted along the latent rollout

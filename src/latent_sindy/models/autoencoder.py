@@ -2,14 +2,17 @@
 
 The kinds live in :mod:`.encoders` ("conv", the course's; "keypoints"; "moments";
 "mask_moments"; "mlp") and :mod:`.decoders` ("fc", the course's; "conv"; "sprite"; "mlp");
-:data:`ENCODERS` and :data:`DECODERS` name them, and each is built from its own settings
-(:mod:`.autoencoder_parts`; ``encoder_part()`` and ``decoder_part()`` of the config). Both
-work on normalised images (see :class:`latent_sindy.data.windows.Normalizer`) of any shape
-(C, H, W), so the decoder's output is unbounded. Dimensions: B batch, C channels, H × W
-image, nz latent size.
+:data:`ENCODERS` and :data:`DECODERS` name them, and each is built from its own settings,
+the config's ``encoder`` and ``decoder`` (:mod:`.autoencoder_parts`, tagged by ``kind``; the
+flat settings, ``encoder_kind="moments"``, ``moment_order=2``, still read and build them:
+:mod:`.autoencoder_flags`). Both work on normalised images (see
+:class:`latent_sindy.data.windows.Normalizer`) of any shape (C, H, W), so the decoder's output
+is unbounded. Dimensions: B batch, C channels, H × W image, nz latent size.
 
     >>> ae = Autoencoder(AutoencoderConfig(channels=3, image_size=(20, 28), latent_dim=16))
     >>> AutoencoderConfig().resolve(channels=1, image_size=32)  # the shape taken from data
+    >>> AutoencoderConfig(encoder_kind="moments", latent_dim=4, moment_order=2).encoder
+    MomentEncoderConfig(order=2)
     >>> z = ae.encode(torch.zeros(8, 3, 20, 28))  # (8, 16)
     >>> ae.decode(z).shape
     torch.Size([8, 3, 20, 28])
@@ -19,37 +22,34 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
-from typing import Annotated, ClassVar, Literal
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import torch
-import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.autoencoder_flags import ImageSize, flat_settings
 from latent_sindy.models.autoencoder_parts import (
-    DECODER_PARTS,
-    ENCODER_PARTS,
+    ConvEncoderConfig,
     DecoderPart,
     EncoderPart,
+    FcDecoderConfig,
+    SpriteDecoderConfig,
     conv_shape,
+    sprite_side,
 )
 from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.decoders import Decoder, MlpDecoder, SpriteDecoder
 from latent_sindy.models.encoders import (
-    ACTIVATIONS,
     Encoder,
     KeypointEncoder,
     MaskMomentEncoder,
     MlpEncoder,
     MomentEncoder,
 )
-from latent_sindy.models.renamed import renamed
 
 __all__ = ["DECODERS", "ENCODERS", "Autoencoder", "AutoencoderConfig", "ImageSize"]
-
-#: An image size: the side S of square images, or (H, W).
-ImageSize = int | tuple[int, int]
 
 
 def image_hw(size: ImageSize) -> tuple[int, int]:
@@ -62,7 +62,7 @@ def _size_text(hw: tuple[int, int]) -> str:
     return str(hw[0]) if hw[0] == hw[1] else f"{hw[0]}x{hw[1]}"
 
 
-@renamed(encoder="encoder_kind", decoder="decoder_kind")
+@flat_settings
 @dataclass(frozen=True)
 class AutoencoderConfig:
     """Sizes of the encoder and decoder; equal resolved configs build identical architectures.
@@ -76,81 +76,16 @@ class AutoencoderConfig:
     channels: int | None = None
     """Image channels C (1 grayscale, 3 RGB); None: from the data file."""
     image_size: ImageSize | None = None
-    """Image size in pixels: the side S of square images, or height and width (H, W); None:
-    from the data file."""
+    """Image size in pixels: S, or (H, W); None: from the data file."""
     latent_dim: int = 16
     """Latent size nz (the paper: 16)."""
-    conv_channels: tuple[int, int] = (4, 4)
-    """Feature maps of the two 5×5 convolution stages (the course used 4 and 4)."""
-    encoder_hidden: int = 100
-    """Width of the encoder's fully connected layer (the course: 100)."""
-    decoder_kind: Annotated[Literal["fc", "conv", "sprite", "mlp"],
-                            tyro.conf.arg(name="decoder")] = "fc"
-    """Decoder kind: "fc" fully connected (the course's), "conv" upsampling convolutions,
-    "sprite" (moments encoder only) a learned patch of the moving object drawn at the
-    latent's pose on the encoder's background, "mlp" fully connected through the reversed
-    --mlp-widths with --mlp-activation (the SINDy autoencoder's)."""
-    decoder_hidden: tuple[int, ...] = (500, 500)
-    """fc decoder: widths of the hidden layers (the course: 500, 500)."""
-    decoder_channels: int = 16
-    """conv decoder: feature maps of its convolutions."""
-    encoder_kind: Annotated[Literal["conv", "keypoints", "moments", "mask_moments", "mlp"],
-                            tyro.conf.arg(name="encoder")] = "conv"
-    """Encoder kind: "conv" (the course's: conv + pool stages, then fully connected),
-    "keypoints" (a spatial softmax: the latent is the expected image position of
-    latent_dim / 2 learned feature maps, so it is a position by construction) or "moments"
-    (nothing learned: the latent is the centroid and the orientation of what differs from the
-    background, (x, y, cos nφ, sin nφ); latent_dim 4), "mask_moments" (the same latent, the
-    moments of a per-pixel weight that small convolutions learn; latent_dim 4) or "mlp"
-    (fully connected through --mlp-widths with --mlp-activation: the SINDy autoencoder's, any
-    image size)."""
-    keypoint_channels: int = 16
-    """keypoints encoder: feature maps of its two hidden 5×5 convolutions."""
-    sprite_size: int | None = None
-    """sprite decoder: side P of its template in pixels (odd); None: from the image's shorter
-    side S, 2 ⌊5.5 S / 32⌋ + 1 (11 at 32 pixels, 23 at 64)."""
-    sprite_supersample: int = 2
-    """sprite decoder: draw at this many times the image's resolution, then average-pool (1:
-    draw at the image's resolution)."""
-    moment_order: int = 4
-    """moments and mask_moments encoders: n, the order of the angular moment that gives the
-    orientation: the object's visible rotational symmetry (4 for a uniform square, which
-    looks alike every quarter turn; 1 for an object with none). mask_moments: 0 chooses it
-    from the data at training (a short fit at order 2, then the trained encoder's
-    ``symmetry_order`` on the training images; the run's record states the order chosen)."""
-    mask_channels: int = 16
-    """mask_moments encoder: feature maps of its hidden 3×3 convolutions."""
-    mask_layers: int = 3
-    """mask_moments encoder: hidden 3×3 convolutions before the one that gives the weight."""
-    mask_normalise: bool = True
-    """mask_moments encoder: standardise each image on its own (its median subtracted, divided
-    by its standard deviation) before the convolutions."""
-    mask_weight: Literal["background", "image", "mask"] = "background"
-    """mask_moments encoder: a pixel's weight is the learned mask (in (0, 1)) times its
-    deviation from the "background" (the per-pixel median of the training images as the
-    encoder sees them) or from its "image"'s median (the mask chooses which pixels count, the
-    image keeps their shape), or the "mask" alone."""
-    mask_window: float = 3.0
-    """mask_moments encoder: σ in pixels of the Gaussian window about the centroid that the
-    angular moment is taken in (0: none, the whole image's)."""
-    mask_refine: int = 3
-    """mask_moments encoder: mean-shift steps of the centre: from the masked weights' centroid
-    it moves this many times to the centroid of the image's own deviation (``mask_weight``'s,
-    without the mask) in the window about it, and the pose is read from that deviation about
-    that centre, so the mask only says where the object is, not what shape it has. 0: the
-    pose of the masked weights themselves (a trained mask can drift off the object's shape:
-    RESULTS.md, "The learned row"). Needs a window."""
-    mlp_widths: tuple[int, ...] = (128, 64, 32)
-    """mlp encoder: widths of its hidden layers (the mlp decoder: the same, reversed); the
-    SINDy autoencoder's pendulum: 128, 64, 32."""
-    mlp_activation: Literal["sigmoid", "relu", "elu", "tanh"] = "sigmoid"
-    """mlp encoder and decoder: the activation after every hidden layer (the SINDy
-    autoencoder's pendulum: sigmoid)."""
+    encoder: EncoderPart = field(default_factory=ConvEncoderConfig)
+    """The encoder's kind and its own settings (:mod:`.autoencoder_parts`)."""
+    decoder: DecoderPart = field(default_factory=FcDecoderConfig)
+    """The decoder's kind and its own settings."""
     pca_components: int = 0
-    """mlp encoder and decoder: the first this many principal components of the normalised
-    training frames in front of the encoder's network and behind the decoder's, a fixed
-    linear map (:mod:`~latent_sindy.models.front`; the frames' derivatives pass it exactly):
-    the networks work on these coordinates, not on every pixel. 0: none."""
+    """mlp encoder and decoder: the principal components both work on (0: none;
+    :class:`~.autoencoder_flags.AutoencoderFlags`)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.image_size, tuple | list):
@@ -160,82 +95,43 @@ class AutoencoderConfig:
         if self.latent_dim < 1 or (self.channels is not None and self.channels < 1):
             raise UserError(f"latent_dim {self.latent_dim} and channels {self.channels}: use 1 "
                             "or more")
-        if self.image_size is not None and self.encoder_kind != "mlp" and (
-                min(self.conv_shape()) < 1):
+        enc, dec = self.encoder_kind, self.decoder_kind
+        if self.image_size is not None and enc != "mlp" and min(self.conv_shape()) < 1:
             raise UserError(
                 f"image size {self._size_text()} is too small for two 5x5 conv + 2x2 pool "
                 "stages: use at least 16 pixels a side"
             )
-        if len(self.conv_channels) != 2 or min(self.conv_channels) < 1:
-            raise UserError(f"conv_channels must be two positive ints, got {self.conv_channels}")
-        if self.encoder_hidden < 1 or not self.decoder_hidden or min(self.decoder_hidden) < 1:
-            raise UserError(
-                f"hidden sizes must be positive (and the decoder needs at least one layer), "
-                f"got encoder_hidden={self.encoder_hidden}, decoder_hidden={self.decoder_hidden}"
-            )
         if self.pca_components < 0 or (self.pca_components and not (
-                self.encoder_kind == "mlp" and self.decoder_kind == "mlp")):
+                enc == "mlp" and dec == "mlp")):
             raise UserError(f"pca_components {self.pca_components}: use 0 (none) or more, with "
-                            f"the mlp encoder and decoder (got {self.encoder_kind!r}, "
-                            f"{self.decoder_kind!r})")
+                            f"the mlp encoder and decoder (got {enc!r}, {dec!r})")
         if self.pca_components and self.resolved and self.pca_components > (
                 self.channels * self.height * self.width):
             raise UserError(f"pca_components {self.pca_components} is more than the "
                             f"{self.channels * self.height * self.width} values of a frame: use "
                             "at most that many")
-        if self.decoder_kind not in DECODERS:
-            raise UserError(f"decoder {self.decoder_kind!r} is unknown: use one of "
-                            + ", ".join(DECODERS))
-        if self.encoder_kind not in ENCODERS:
-            raise UserError(f"encoder {self.encoder_kind!r} is unknown: use one of "
-                            + ", ".join(ENCODERS))
-        if self.encoder_kind == "moments" and (self.latent_dim != 4 or self.moment_order < 1):
+        if enc == "moments" and (self.latent_dim != 4 or self.moment_order < 1):
             raise UserError(f"the moments encoder's latent is (x, y, cos nφ, sin nφ): use "
                             f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1 "
                             f"(got {self.moment_order})")
-        if self.encoder_kind == "mask_moments" and (self.latent_dim != 4
-                                                     or self.moment_order < 0):
+        if enc == "mask_moments" and (self.latent_dim != 4 or self.moment_order < 0):
             raise UserError(f"the mask_moments encoder's latent is (x, y, cos nφ, sin nφ): use "
                             f"--latent-dim 4 (got {self.latent_dim}) and --moment-order >= 1, "
                             f"or 0 to choose it from the data (got {self.moment_order})")
-        if self.mask_channels < 1 or self.mask_layers < 1:
-            raise UserError(f"--mask-channels {self.mask_channels} and --mask-layers "
-                            f"{self.mask_layers}: use 1 or more of each")
-        if self.mask_weight not in ("background", "image", "mask"):
-            raise UserError(f"--mask-weight {self.mask_weight!r}: use background, image or mask")
-        if self.mask_refine < 0 or (self.mask_refine and self.mask_window <= 0):
-            raise UserError(f"--mask-refine {self.mask_refine} with --mask-window "
-                            f"{self.mask_window}: use 0 or more steps, and a window > 0 "
-                            "with steps (or --mask-refine 0)")
-        if not (math.isfinite(self.mask_window) and self.mask_window >= 0):
-            raise UserError(f"--mask-window {self.mask_window}: use a window of 0 (none) or "
-                            f"more pixels")
-        if self.encoder_kind == "keypoints" and (self.latent_dim % 2
-                                                 or self.keypoint_channels < 1):
+        if enc == "keypoints" and (self.latent_dim % 2 or self.keypoint_channels < 1):
             raise UserError(f"the keypoints encoder gives two coordinates per keypoint: use an "
                             f"even latent_dim (got {self.latent_dim}) and keypoint_channels "
                             f">= 1 (got {self.keypoint_channels})")
-        if self.decoder_kind == "sprite" and not self.pose_latent:
+        if dec == "sprite" and not self.pose_latent:
             raise UserError(f"the sprite decoder draws the object at the moments encoder's "
                             f"pose: use it with --encoder moments or mask_moments (got "
-                            f"{self.encoder_kind!r}), or --decoder conv")
-        if self.sprite_size is not None and (
-                self.sprite_size < 1 or self.sprite_size % 2 == 0
-                or (self.image_size is not None and self.sprite_size > min(self.hw))):
+                            f"{enc!r}), or --decoder conv")
+        if self.sprite_size is not None and self.image_size is not None and (
+                self.sprite_size > min(self.hw)):
             raise UserError(f"sprite_size {self.sprite_size}: use an odd number of pixels "
                             f"(the template's centre is a pixel), at most the image's shorter "
                             f"side")
-        if not self.mlp_widths or min(self.mlp_widths) < 1 or (
-                self.mlp_activation not in ACTIVATIONS):
-            raise UserError(f"--mlp-widths {self.mlp_widths} and --mlp-activation "
-                            f"{self.mlp_activation!r}: use one or more positive widths and one "
-                            f"of {', '.join(ACTIVATIONS)}")
-        if self.sprite_supersample < 1:
-            raise UserError(f"sprite_supersample {self.sprite_supersample}: use 1 or more")
-        if self.decoder_channels < 1:
-            raise UserError(f"decoder_channels {self.decoder_channels}: use 1 or more")
-        if self.decoder_kind == "conv" and self.image_size is not None and (
-                self.hw[0] % 4 or self.hw[1] % 4):
+        if dec == "conv" and self.image_size is not None and (self.hw[0] % 4 or self.hw[1] % 4):
             raise UserError(
                 f"the conv decoder needs image sides divisible by 4 (got {self._size_text()}): "
                 "use --decoder fc or another image size"
@@ -286,9 +182,7 @@ class AutoencoderConfig:
     def sprite_side(self) -> int:
         """The sprite decoder's template side P: ``sprite_size``, or the one for the image's
         shorter side (a resolved config states it)."""
-        if self.sprite_size is not None:
-            return self.sprite_size
-        return 2 * math.floor(5.5 * min(self.hw) / 32) + 1
+        return self.sprite_size if self.sprite_size is not None else sprite_side(self.hw)
 
     # ------------------------------------------------------------------ what the latent is
     @property
@@ -317,17 +211,25 @@ class AutoencoderConfig:
                     f"leave model {name} unset to use the data's"
                 )
         resolved = dataclasses.replace(self, channels=channels, image_size=size)
-        return dataclasses.replace(resolved, sprite_size=resolved.sprite_side)
+        if not isinstance(self.decoder, SpriteDecoderConfig):
+            return resolved
+        return dataclasses.replace(resolved, decoder=dataclasses.replace(
+            self.decoder, size=resolved.sprite_side))
 
     def encoder_part(self) -> EncoderPart:
-        """The encoder's own settings: its kind's, from this config's."""
-        cls = ENCODER_PARTS[self.encoder_kind]
-        return cls(**{name: getattr(self, flat) for name, flat in cls.flat.items()})
+        """The encoder's own settings (``encoder``)."""
+        return self.encoder
 
     def decoder_part(self) -> DecoderPart:
-        """The decoder's own settings (the sprite's size: a resolved config's)."""
-        cls = DECODER_PARTS[self.decoder_kind]
-        return cls(**{name: getattr(self, flat) for name, flat in cls.flat.items()})
+        """The decoder's own settings (``decoder``; the sprite's size: a resolved config's)."""
+        return self.decoder
+
+    def shared(self, part: EncoderPart | DecoderPart) -> dict[str, Any]:
+        """What a part is built with beyond its own settings: the mlp's principal
+        components, the sprite's moment order (the encoder's)."""
+        if part.kind == "mlp":
+            return {"pca_components": self.pca_components}
+        return {"order": self.moment_order} if part.kind == "sprite" else {}
 
     def build(self) -> Autoencoder:
         return Autoencoder(self)
@@ -342,8 +244,9 @@ class Autoencoder(nn.Module):
             raise ValueError("AutoencoderConfig needs channels and image_size: resolve() first")
         self.config = cfg
         self.image_shape = shape = cfg.image_shape  # (C, H, W)
-        self.encoder = ENCODERS[cfg.encoder_kind](cfg.encoder_part(), shape, cfg.latent_dim)
-        self.decoder = DECODERS[cfg.decoder_kind](cfg.decoder_part(), shape, cfg.latent_dim)
+        enc, dec = cfg.encoder, cfg.decoder
+        self.encoder = ENCODERS[enc.kind](enc, shape, cfg.latent_dim, **cfg.shared(enc))
+        self.decoder = DECODERS[dec.kind](dec, shape, cfg.latent_dim, **cfg.shared(dec))
 
     def encode(self, x: torch.Tensor) -> torch.Tensor:
         """x (..., C, H, W) -> z (..., nz); any leading dimensions."""

@@ -1,7 +1,7 @@
 """Image decoders: latents z (..., nz) -> normalised images x̂ (..., C, H, W).
 
-Four kinds, named by ``AutoencoderConfig.decoder_kind`` (:data:`~.autoencoder.DECODERS`),
-each built from its settings (:mod:`.autoencoder_parts`), the image shape and nz:
+Four kinds (:data:`~.autoencoder.DECODERS`), each built from its settings
+(:mod:`.autoencoder_parts`; ``AutoencoderConfig.decoder``), the image shape and nz:
 
 * ``"fc"`` (:class:`Decoder`, the course's): fully connected, latent → 500 → 500 → C·H·W;
 * ``"conv"`` (:class:`Decoder`): latent → 256 → a c × H/4 × W/4 feature map, then two 4×4
@@ -35,6 +35,7 @@ from latent_sindy.models.autoencoder_parts import (
     ImageShape,
     MlpDecoderConfig,
     SpriteDecoderConfig,
+    sprite_side,
 )
 from latent_sindy.models.encoders import median_background, mlp
 from latent_sindy.models.front import LinearMap
@@ -121,10 +122,11 @@ class MlpDecoder(nn.Module):
     """The fully connected decoder: z (..., nz) -> x̂ (..., C, H, W) through the reversed
     ``mlp_widths``."""
 
-    def __init__(self, cfg: MlpDecoderConfig, shape: ImageShape, latent_dim: int) -> None:
+    def __init__(self, cfg: MlpDecoderConfig, shape: ImageShape, latent_dim: int,
+                 pca_components: int = 0) -> None:  # k principal components behind; 0: none
         super().__init__()
         self.shape = shape
-        pixels, k = shape[0] * shape[1] * shape[2], cfg.pca_components
+        pixels, k = shape[0] * shape[1] * shape[2], pca_components
         self.net = mlp([latent_dim, *reversed(cfg.widths), k or pixels], cfg.activation)
         if k:  # back from the principal components (fitted with the model's statistics)
             self.net.append(LinearMap(k, pixels))
@@ -167,11 +169,11 @@ class SpriteDecoder(nn.Module):
     template units.
     """
 
-    def __init__(self, cfg: SpriteDecoderConfig, shape: ImageShape, latent_dim: int = 4
-                 ) -> None:
+    def __init__(self, cfg: SpriteDecoderConfig, shape: ImageShape, latent_dim: int = 4,
+                 order: int = 4) -> None:  # order: the moments encoder's, n of nφ
         super().__init__()
-        (c, h, w), p = shape, cfg.size
-        self.order = cfg.order
+        (c, h, w), p = shape, cfg.size or sprite_side(shape[1:])
+        self.order = order
         self.supersample = cfg.supersample
         self.shape = (c, h, w)
         side = max(h, w) - 1

@@ -1,7 +1,7 @@
 """Image encoders: normalised images x (B, C, H, W) -> latents z (B, nz).
 
-Five kinds, named by ``AutoencoderConfig.encoder_kind`` (:data:`~.autoencoder.ENCODERS`),
-each built from its settings (:mod:`.autoencoder_parts`), the image shape and nz:
+Five kinds (:data:`~.autoencoder.ENCODERS`), each built from its settings
+(:mod:`.autoencoder_parts`; ``AutoencoderConfig.encoder``), the image shape and nz:
 
 * ``"conv"`` (:class:`Encoder`, the course's): two stages of 5×5 convolution + ReLU + 2×2
   max-pool, a fully connected layer and a linear map to the latent size;
@@ -12,8 +12,7 @@ each built from its settings (:mod:`.autoencoder_parts`), the image shape and nz
 * ``"mask_moments"`` (:class:`MaskMomentEncoder`): the same moments of a learned per-pixel
   weight (a small convolutional net) instead of the difference from a median background;
 * ``"mlp"`` (:class:`MlpEncoder`): fully connected on the flattened image, hidden widths
-  ``mlp_widths`` (the SINDy autoencoder's 128, 64, 32) with ``mlp_activation`` (sigmoid), and a
-  linear map to the latent; smooth, so its time derivatives along the data are too.
+  (the SINDy autoencoder's 128, 64, 32; sigmoid), and a linear map to the latent; smooth.
 
 Every kind takes any image shape (C, H, W). Image coordinates, where a latent is a position,
 run from -1 to 1 across the image (x to the right, y down; pixel centres); the moments'
@@ -58,9 +57,10 @@ def mlp(widths: list[int], activation: str) -> nn.Sequential:
 class MlpEncoder(nn.Module):
     """The fully connected encoder: x (B, C, H, W) -> z (B, nz) through ``mlp_widths``."""
 
-    def __init__(self, cfg: parts.MlpEncoderConfig, shape: ImageShape, latent_dim: int) -> None:
+    def __init__(self, cfg: parts.MlpEncoderConfig, shape: ImageShape, latent_dim: int,
+                 pca_components: int = 0) -> None:  # k principal components in front; 0: none
         super().__init__()
-        pixels, k = shape[0] * shape[1] * shape[2], cfg.pca_components
+        pixels, k = shape[0] * shape[1] * shape[2], pca_components
         self.net = mlp([k or pixels, *cfg.widths, latent_dim], cfg.activation)
         if k:  # the principal components in front (fitted with the model's statistics)
             self.net.insert(0, LinearMap(pixels, k))

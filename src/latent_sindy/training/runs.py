@@ -65,13 +65,13 @@ Task = Literal["paper", "random"]
 Space = Literal["latent", "image", "pose"]
 
 
-#: Model settings that training derives from the data where left unset, as (part, key, the
-#: value runs recorded before it was derived were built with): runs are compared on what
-#: their model was built with (the record's resolved "model"), not on what was asked.
-DERIVED: tuple[tuple[str, str, Any], ...] = (
-    ("observation", "sprite_size", 11),
-    ("dynamics", "frame_sense", 1),
-    ("dynamics", "frame_offset", 0.0),
+#: Model settings that training derives from the data where left unset, as (part, (key, its
+#: names in older records), the value runs recorded before it was derived were built with):
+#: runs are compared on what their model was built with (the record's resolved "model").
+DERIVED: tuple[tuple[str, tuple[str, ...], Any], ...] = (
+    ("observation", ("decoder.size", "sprite_size"), 11),
+    ("dynamics", ("frame_sense",), 1),
+    ("dynamics", ("frame_offset",), 0.0),
 )
 
 
@@ -331,13 +331,13 @@ class RunDir:
             # it batched
             tc = dataclasses.replace(self.train_config(r), batching=self.batching(r))
             train = json.loads(json.dumps(to_json(tc)))
+            out = _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
             # settings derived at training when left unset: what the model was built with
-            for part, key, before in DERIVED:
-                asked = train["model"].get(part, {})
-                if key in asked:
-                    built = r["model"].get(part) or r["model"].get(_OLD_PARTS.get(part), {})
-                    asked[key] = built.get(key, before)
-            return _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
+            for part, (key, *old), before in DERIVED:
+                built = _flatten(r["model"].get(part) or r["model"].get(_OLD_PARTS.get(part), {}))
+                if (name := f"train.model.{part}.{key}") in out:
+                    out[name] = next((built[k] for k in (key, *old) if k in built), before)
+            return out
 
         was, now = flat(old), flat(record)
         if "fingerprint" not in old["data"]:  # recorded before fingerprints existed
