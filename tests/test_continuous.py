@@ -302,9 +302,9 @@ def test_a_first_order_model_predicts_by_integrating_one_step() -> None:
 def test_bad_settings_are_one_line_user_errors() -> None:
     with pytest.raises(UserError, match="derivative_order 3: use 1"):
         LatentSINDy(1, time="continuous", derivative_order=3)
-    with pytest.raises(UserError, match="derivative_order 2, .* are for time='continuous'"):
+    with pytest.raises(UserError, match=r"derivative_order 2, .* are for time='continuous'"):
         LatentSINDy(1, derivative_order=2)
-    with pytest.raises(UserError, match="time_unit 2.0 are for time='continuous'"):
+    with pytest.raises(UserError, match=r"time_unit 2\.0 are for time='continuous'"):
         LatentSINDy(1, time_unit=2.0)
     with pytest.raises(UserError, match="time_unit -1"):
         LatentSINDy(1, time="continuous", derivative_order=2, encoder="mlp", decoder="mlp",
