@@ -141,3 +141,17 @@ def test_a_run_record_holds_the_unit_chosen_from_the_data() -> None:
 def test_a_bad_time_unit_is_a_one_line_user_error(bad) -> None:
     with pytest.raises(UserError, match="time_unit"):
         ContinuousSindyConfig(time_unit=bad)
+
+
+def test_a_saved_model_keeps_its_unit_and_equations(tmp_path) -> None:
+    from latent_sindy import LatentSINDy
+
+    data = oscillator_video(4.0)
+    est = LatentSINDy(1, time="continuous", derivative_order=2, time_unit=None, seed=0,
+                      settings=TrainConfig(batch_size=40, lr=1e-3)).fit(data, epochs=1)
+    unit = est.model_.dynamics.time_unit
+    assert unit != 1.0 and est.record_["model"]["dynamics"]["time_unit"] == unit
+    again = LatentSINDy.load(est.save(tmp_path / "run"))
+    assert again.model_.dynamics.time_unit == unit
+    assert again.equations() == est.equations()
+    np.testing.assert_array_equal(again.coefficients(), est.coefficients())
