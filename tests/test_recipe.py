@@ -61,6 +61,12 @@ def test_settings_given_mean_no_recipe_and_a_folder_takes_the_main_fit(tmp_path)
     own.fit(data, epochs=1)
     assert not own.recipe and "restarts" not in own.kept_
     assert own.record_["model"]["observation"]["pca_components"] == 0
+    assert own.record_["model"]["dynamics"]["time_unit"] == 1.0  # the data's time
+    chosen = LatentSINDy(1, time="continuous", derivative_order=2, time_unit="data",
+                         settings=TrainConfig(batch_size=20)).fit(data, epochs=1)
+    assert chosen.record_["model"]["dynamics"]["time_unit"] != 1.0
+    with pytest.raises(UserError, match="time_unit data are for time='continuous'"):
+        LatentSINDy(1, time_unit="data")
     # into a run folder the recipe trains its main fit (its phases and restarts: in memory)
     folder = LatentSINDy(1, time="continuous", derivative_order=2).fit(data, epochs=1,
                                                                        out=tmp_path / "run")
@@ -79,3 +85,9 @@ def test_components_fit_small_frames_and_few_frames() -> None:
     assert recipe.components_for(tiny) == 9
     few = SequenceData(tiny.images[:3], dt=0.1, seed=0)  # one training sequence of 4 frames
     assert few.split_counts()["train"] == 1 and recipe.components_for(few) == 3
+
+
+def test_the_recipe_puts_components_only_where_the_networks_take_them() -> None:
+    est = LatentSINDy(1, time="continuous", derivative_order=2, decoder="fc")
+    est.fit(small_video(), epochs=1, phases=[], restarts=Restarts(count=0))
+    assert est.record_["model"]["observation"]["pca_components"] == 0

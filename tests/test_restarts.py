@@ -58,3 +58,14 @@ def test_the_rule_is_checked_and_refused_for_run_folders(tmp_path) -> None:
                                                          restarts=Restarts())
     with pytest.raises(UserError, match="Restarts"):
         LatentSINDy(2, encoder="mlp", decoder="mlp").fit(moving_dot(), epochs=1, restarts=3)
+
+
+def test_without_validation_nothing_is_judged_and_a_warm_up_needs_epochs_left() -> None:
+    data = moving_dot()
+    no_val = SequenceData(data.images, data.actions, [-0.5, -0.5], [0.5, 0.5], seed=0,
+                          split=np.zeros(data.n, np.uint8))
+    est = LatentSINDy(2, encoder="mlp", decoder="mlp", seed=3)
+    est.fit(no_val, epochs=2, starts=1, restarts=Restarts(count=1, recon_above=0.0))
+    assert est.kept_["restarts"] == {"starts": 1, "kept": 0}
+    with pytest.raises(UserError, match="warm-up of 2 epochs leaves none"):
+        est.fit(data, epochs=2, starts=1, warmup=[Phase(2, "warm-up")])

@@ -63,6 +63,10 @@ def test_the_coefficients_are_the_real_time_equations() -> None:
     assert not torch.allclose(scaled.coefficients(), one.coefficients())
     again = copy.deepcopy(scaled).set_coefficients(scaled.coefficients().detach())
     torch.testing.assert_close(again.psi, scaled.psi)
+    whole = torch.zeros_like(scaled.psi, dtype=torch.long)
+    whole[1, 0] = 1  # integers are real-time coefficients too
+    assert float(copy.deepcopy(scaled).set_coefficients(whole).coefficients()[1, 0]) == \
+        pytest.approx(1.0)
 
 
 def test_a_sine_of_a_velocity_is_written_with_its_model_time_argument() -> None:
@@ -147,7 +151,7 @@ def test_a_saved_model_keeps_its_unit_and_equations(tmp_path) -> None:
     from latent_sindy import LatentSINDy
 
     data = oscillator_video(4.0)
-    est = LatentSINDy(1, time="continuous", derivative_order=2, time_unit=None, seed=0,
+    est = LatentSINDy(1, time="continuous", derivative_order=2, time_unit="data", seed=0,
                       settings=TrainConfig(batch_size=40, lr=1e-3)).fit(data, epochs=1)
     unit = est.model_.dynamics.time_unit
     assert unit != 1.0 and est.record_["model"]["dynamics"]["time_unit"] == unit

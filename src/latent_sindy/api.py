@@ -36,9 +36,9 @@ from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress
+from latent_sindy.training import recipe as recipes
 from latent_sindy.training.config import TrainConfig, check_fit_settings
 from latent_sindy.training.loop import train
-from latent_sindy.training.recipe import INIT, apply_recipe, recipe_epochs, recipe_settings
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.session import Phase, Restarts, fit_in_memory
 
@@ -69,8 +69,8 @@ class LatentSINDy:
             the data gives or its frames, dt apart, estimate).
         derivative_order: continuous time: 1 (z' = Θ(z, u) Ξ) or 2 (z'' = Θ(z, z', u) Ξ).
         time_unit: continuous time: the unit of time the coefficients are fitted in (the
-            equations are shown in the data's): 1, the data's; None, chosen from the data
-            (the video recipe's, so a faster or slower system trains alike).
+            equations are shown in the data's): 1, the data's; "data", chosen from the data
+            (so a faster or slower system trains alike); None: "data" with the recipe, else 1.
         loss: weights of the loss terms (reconstruction, prediction, L1 of the coefficients).
         settings: the training settings (epochs, learning rate, pruning threshold, ...),
             a :class:`~latent_sindy.training.TrainConfig`; ``seed`` and ``device`` override it.
@@ -92,7 +92,7 @@ class LatentSINDy:
                  device: Literal["cpu", "cuda", "auto"] = "cpu",
                  time: Literal["discrete", "continuous"] = "discrete",
                  derivative_order: int = 1, pca_components: int | None = None,
-                 time_unit: float | None = None) -> None:
+                 time_unit: float | Literal["data"] | None = None) -> None:
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
@@ -108,8 +108,7 @@ class LatentSINDy:
         self.pca_components, self.time_unit = pca_components, time_unit
         self.recipe = time == "continuous" and model is None and settings is None
         self._loss_given, self.loss = loss, loss or LossWeights()
-        self.settings = settings or (recipe_settings(TrainConfig()) if self.recipe
-                                     else TrainConfig(lr=1e-3))
+        self.settings = settings or recipes.default_settings(self.recipe)
         self.model = model
         self.model_config  # noqa: B018  (validates the settings now)
 
@@ -127,14 +126,15 @@ class LatentSINDy:
             raise UserError(f"time='continuous' is for SINDy on the poly library, got dynamics "
                             f"{self.dynamics!r}, library {self.library!r}: use "
                             "dynamics='sindy', library='poly'")
-        if self.time == "discrete" and (self.derivative_order, self.time_unit or 1) != (1, 1):
+        if self.time == "discrete" and (self.derivative_order != 1
+                                        or self.time_unit not in (None, 1)):
             raise UserError(f"derivative_order {self.derivative_order}, time_unit "
                             f"{self.time_unit} are for time='continuous': add it, or drop them")
         if self.time == "continuous":
             dyn: Any = ContinuousSindyConfig(derivative_order=self.derivative_order,
                                              order=self.order, include_sine=self.include_sine,
-                                             time_unit=self.time_unit,
-                                             **(INIT if self.recipe else {}))
+                                             time_unit=recipes.unit_of(self.time_unit, self.recipe),
+                                             **(recipes.INIT if self.recipe else {}))
         elif self.dynamics == "sindy":
             extra = {"order": self.order, "library": self.library,
                      "include_sine": self.include_sine}
@@ -171,11 +171,11 @@ class LatentSINDy:
         if epochs is not None:
             settings["epochs"] = epochs
         folder = {} if out is None else {"out": Path(out), "data": Path(data.source)}
-        cfg = self.train_config(**folder, **(recipe_epochs(settings) if self.recipe
+        cfg = self.train_config(**folder, **(recipes.recipe_epochs(settings) if self.recipe
                                              else settings))
         if self.recipe:  # (into a folder: its main fit, the phases and restarts in memory)
-            cfg, phases, restarts = apply_recipe(cfg, data, self._loss_given, self.pca_components,
-                                                 phases, restarts, in_folder=bool(folder))
+            cfg, phases, restarts = recipes.apply_recipe(
+                cfg, data, self._loss_given, self.pca_components, phases, restarts, bool(folder))
         if out is not None:
             if phases or warmup or restarts:
                 raise UserError("phases, warmup and restarts train in memory: drop out= (save "

@@ -28,8 +28,8 @@ from latent_sindy.training.config import TrainConfig
 from latent_sindy.training.session import Phase, Restarts
 
 __all__ = ["COMPONENTS", "INIT", "RESTARTS", "SCHEDULE", "apply_recipe", "calibration",
-           "components_for", "pixel_spread", "recipe_epochs", "recipe_loss",
-           "recipe_settings"]
+           "components_for", "default_settings", "pixel_spread", "recipe_epochs", "recipe_loss",
+           "recipe_settings", "unit_of"]
 
 #: Principal components in front of the networks (the published model's 48).
 COMPONENTS = 48
@@ -80,9 +80,15 @@ def components_for(data: SequenceData) -> int:
     return max(1, min(COMPONENTS, int(np.prod(data.frame_shape)), frames))
 
 
-def recipe_settings(base: TrainConfig) -> TrainConfig:
-    """``base`` (seed, device and the rest) with the recipe's schedule."""
-    return dataclasses.replace(base, **SCHEDULE)
+def default_settings(recipe: bool) -> TrainConfig:
+    """An estimator's training settings when it is given none: the recipe's schedule, or
+    the defaults at learning rate 1e-3."""
+    return recipe_settings() if recipe else TrainConfig(lr=1e-3)
+
+
+def recipe_settings(base: TrainConfig | None = None) -> TrainConfig:
+    """``base`` (seed, device and the rest; None: the defaults) with the recipe's schedule."""
+    return dataclasses.replace(base or TrainConfig(), **SCHEDULE)
 
 
 def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
@@ -90,12 +96,14 @@ def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
                  in_folder: bool = False
                  ) -> tuple[TrainConfig, list[Phase], Restarts | None]:
     """A fit's settings ``cfg`` (its model already the recipe's) on ``data`` with the recipe
-    filled in where the caller left it (None): the loss weights, the principal components,
+    filled in where the caller left it (None): the loss weights, the principal components
+    (with the mlp encoder and decoder, which take them),
     the phases (the calibration) and the restart rule; ``in_folder``: a run folder's fit,
     which trains the main fit alone (phases and restarts are in memory only)."""
     spread = pixel_spread(data)
     model = cfg.model
-    k = components_for(data) if components is None else components
+    mlp = (model.observation.encoder_kind, model.observation.decoder_kind) == ("mlp", "mlp")
+    k = (components_for(data) if mlp else 0) if components is None else components
     model = dataclasses.replace(model, observation=dataclasses.replace(model.observation,
                                                                        pca_components=k))
     cfg = dataclasses.replace(cfg, model=model, loss=loss or recipe_loss(spread))
@@ -112,3 +120,11 @@ def recipe_epochs(settings: dict[str, Any]) -> dict[str, Any]:
         refine = min(SCHEDULE["refine_epochs"], int(settings["epochs"]) // 5)
         return {**settings, "refine_epochs": refine}
     return settings
+
+
+def unit_of(time_unit: float | str | None, recipe: bool) -> float | None:
+    """The continuous-time model's ``time_unit`` of an estimator's argument: "data" (and
+    None with the recipe) chooses it from the data (None), a number is itself, else 1."""
+    if time_unit == "data" or (time_unit is None and recipe):
+        return None
+    return 1.0 if time_unit is None else float(time_unit)

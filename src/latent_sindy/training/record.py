@@ -62,9 +62,12 @@ def data_identity(data: SequenceData, path: Path | None) -> dict[str, Any]:
     }
 
 
-def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelConfig:
-    """``model`` with its shapes taken from ``data`` and the settings the data's world derives
-    (its ``prepare_model``); UserError where they contradict the data."""
+def resolve_model(model: ModelConfig, data: SequenceData, where: str,
+                  derivatives: tuple[str, int] = ("auto", 9)) -> ModelConfig:
+    """``model`` with its shapes taken from ``data``, a continuous-time unit chosen from
+    them (their derivatives as ``derivatives``, the training's method and window, give
+    them), and the settings the data's world derives (its ``prepare_model``); UserError
+    where they contradict the data."""
     if model.reward_head and data.rewards is None:
         raise UserError(f"{where} has no rewards: a reward head (reward_head={model.reward_head}"
                         ") learns them; give data with rewards (SequenceData(rewards=...), "
@@ -75,7 +78,7 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
     if dyn.kind == "continuous" and dyn.dt is None and data.dt is not None:
         cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(dyn, dt=data.dt))
     if dyn.kind == "continuous" and dyn.time_unit is None:
-        unit = time_unit_for(data_time(data, dyn.derivative_order, where))
+        unit = time_unit_for(data_time(data, dyn.derivative_order, where, *derivatives))
         cfg = dataclasses.replace(cfg, dynamics=dataclasses.replace(cfg.dynamics,
                                                                     time_unit=unit))
     world = get_world(data.world) if data.world is not None else None
@@ -89,10 +92,12 @@ def resolve_model(model: ModelConfig, data: SequenceData, where: str) -> ModelCo
 TIME_SEQUENCES = 64
 
 
-def data_time(data: SequenceData, order: int, where: str) -> float:
+def data_time(data: SequenceData, order: int, where: str, derivatives: str = "auto",
+              window: int = 9) -> float:
     """The characteristic time of ``data``'s training frames
     (:func:`~latent_sindy.models.derivatives.characteristic_time`) from their ``order``-th
-    derivatives: the data's own, else central differences, on at most
+    derivatives, taken as training takes them (``derivatives``, ``window``: the data's own
+    where given and "auto", else estimated from the frames), on at most
     :data:`TIME_SEQUENCES` sequences."""
     from latent_sindy.models.derivatives import characteristic_time, estimate_derivatives
 
@@ -100,12 +105,16 @@ def data_time(data: SequenceData, order: int, where: str) -> float:
     if part.n == 0:
         raise UserError(f"{where} has no training sequences to choose a time unit from")
     keep = slice(0, TIME_SEQUENCES)
-    given = (part.images_dot, part.images_ddot)[order - 1]
+    given = [part.images_dot, part.images_ddot][:order] if derivatives == "auto" else []
     frames = np.asarray(part.images[keep])
-    if given is not None:
-        rate = np.asarray(given[keep])
+    if len(given) == order and all(g is not None for g in given):
+        rate = np.asarray(given[-1][keep])
     else:
-        rate = estimate_derivatives(frames, data.dt or 1.0, order)[order - 1]
+        method = "central" if derivatives == "auto" else derivatives
+        exact = np.asarray(given[0][keep]) if given and given[0] is not None and order == 2 \
+            else None
+        rate = estimate_derivatives(frames, data.dt or 1.0, order, method, window,
+                                    dx=exact)[order - 1]
     return characteristic_time(frames.reshape(-1, *frames.shape[2:]),
                                rate.reshape(-1, *rate.shape[2:]), order)
 
@@ -141,7 +150,8 @@ def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
 
     path = None if data.source.startswith("<") else Path(data.source)  # (held in memory)
     check_derivatives(cfg, data)
-    model_cfg = resolve_model(cfg.model, data, data.source)
+    model_cfg = resolve_model(cfg.model, data, data.source,
+                              (cfg.derivatives, cfg.derivative_window))
     record = {
         "format": RUN_FORMAT,
         "format_version": RUN_FORMAT_VERSION,

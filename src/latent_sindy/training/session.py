@@ -202,7 +202,9 @@ class Restarts:
     phase's kept validation latent term (``val/pred_z``: with ``relative_pred_z`` the
     fraction of the encoder's z^(k) the equations leave unexplained) is above ``fvu_above``,
     another start follows while ``count`` allows; of the starts trained through, the one
-    with the smallest such term is kept."""
+    with the smallest such term is kept. ``fvu_above`` is a fraction only when the last
+    phase's latent term is scale-free. A figure that was not validated (data without a
+    validation split) judges nothing; one that is not a number counts as poor."""
 
     count: int = 1
     """Fresh starts allowed after the first."""
@@ -233,6 +235,10 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
         raise UserError(f"restarts: give a latent_sindy.Restarts, got {type(restarts).__name__}")
     progress = progress or Silent()
     rule = restarts or Restarts(count=0)
+    if warmup and sum(p.epochs for p in warmup) >= cfg.epochs:
+        raise UserError(f"warm-up of {sum(p.epochs for p in warmup)} epochs leaves none of the "
+                        f"fit's {cfg.epochs} (the warm-up counts toward them): give more "
+                        "epochs or a shorter warm-up")
 
     def main(start: int) -> dict[str, Any]:
         seed = cfg.seed + 1000 * start
@@ -261,22 +267,28 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             c["metrics"] += c["result"].metrics
         c["fvu"] = kept_value(c["result"], "val/pred_z") if phases else 0.0
 
+    def poor(value: float | None, limit: float) -> bool:  # (not validated: cannot judge)
+        return value is not None and not value <= limit  # (NaN: poor)
+
+    def rank(value: float | None) -> float:
+        return math.inf if value is None or math.isnan(value) else value
+
     waiting: list[dict[str, Any]] = []
     done: list[dict[str, Any]] = []
     try:
         for start in range(1 + rule.count):
             waiting.append(main(start))
-            if waiting[-1]["recon"] > rule.recon_above and start < rule.count:
+            if poor(waiting[-1]["recon"], rule.recon_above) and start < rule.count:
                 continue
-            pick = min(waiting, key=lambda c: c["recon"])
+            pick = min(waiting, key=lambda c: rank(c["recon"]))
             waiting.remove(pick)
             finish_phases(pick)
             done.append(pick)
-            if pick["fvu"] <= rule.fvu_above:
+            if not poor(pick["fvu"], rule.fvu_above):
                 break
     finally:
         progress.close()
-    kept = min(done, key=lambda c: c["fvu"])
+    kept = min(done, key=lambda c: rank(c["fvu"]))
     session, result = kept["session"], kept["result"]
     if restarts is not None:
         result.kept["restarts"] = {"starts": start + 1, "kept": kept["start"]}
@@ -284,14 +296,14 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
     return session, result, kept["metrics"]
 
 
-def kept_value(result: FitResult, key: str) -> float:
-    """A validation figure (``val/recon``, ``val/pred_z``) at the epoch a fit kept (inf if
-    not validated)."""
+def kept_value(result: FitResult, key: str) -> float | None:
+    """A validation figure (``val/recon``, ``val/pred_z``) at the epoch a fit kept (None if
+    not validated there)."""
     epoch = result.kept["epoch"]
     for row in result.metrics:
         if row["epoch"] == epoch and row.get(key) is not None:
             return float(row[key])
-    return math.inf
+    return None
 
 
 def start_seed(seed: int, k: int) -> int:

@@ -176,7 +176,7 @@ class ContinuousSindyDynamics(SparseDynamics):
         and M = ``mask`` (default ``coef != 0``); returns ``self``."""
         coef = torch.as_tensor(coef)
         if self.time_unit != 1.0:
-            coef = coef / self._term_scale.to(coef.device, coef.dtype)
+            coef = coef.to(self.psi.dtype) / self._term_scale.to(coef.device, self.psi.dtype)
         return SindyDynamics.set_coefficients(self, coef, mask)
 
     def l1_penalty(self) -> torch.Tensor:

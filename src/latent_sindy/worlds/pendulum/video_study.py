@@ -226,7 +226,7 @@ class VideoStudyConfig:
         return {"schedule": self.schedule, "derivatives": self.derivatives,
                 "components": self.components, "splits": list(self.splits),
                 "steps": self.steps, **asdict(self.resolved_schedule()),
-                **({} if self.omega2 == 1 else {"omega2": self.omega2, "time_unit": "data"}),
+                "time_unit": "data", **({} if self.omega2 == 1 else {"omega2": self.omega2}),
                 **({} if self.starts == "own_time" else {"starts": self.starts})}
 
 
