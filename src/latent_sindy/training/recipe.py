@@ -12,7 +12,7 @@ then a calibration of 300 epochs (:func:`calibration`) and one fresh start by th
 
     from latent_sindy import LatentSINDy
     model = LatentSINDy(latent_dim=1, time="continuous", derivative_order=2).fit(video)
-    model.print()                       # z0'' = -1.44 sin(z0)  (a pendulum at ω² = 1.44)
+    model.print()                       # z0'' = c sin(z0), c near -ω², when it succeeds
 """
 
 from __future__ import annotations
