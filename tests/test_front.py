@@ -24,8 +24,10 @@ def _low_rank(m: int, p: int, rank: int, seed: int = 0) -> torch.Tensor:
 @pytest.mark.parametrize("m, p", [(200, 30), (20, 300)])  # more frames than values, and fewer
 def test_the_components_span_the_frames_and_are_orthonormal(m: int, p: int) -> None:
     frames = _low_rank(m, p, 3)
-    mean, basis = principal_components(frames, 3)
+    mean, basis, spread = principal_components(frames, 3)
     assert torch.allclose(mean, frames.mean(0), atol=1e-4)
+    coords = (frames - mean) @ basis
+    assert spread == pytest.approx(float(coords.square().mean().sqrt()), rel=1e-4)
     assert torch.allclose(basis.T @ basis, torch.eye(3), atol=1e-4)
     centred = frames - mean
     rebuilt = centred @ basis @ basis.T  # rank 3 data: three components hold all of it
@@ -63,8 +65,11 @@ def test_the_front_carries_derivatives_exactly() -> None:
     ref_z, ref_dz = along(auto.encoder, x, dx)  # forward mode through the whole encoder
     assert torch.allclose(z, ref_z, atol=1e-5) and torch.allclose(dz, ref_dz, atol=1e-5)
     # the decoder's output lies in the span of the components, about the frames' mean
-    mean, basis = principal_components(frames.flatten(1), 5)
+    mean, basis, _ = principal_components(frames.flatten(1), 5)
     out = auto.decode(z).flatten(1) - mean
+    # and the networks see coordinates of unit spread
+    first = auto.encoder.net[0](frames.flatten(1))
+    assert float(first.square().mean().sqrt()) == pytest.approx(1.0, rel=1e-3)
     assert torch.allclose(out @ basis @ basis.T, out, atol=1e-4)
 
 
@@ -85,8 +90,10 @@ def test_the_estimator_fits_and_reloads_a_model_with_a_front(tmp_path) -> None:
     kwargs = {"encoder": "mlp", "decoder": "mlp", "order": 1, "include_sine": False,
               "time": "continuous", "pca_components": 6}
     model = LatentSINDy(1, seed=0, **kwargs).fit(data, epochs=2, starts=1, out=tmp_path / "r")
-    basis = model.model_.autoencoder.encoder.net[0].weight
-    assert torch.allclose(basis @ basis.T, torch.eye(6), atol=1e-4)  # fitted, not zeros
+    w = model.model_.autoencoder.encoder.net[0].weight  # the directions over their spread
+    gram = w @ w.T
+    assert torch.allclose(gram, gram[0, 0] * torch.eye(6), atol=1e-4 * float(gram[0, 0]))
+    assert float(gram[0, 0]) > 0  # fitted, not zeros
     again = LatentSINDy.load(tmp_path / "r")
     frames = data.images[0]
     assert np.array_equal(model.encode(frames), again.encode(frames))

@@ -276,9 +276,11 @@ class Autoencoder(nn.Module):
         if k := self.config.pca_components:
             from latent_sindy.models.front import principal_components
 
-            mean, basis = principal_components(frames.flatten(1), k)
-            self.encoder.net[0].set(basis.T, -(mean @ basis))
-            self.decoder.net[-1].set(basis, mean)
+            mean, basis, spread = principal_components(frames.flatten(1), k)
+            # coordinates of unit spread (the pixels' variance, concentrated on k
+            # directions, would reach the network k-to-pixels times wider)
+            self.encoder.net[0].set(basis.T / spread, -(mean @ basis) / spread)
+            self.decoder.net[-1].set(basis * spread, mean)
 
     def cost_weights(self, period: float) -> torch.Tensor:
         """Q (nz,) of MPPI's latent cost, :func:`~latent_sindy.models.costs.cost_weights`: on

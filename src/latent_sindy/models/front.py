@@ -8,7 +8,7 @@ the map carries the frames' time derivatives exactly. Nothing of it is learned: 
 fitted once, from the normalised training frames, when the model takes its statistics, and
 travels in the model's state (its buffers).
 
-    mean, basis = principal_components(frames.flatten(1), k)   # (pixels,), (pixels, k)
+    mean, basis, spread = principal_components(frames.flatten(1), k)  # (pixels,), (pixels, k)
 """
 
 from __future__ import annotations
@@ -45,10 +45,12 @@ class LinearMap(nn.Module):
 
 
 @torch.no_grad()
-def principal_components(frames: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The mean (pixels,) and the first ``k`` principal directions (pixels, k), orthonormal
-    columns, of ``frames`` (M, pixels), fitted in float64 on at most :data:`FRONT_FRAMES`
-    evenly spaced frames; UserError where there are fewer frames or pixels than ``k``."""
+def principal_components(frames: torch.Tensor, k: int
+                         ) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """The mean (pixels,), the first ``k`` principal directions (pixels, k), orthonormal
+    columns, of ``frames`` (M, pixels), and the rms of the frames' coordinates on them,
+    fitted in float64 on at most :data:`FRONT_FRAMES` evenly spaced frames; UserError where
+    there are fewer frames or pixels than ``k``."""
     m, p = frames.shape
     if k > min(m, p):
         raise UserError(f"pca_components {k}: the training split has {m} frames of {p} values; "
@@ -66,4 +68,5 @@ def principal_components(frames: torch.Tensor, k: int) -> tuple[torch.Tensor, to
         # a direction the frames do not vary along (k of M frames, less their mean) is 0
         flat = top <= values[-1].clamp_min(0) * 1e-12
         basis = ((x.T @ u[:, -k:].flip(1)) / scale).masked_fill(flat, 0.0)
-    return mean.float(), basis.float()
+    spread = (x @ basis).square().mean().sqrt().clamp_min(torch.finfo(x.dtype).tiny)
+    return mean.float(), basis.float(), float(spread)
