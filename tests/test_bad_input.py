@@ -142,7 +142,7 @@ def test_5_collection_that_cannot_fit_in_memory_is_refused_up_front(tmp_path: Pa
 
 # ----------------------------------------------------------------------------- train
 @pytest.mark.parametrize("flag", [["--lambda-l1", "nan"], ["--weight-decay", "inf"],
-                                  ["--lr", "nan"], ["--threshold", "-inf"],
+                                  ["--lr", "nan"], ["--prune-below", "-inf"],
                                   ["--action-dim", "5"]])
 def test_6_7_bad_training_settings_touch_nothing_even_with_overwrite(scratch: Path, capsys,
                                                                      flag) -> None:
@@ -292,8 +292,8 @@ FLAGS = {
     "collect": ["--trajectories", "--steps", "--seed", "--val-fraction", "--test-fraction",
                 "--image-size", "--channels", "--workers", "--block-mass", "--block-friction",
                 "--success-distance"],
-    "train": ["--epochs", "--window", "--batch-size", "--lr", "--weight-decay", "--threshold",
-              "--threshold-every", "--checkpoint-every", "--seed", "--lambda-l1",
+    "train": ["--epochs", "--window", "--batch-size", "--lr", "--weight-decay", "--prune-below",
+              "--prune-every", "--checkpoint-every", "--seed", "--lambda-l1",
               "--lambda-pred-x", "--latent-dim", "--action-dim", "--image-size", "--threads",
               "--eval-every"],
     "control": ["--episodes", "--seed", "--max-steps", "--gif-episodes", "--samples",

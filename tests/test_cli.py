@@ -93,7 +93,7 @@ def test_train_equations_control_smoke(tmp_path):
     write_sequences(data, make_trajectories(n=6, steps=3))
     run_dir = tmp_path / "run"
     r = run("train", "sindy", "--data", str(data), "--order", "1", "--epochs", "2",
-            "--threshold-every", "1", "--out", str(run_dir), "--no-progress")
+            "--prune-every", "1", "--out", str(run_dir), "--no-progress")
     assert r.returncode == 0, r.stderr
     for name in ("config.json", "model.pt", "metrics.csv", "loss.png"):
         assert (run_dir / name).is_file(), name

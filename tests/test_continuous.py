@@ -69,7 +69,7 @@ def estimator(seed: int = 0, refine: int = 20, **model) -> LatentSINDy:
     return LatentSINDy(1, model=ModelConfig(dynamics=dyn, observation=ae), seed=seed,
                        loss=LossWeights(lambda_pred_x=0.1, lambda_pred_z=0.1, lambda_l1=1e-2),
                        settings=TrainConfig(lr=1e-2, weight_decay=0.0, batch_size=40,
-                                            threshold=0.1, threshold_every=40,
+                                            prune_below=0.1, prune_every=40,
                                             refine_epochs=refine))
 
 
@@ -78,7 +78,7 @@ def fitted() -> LatentSINDy:
     with torch.random.fork_rng():
         torch.set_num_threads(1)
         return estimator(refine=4).fit(oscillator(n=6, frames=30), epochs=8,
-                                                          threshold_every=2, threshold=0.01)
+                                                          prune_every=2, prune_below=0.01)
 
 
 # ---------------------------------------------------------------- derivatives

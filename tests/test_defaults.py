@@ -165,7 +165,7 @@ def test_an_autonomous_model_prunes_relative_and_predicts() -> None:
 
     rng = np.random.default_rng(0)
     data = SequenceData(rng.integers(0, 256, (10, 4, 1, 8, 8), dtype=np.uint8))
-    est = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, threshold_every=1, starts=1)
+    est = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, prune_every=1, starts=1)
     assert est.predict(data.images[:3, 0], np.zeros((3, 0))).shape == (3, 1, 8, 8)
     assert np.isfinite(est.score(data))
 
@@ -176,7 +176,7 @@ def test_a_model_that_lost_every_term_says_so_in_one_line(capsys, tmp_path) -> N
     from latent_sindy.equations import equations_report
 
     data = _images_data()
-    kw = {"epochs": 2, "threshold": 1e9, "threshold_every": 1, "starts": 1}
+    kw = {"epochs": 2, "prune_below": 1e9, "prune_every": 1, "starts": 1}
     with pytest.warns(AllTermsPruned, match="every SINDy term was pruned"):
         est = LatentSINDy(2, seed=0, **SMALL).fit(data, **kw)
     est.print()
@@ -229,7 +229,7 @@ def test_refinement_begins_at_the_same_epoch_whether_or_not_starts_are_probed() 
     from latent_sindy import LatentSINDy
 
     data = _images_data()
-    kw = {"epochs": 4, "refine_epochs": 3, "threshold_every": 1}
+    kw = {"epochs": 4, "refine_epochs": 3, "prune_every": 1}
     several = LatentSINDy(2, seed=0, **SMALL).fit(data, starts=2, start_epochs=2, **kw)
     info = several.kept_["start"]
     alone = LatentSINDy(2, seed=info["seeds"][info["chosen"]], **SMALL).fit(

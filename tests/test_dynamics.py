@@ -54,7 +54,7 @@ def _build(case: str) -> LatentDynamics:
     if case.startswith("sindy"):
         model = SindyDynamics(NZ, NU, order=int(case[5]), seed=0, init_scale=0.05)
         if case.endswith("-sparse"):
-            model.threshold(0.04)
+            model.prune(0.04)
             return model.compile_sparse()
         return model
     model = make_dynamics(case, NZ, NU)
@@ -165,10 +165,10 @@ def _hand_set_model() -> SindyDynamics:
     return model
 
 
-def test_threshold_compares_magnitudes() -> None:
+def test_prune_compares_magnitudes() -> None:
     model = _hand_set_model()
     names = model.names
-    assert model.threshold(0.1) == 3
+    assert model.prune(0.1) == 3
     pruned = {(names[i], j) for i, j in (~model.mask).nonzero().tolist()}
     assert pruned == {("u0", 0), ("z0 z1", 0), ("1", 1)}
     coef = model.coefficients().detach()
@@ -181,7 +181,7 @@ def test_threshold_compares_magnitudes() -> None:
 
 def test_pruned_terms_are_never_revived() -> None:
     model = _hand_set_model()
-    model.threshold(0.1)
+    model.prune(0.1)
     mask = model.mask.clone()
     # An optimizer pushes every Ψ entry back up (AdamW momentum, weight decay, a bug...).
     opt = torch.optim.SGD(model.parameters(), lr=1.0)
@@ -191,8 +191,8 @@ def test_pruned_terms_are_never_revived() -> None:
         model.psi.add_(5.0)
     assert torch.equal(model.mask, mask)
     assert (model.coefficients()[~mask] == 0).all()  # the step does not see them
-    assert model.threshold(0.1) == 0  # nothing new to prune, nothing turned back on
-    assert model.threshold(100.0) == mask.sum()  # all survivors go; still a one-way mask
+    assert model.prune(0.1) == 0  # nothing new to prune, nothing turned back on
+    assert model.prune(100.0) == mask.sum()  # all survivors go; still a one-way mask
     assert model.n_active() == 0 and model.sparsity() == 1.0
     z = torch.randn(5, 2)
     torch.testing.assert_close(model.step(z, torch.randn(5, 1)), z)  # only the identity left
@@ -200,7 +200,7 @@ def test_pruned_terms_are_never_revived() -> None:
 
 def test_gradient_of_a_pruned_coefficient_is_zero() -> None:
     model = _hand_set_model()
-    model.threshold(0.1)
+    model.prune(0.1)
     z, u = torch.randn(8, 2), torch.randn(8, 1)
     (model.step(z, u).square().sum() + model.l1_penalty()).backward()
     assert (model.psi.grad[~model.mask] == 0).all()
@@ -210,19 +210,19 @@ def test_gradient_of_a_pruned_coefficient_is_zero() -> None:
 def test_l1_penalty_counts_active_coefficients_only() -> None:
     model = _hand_set_model()
     before = model.psi.detach().abs().sum()
-    model.threshold(0.1)
+    model.prune(0.1)
     expected = float(before) - 0.05 - 0.05 - 0.09999
     assert model.l1_penalty().item() == pytest.approx(expected)
 
 
-def test_threshold_rejects_negative_tau() -> None:
+def test_prune_rejects_negative_tau() -> None:
     with pytest.raises(ValueError, match="non-negative"):
-        SindyDynamics(2, 1).threshold(-0.1)
+        SindyDynamics(2, 1).prune(-0.1)
 
 
 def test_mask_survives_save_and_load(tmp_path: Path) -> None:
     model = _hand_set_model()
-    model.threshold(0.1)
+    model.prune(0.1)
     path = tmp_path / "model.pt"
     torch.save(model.state_dict(), path)
 
@@ -244,7 +244,7 @@ def test_mask_survives_save_and_load(tmp_path: Path) -> None:
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
 def test_sparse_fast_path_equals_dense_step(order: int) -> None:
     model = SindyDynamics(16, 3, order=order, seed=order, init_scale=0.1)
-    model.threshold(0.18)  # keeps ~7 % of the coefficients, scattered over the terms
+    model.prune(0.18)  # keeps ~7 % of the coefficients, scattered over the terms
     fast = model.compile_sparse()
     active_rows = int(model.mask.any(dim=1).sum())
     assert fast.library.n_terms == active_rows < model.library.n_terms
@@ -263,7 +263,7 @@ def test_sparse_fast_path_is_a_snapshot_and_handles_all_pruned() -> None:
     model = _hand_set_model()
     fast = model.compile_sparse()
     assert fast.library.n_terms == model.library.n_terms  # nothing pruned yet
-    model.threshold(10.0)
+    model.prune(10.0)
     z, u = torch.randn(3, 2), torch.randn(3, 1)
     assert not torch.allclose(fast.step(z, u), z)  # the old snapshot is unchanged
     empty = model.compile_sparse()
@@ -280,7 +280,7 @@ def test_equations_and_coefficient_rows() -> None:
         model.psi[names.index("z0 z1"), 0] = -0.031249
         model.psi[names.index("1"), 1] = 1.5
         model.psi[names.index("sin(z0)"), 1] = -2.0e-5
-    model.threshold(1e-6)
+    model.prune(1e-6)
     assert model.equations() == [
         "z0[t+1] = z0 + 0.512 u0 - 0.0312 z0 z1",
         "z1[t+1] = z1 + 1.5 - 2e-05 sin(z0)",
@@ -291,7 +291,7 @@ def test_equations_and_coefficient_rows() -> None:
         ("z0", "u0"), ("z0", "z0 z1"), ("z1", "1"), ("z1", "sin(z0)"),
     ]  # fmt: skip
     assert table[0][2] == pytest.approx(0.51234)
-    model.threshold(10.0)
+    model.prune(10.0)
     assert model.equations() == ["z0[t+1] = z0", "z1[t+1] = z1"]
 
 
@@ -340,7 +340,7 @@ def test_classic_arguments_build_the_same_model_as_their_spec() -> None:
 
 def test_set_coefficients_replaces_psi_and_mask() -> None:
     model = _hand_set_model()
-    model.threshold(0.5)
+    model.prune(0.5)
     coef = torch.zeros(12, 2, dtype=torch.float64)
     coef[model.names.index("u0"), 0] = 0.25
     coef[model.names.index("z0 z1"), 1] = -1.5
@@ -364,7 +364,7 @@ def _with_circle(case: str, circle: tuple[int, int] | None) -> LatentDynamics:
     """The model of ``_build(case)`` (same parameters) built with ``circle``."""
     if case.endswith("-sparse"):
         dense = _with_circle(case.removesuffix("-sparse"), circle)
-        dense.threshold(0.04)  # as _build does
+        dense.prune(0.04)  # as _build does
         return dense.compile_sparse()
     model = _build(case)
     copy = make_dynamics(model.kind, **model.hparams(), circle=circle)
@@ -520,7 +520,7 @@ def test_sparse_dynamics_is_the_one_answer_to_whether_a_model_is_sparse(case: st
     assert sparse == model.sparse == isinstance(model, SindyDynamics)
     if not sparse:
         return
-    pruned = model.threshold(0.03)
+    pruned = model.prune(0.03)
     assert model.n_active() == int(model.mask.sum()) == model.n_candidates() - pruned
     assert model.sparsity() == pytest.approx(pruned / model.n_candidates())
     torch.testing.assert_close(model.l1_penalty(), model.coefficients().abs().sum())

@@ -149,9 +149,9 @@ def test_same_seed_same_result_other_seed_other_resamples(noisy_rows):
 
 def test_without_resampling_it_is_the_base_fit(noisy_rows):
     """No bagging, no library drop: every model is the base fit, spread 0, inclusion 0 or 1."""
-    base = STLSQ(threshold=0.02)
+    base = STLSQ(min_share=0.02)
     ens = EnsembleSTLSQ(base, n_models=3, bagging=False).fit(*noisy_rows)
-    ref = STLSQ(threshold=0.02).fit(*noisy_rows)
+    ref = STLSQ(min_share=0.02).fit(*noisy_rows)
     assert torch.equal(ens.coef_, ref.coef_) and torch.equal(ens.mask_, ref.mask_)
     assert ens.spread_.max() < 1e-15  # round-off of the mean of equal values
     assert torch.equal(ens.inclusion_, ref.mask_.double())

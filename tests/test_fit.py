@@ -118,19 +118,19 @@ def test_stlsq_is_scale_free_and_exact_on_noise_free_data() -> None:
     torch.testing.assert_close(scaled.coef_, coef / col[:, None] * out, rtol=1e-9, atol=0)
 
 
-def test_stlsq_threshold_is_relative_to_the_target() -> None:
+def test_stlsq_min_share_is_relative_to_the_target() -> None:
     theta, coef, target = _random_problem()
     # coef[5, 0] = 0.03 on a column of RMS ~ 10**0.33: a small share of target 0's RMS.
     share = float(
         coef[5, 0] * theta[:, 5].square().mean().sqrt() / target[:, 0].square().mean().sqrt()
     )
-    assert bool(STLSQ(threshold=0.9 * share).fit(theta, target).mask_[5, 0])
-    assert not bool(STLSQ(threshold=1.1 * share).fit(theta, target).mask_[5, 0])
+    assert bool(STLSQ(min_share=0.9 * share).fit(theta, target).mask_[5, 0])
+    assert not bool(STLSQ(min_share=1.1 * share).fit(theta, target).mask_[5, 0])
 
 
 def test_keep_mask_is_the_fit_rule_without_refitting() -> None:
     theta, coef, target = _random_problem()
-    opt = STLSQ(threshold=0.05)
+    opt = STLSQ(min_share=0.05)
     noisy = coef + 1e-9  # every coefficient nonzero; the tiny ones must go
     keep = opt.keep_mask(noisy, theta, target)
     assert torch.equal(keep, opt.fit(theta, target).mask_)
@@ -141,7 +141,7 @@ def test_keep_mask_is_the_fit_rule_without_refitting() -> None:
         opt.keep_mask(noisy[:-1], theta, target)
 
 
-def test_stlsq_mask_only_turns_off_and_threshold_zero_is_least_squares() -> None:
+def test_stlsq_mask_only_turns_off_and_min_share_zero_is_least_squares() -> None:
     theta, _, target = _random_problem(1)
     allowed = torch.ones(10, 3, dtype=torch.bool)
     allowed[4, 1] = False  # a true term excluded by the caller stays excluded
@@ -149,7 +149,7 @@ def test_stlsq_mask_only_turns_off_and_threshold_zero_is_least_squares() -> None
     assert not opt.mask_[4, 1] and not (opt.mask_ & ~allowed).any()
     gen = torch.Generator().manual_seed(3)
     noisy = target + 0.01 * torch.randn(target.shape, generator=gen, dtype=torch.float64)
-    ls = STLSQ(threshold=0.0).fit(theta, noisy)
+    ls = STLSQ(min_share=0.0).fit(theta, noisy)
     assert ls.mask_.all()
     want = torch.linalg.lstsq(theta, noisy, driver="gelsd").solution
     torch.testing.assert_close(ls.coef_, want, rtol=1e-7, atol=1e-12)
@@ -165,7 +165,7 @@ def test_stlsq_handles_zero_columns_and_targets() -> None:
 
 
 @pytest.mark.parametrize(
-    "kwargs", [{"threshold": -1.0}, {"alpha": float("nan")}, {"max_iter": 0}, {"max_iter": 2.5}]
+    "kwargs", [{"min_share": -1.0}, {"alpha": float("nan")}, {"max_iter": 0}, {"max_iter": 2.5}]
 )
 def test_stlsq_rejects_bad_settings(kwargs) -> None:
     with pytest.raises(UserError, match="STLSQ"):
@@ -234,14 +234,14 @@ def test_model_hook_on_a_library_with_trig_of_a_control() -> None:
 
 def test_closed_form_refit_on_the_mask_removes_a_shrinkage(known_data) -> None:
     # A mask with shrunken coefficients (what L1 leaves behind in the image trainer): STLSQ
-    # with threshold 0 restricted to the mask keeps the mask and refits the values exactly.
+    # with min_share 0 restricted to the mask keeps the mask and refits the values exactly.
     model = SindyDynamics(2, 1, order=2, seed=0)
     model.fit_state_data(*known_data, optimizer=STLSQ())
     mask = model.mask.clone()
     with torch.no_grad():
         model.psi.mul_(0.8)
     assert _worst_relative_error(model) > 0.1
-    model.fit_state_data(*known_data, optimizer=STLSQ(threshold=0.0), restrict_to_mask=True)
+    model.fit_state_data(*known_data, optimizer=STLSQ(min_share=0.0), restrict_to_mask=True)
     assert torch.equal(model.mask, mask)
     assert set(_recovered(model)) == set(TRUE_TERMS)
     assert _worst_relative_error(model) < 1e-4

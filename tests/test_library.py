@@ -604,15 +604,15 @@ def test_the_control_kernel_computes_derived_variables_as_the_library(dtype,
                                                                       numba_function) -> None:
     # The fused CPU step calls the node's numba function for its derived variables (also as
     # arguments of trig terms); a node without one is stepped in torch.
-    from latent_sindy.control.sindy_step import SparseSindyStep
+    from latent_sindy.control.sindy_step import SindyKernelStep
     from latent_sindy.models import SindyDynamics
 
     spec = _Hypot(Polynomial("z,u", 2) + Identity("rho") * Polynomial("z", 1)
                   + Identity("u0") * Cosine("rho"), of=("z1", "u1"), scale=0.7,
                   numba=numba_function)
     model = SindyDynamics(3, 2, library_spec=spec, seed=1, init_scale=0.05).to(dtype)
-    model.threshold(0.02)
-    step = SparseSindyStep(model)
+    model.prune(0.02)
+    step = SindyKernelStep(model)
     assert step._torch_only is not numba_function
     assert {"rho", "z2 rho", "u0 cos(rho)"} <= set(step._sparse.names)
     gen = torch.Generator().manual_seed(2)

@@ -34,7 +34,7 @@ def make(iteration: int) -> LatentSINDy:
     return LatentSINDy(model=ModelConfig(
         dynamics=SindyConfig(order=2, include_sine=True),
         observation=AutoencoderConfig(latent_dim=3, encoder_kind="mlp", decoder_kind="mlp"),
-        reward_head=8), settings=TrainConfig(lr=3e-3, threshold_every=0), seed=iteration)
+        reward_head=8), settings=TrainConfig(lr=3e-3, prune_every=0), seed=iteration)
 
 
 def weights(result) -> dict[str, torch.Tensor]:

@@ -15,7 +15,7 @@ from latent_sindy.control import (
     ImageCost,
     LatentCost,
     MPPIConfig,
-    SparseSindyStep,
+    SindyKernelStep,
     latent_step,
 )
 from latent_sindy.errors import UserError
@@ -234,7 +234,7 @@ def build(case: str):
     torch.manual_seed(0)
     if case.startswith("sindy"):
         model = SindyDynamics(NZ, NU, order=int(case[5]), seed=0, init_scale=0.05)
-        model.threshold(0.04)
+        model.prune(0.04)
         return model.compile_sparse() if case.endswith("-sparse") else model
     model = make_dynamics(case, NZ, NU)
     with torch.no_grad():
@@ -264,10 +264,10 @@ def test_every_model_runs_finite_and_in_bounds(case: str) -> None:
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
 def test_sparse_active_terms_give_the_dense_actions(order: int) -> None:
     model = SindyDynamics(NZ, NU, order=order, seed=0, init_scale=0.05)
-    model.threshold(0.04)
+    model.prune(0.04)
     sparse = model.compile_sparse()
     fast = latent_step(model)
-    assert isinstance(fast, SparseSindyStep)
+    assert isinstance(fast, SindyKernelStep)
     assert fast.n_terms == sparse.library.n_terms < model.library.n_terms
     cfg = dict(nu=NU, K=128, H=6, low=PUSH_LOW, high=PUSH_HIGH, seed=2, u_init=(0.0,) * NU)
     runs = []
@@ -297,8 +297,8 @@ def _trig_model(order: int, trig: str, init_scale: float) -> SindyDynamics:
 @pytest.mark.parametrize("tau", [0.0, 0.05, 0.12, 10.0])
 def test_sparse_sindy_step_matches_the_model(order: int, trig: str, tau: float) -> None:
     model = _trig_model(order, trig, init_scale=0.1)
-    model.threshold(tau)
-    step = SparseSindyStep(model)
+    model.prune(tau)
+    step = SindyKernelStep(model)
     gen = torch.Generator().manual_seed(0)
     for k in (5, 9, 5):  # buffers per batch size, reused
         z, u = torch.randn(k, 3, generator=gen), torch.randn(k, 2, generator=gen)
@@ -321,9 +321,9 @@ def test_sparse_sindy_rollout_matches_the_model(order: int, trig: str, dtype) ->
             for j, name in enumerate(("sin(u0)", "cos(u1)", "z2 u1 cos(u0)",
                                       "z0 sin(4 u1)", "cos(0.5 z2)")):
                 model.psi[model.names.index(name), j % 3] = 0.05
-    model.threshold(0.02)
+    model.prune(0.02)
     model = model.to(dtype)
-    step = SparseSindyStep(model)
+    step = SindyKernelStep(model)
     gen = torch.Generator().manual_seed(1)
     z0 = 0.3 * torch.randn(1, 3, generator=gen, dtype=dtype).expand(1100, -1)
     actions = 0.3 * torch.randn(1100, 2, 7, generator=gen, dtype=dtype).transpose(1, 2)
@@ -340,7 +340,7 @@ def test_sparse_sindy_step_sine_is_accurate_far_from_zero() -> None:
     # The kernel computes its own sine (range reduction + polynomial): check it on |z| <= 200.
     model = SindyDynamics(2, 1, order=1, seed=0, include_sine=True, include_cosine=True)
     model = model.double()
-    step = SparseSindyStep(model)
+    step = SindyKernelStep(model)
     z = torch.linspace(-200, 200, 40000, dtype=torch.float64).reshape(-1, 2)
     u = torch.zeros(z.shape[0], 1, dtype=torch.float64)
     with torch.no_grad():
@@ -349,7 +349,7 @@ def test_sparse_sindy_step_sine_is_accurate_far_from_zero() -> None:
 
 def test_sparse_sindy_step_propagates_nan_and_inf() -> None:
     model = SindyDynamics(3, 2, order=2, seed=0, init_scale=0.1, include_sine=True)
-    step = SparseSindyStep(model)
+    step = SindyKernelStep(model)
     z = torch.tensor([[math.nan, 0.0, 0.0], [math.inf, 0.0, 0.0], [1e30, 1e30, 0.0],
                       [0.1, 0.2, 0.3]])
     out = step(z, torch.zeros(4, 2))
@@ -386,7 +386,7 @@ def _face_model(circle: tuple[int, int] | None, dtype: torch.dtype) -> SindyDyna
     """A pruned face-library SINDy model on a pose latent (x, y, cos 4θ, sin 4θ), nu = 3."""
     model = SindyConfig(order=1, library="face", include_sine=False, init_scale=0.02).build(
         NZ, NU, circle=circle)
-    model.threshold(0.01)
+    model.prune(0.01)
     return model.to(dtype)
 
 
@@ -408,7 +408,7 @@ def test_the_fused_rollout_projects_as_the_model_does(circle, dtype) -> None:
     predicted (z2, z3) lies on it and the kernel equals the torch model's projected rollout
     to rounding; without one both stay unprojected (the pair leaves the circle)."""
     model = _face_model(circle, dtype)
-    step = SparseSindyStep(model)
+    step = SindyKernelStep(model)
     assert step.circle == circle
     z0, actions = _pose_batch(1100, 20, dtype)
     with torch.no_grad():
@@ -433,7 +433,7 @@ def test_every_control_step_of_a_pose_latent_stays_on_the_circle(case: str) -> N
     if case.startswith("sindy"):
         dense = SindyDynamics(NZ, NU, order=int(case[5]), seed=0, init_scale=0.05,
                               circle=(2, 3))
-        dense.threshold(0.04)
+        dense.prune(0.04)
         model = dense.compile_sparse() if case.endswith("-sparse") else dense
     else:
         params = model.state_dict()
@@ -466,16 +466,16 @@ def test_the_check_catches_a_kernel_that_skips_the_projection(monkeypatch) -> No
         args[13] = args[14] = -1
         real(*args)
 
-    SparseSindyStep(_face_model((2, 3), torch.float32))  # the real kernel passes the check
+    SindyKernelStep(_face_model((2, 3), torch.float32))  # the real kernel passes the check
     monkeypatch.setattr(sindy_step, "_kernel", lambda: unprojected)
-    SparseSindyStep(_face_model(None, torch.float32))  # nothing to project: still agrees
+    SindyKernelStep(_face_model(None, torch.float32))  # nothing to project: still agrees
     with pytest.raises(RuntimeError, match="circle projection"):
-        SparseSindyStep(_face_model((2, 3), torch.float32))
+        SindyKernelStep(_face_model((2, 3), torch.float32))
 
 
 def test_sparse_sindy_step_rejects_other_models() -> None:
     with pytest.raises(TypeError, match="SINDy"):
-        SparseSindyStep(make_dynamics("linear", 2, 1))
+        SindyKernelStep(make_dynamics("linear", 2, 1))
 
 
 # ---------------------------------------------------------------- costs and configuration
@@ -553,7 +553,7 @@ def test_sparse_sindy_step_serves_mppi_and_plain_calls() -> None:
     # Its reused buffers are made outside inference mode, so the same step object works for
     # MPPI (inference mode) and afterwards under no_grad or with autograd on.
     model = SindyDynamics(NZ, NU, order=2, seed=0, init_scale=0.05)
-    model.threshold(0.04)
+    model.prune(0.04)
     step = latent_step(model)
     mppi_of(step, torch.zeros(NZ), nu=NU, K=8, H=2).command(torch.ones(NZ))
     z, u = torch.randn(8, NZ), torch.randn(8, NU)
@@ -572,8 +572,8 @@ def test_sparse_sindy_step_computes_the_face_variables_as_the_model(dtype, sense
 
     model = SindyDynamics(4, 3, library_spec=frame_library(sense=sense, angle_offset=0.7),
                           seed=2, init_scale=0.05, circle=(2, 3)).to(dtype)
-    model.threshold(0.03)
-    step = SparseSindyStep(model)
+    model.prune(0.03)
+    step = SindyKernelStep(model)
     assert any("a" in name.split() or "cos(n)" in name for name in step._sparse.names)
     gen = torch.Generator().manual_seed(4)
     z0 = torch.randn(700, 4, generator=gen, dtype=dtype)
@@ -592,9 +592,9 @@ def test_sparse_sindy_step_turns_the_pair_as_the_model(dtype) -> None:
 
     model = SindyDynamics(4, 3, library_spec=frame_library(), seed=3, init_scale=0.2,
                           circle=(2, 3), turn=True).to(dtype)
-    model.threshold(0.1)
+    model.prune(0.1)
     assert not model.mask[:, 3].any() and model.mask[:, 2].any()
-    step = SparseSindyStep(model)
+    step = SindyKernelStep(model)
     gen = torch.Generator().manual_seed(5)
     z0 = torch.randn(600, 4, generator=gen, dtype=dtype)
     actions = torch.randn(600, 5, 3, generator=gen, dtype=dtype)

@@ -61,7 +61,7 @@ def rendered(tmp_path_factory) -> Path:
 def config(data: Path, out: Path, head: str, lambda_pose: float, **kw) -> TrainConfig:
     model = ModelConfig(observation=AutoencoderConfig(decoder_kind="conv"),
                         dynamics=SindyConfig(order=1), pose_head=head)
-    kw = {"epochs": 3, "batch_size": 16, "threshold_every": 0, **kw}
+    kw = {"epochs": 3, "batch_size": 16, "prune_every": 0, **kw}
     return TrainConfig(data=data, out=out, model=model,
                        loss=LossWeights(lambda_pose=lambda_pose), **kw)
 

@@ -30,8 +30,8 @@ def _cfg(**changes) -> TrainConfig:
     model = ModelConfig(dynamics=SindyConfig(order=1, include_sine=False),
                         encoder=AutoencoderConfig(latent_dim=2, encoder_kind="mlp",
                                                   decoder_kind="mlp"))
-    return replace(TrainConfig(model=model, epochs=6, starts=1, threshold=1e-3,
-                               threshold_every=2, refine_epochs=1, lr=1e-3), **changes)
+    return replace(TrainConfig(model=model, epochs=6, starts=1, prune_below=1e-3,
+                               prune_every=2, refine_epochs=1, lr=1e-3), **changes)
 
 
 def _state(session) -> dict[str, torch.Tensor]:
@@ -50,7 +50,7 @@ def test_one_phase_of_every_epoch_is_the_whole_fit() -> None:
 
 def test_a_phase_counts_its_epochs_on_and_selects_among_its_own() -> None:
     session = prepare(_cfg(), _data())
-    first = session.fit(Phase(3, "warm-up", {"threshold_every": 0}, adopt=False))
+    first = session.fit(Phase(3, "warm-up", {"prune_every": 0}, adopt=False))
     last_of_first = _state(session)  # adopt=False: the session goes on from epoch 3's weights
     second = session.fit(Phase(3, "main"))
     assert [r["epoch"] for r in first.metrics] == [1, 2, 3]

@@ -40,12 +40,12 @@ def moving(half: tuple[float, float], n: int = 10, steps: int = 5, seed: int = 0
                         split=split)
 
 
-def estimator(threshold: float = 0.05, order: int = 0) -> LatentSINDy:
+def estimator(min_share: float = 0.05, order: int = 0) -> LatentSINDy:
     obs = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,
                             moment_order=order, mask_channels=4, mask_layers=1)
     return LatentSINDy(model=ModelConfig(observation=obs, dynamics=SindyConfig(order=1)),
-                       settings=TrainConfig(sindy_fit="after", sindy_init_threshold=threshold,
-                                            order_epochs=2, batch_size=20, threshold_every=0),
+                       settings=TrainConfig(sindy_fit="after", sindy_init_share=min_share,
+                                            order_epochs=2, batch_size=20, prune_every=0),
                        loss=LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0),
                        seed=0)
 
@@ -62,9 +62,9 @@ def test_the_data_chooses_the_order_and_the_record_states_it(half, order) -> Non
 
 def test_after_the_autoencoder_the_coefficients_are_the_regression_of_its_latents() -> None:
     """The coefficients equal STLSQ of the trained encoder's training transitions, at the
-    given threshold (some terms dropped); the joint fit's do not."""
+    given share (some terms dropped); the joint fit's do not."""
     data = moving((2.5, 2.5))
-    est = estimator(threshold=0.1, order=4).fit(data, epochs=2)
+    est = estimator(min_share=0.1, order=4).fit(data, epochs=2)
     model, norm = est.model_, est.normalizer_
     train = data.split("train")
     with torch.no_grad():
@@ -72,10 +72,10 @@ def test_after_the_autoencoder_the_coefficients_are_the_regression_of_its_latent
     u = torch.as_tensor(train.actions)
     again = SindyConfig(order=1).build(4, 3)
     again.fit_state_data(z[:, :-1].reshape(-1, 4), u.reshape(-1, 3), z[:, 1:].reshape(-1, 4),
-                         optimizer=STLSQ(threshold=0.1))
+                         optimizer=STLSQ(min_share=0.1))
     got, want = est.coefficients(), again.coefficients().detach().numpy().T
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
-    assert 0 < (got != 0).sum() < got.size  # the threshold dropped some terms, not all
+    assert 0 < (got != 0).sum() < got.size  # the share dropped some terms, not all
     joint = LatentSINDy(model=est.model_config, settings=TrainConfig(batch_size=20),
                         seed=0).fit(data, epochs=2)
     assert not np.allclose(joint.coefficients(), want, atol=1e-3)

@@ -37,7 +37,7 @@ def test_on_a_dependent_library_it_finds_the_simplest_law():
     coef = {name: opt.coef_[lib.names.index(name), 0].item() for name in ("z0", "z1")}
     assert coef == pytest.approx({"z0": 1.0, "z1": 2.0}, abs=1e-5)
     # STLSQ judges coefficients: the spread over the dependent terms keeps more of them
-    stlsq = STLSQ(threshold=0.01).fit(theta, target)
+    stlsq = STLSQ(min_share=0.01).fit(theta, target)
     assert int(stlsq.mask_.sum()) > int(opt.mask_.sum())
 
 

@@ -63,7 +63,7 @@ def config(data: Path, out: Path, kind: str = "sindy", **kw) -> TrainConfig:
     dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw.pop("dynamics", {})
     auto = AutoencoderConfig(**{**TINY_AE, **kw.pop("autoencoder", {})})
     model = ModelConfig(encoder=auto, dynamics=DYNAMICS_KINDS[kind](**dyn))
-    kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "threshold_every": 0, "starts": 1, **kw}
+    kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "prune_every": 0, "starts": 1, **kw}
     return TrainConfig(data=data, out=out, model=model, **kw)
 
 
@@ -108,7 +108,7 @@ def _dark_centroid(img: np.ndarray, level: float = 150.0) -> np.ndarray:
 
 def test_end_to_end_learns_recognisable_images(data: Path, tmp_path: Path) -> None:
     cfg = TrainConfig(
-        data=data, out=tmp_path / "run", epochs=120, lr=3e-3, batch_size=500, threshold_every=30
+        data=data, out=tmp_path / "run", epochs=120, lr=3e-3, batch_size=500, prune_every=30
     )
     run = train(cfg)
     for name in ("config.json", "model.pt", "checkpoint.pt", "metrics.csv", "loss.png"):
@@ -171,15 +171,15 @@ def pruned_run(data: Path, tmp_path_factory: pytest.TempPathFactory):
         data,
         out,
         epochs=8,
-        threshold=3e-3,
-        threshold_every=2,
+        prune_below=3e-3,
+        prune_every=2,
         checkpoint_every=1,
         dynamics={"init_scale": 3e-3},
     )
     return train(cfg, Recorder(grab)), masks
 
 
-def test_thresholding_never_revives_a_term(pruned_run) -> None:
+def test_pruning_never_revives_a_term(pruned_run) -> None:
     run, masks = pruned_run
     counts = [int(m.sum()) for m in masks]
     assert counts[0] == masks[0].numel()  # nothing pruned before epoch 2
@@ -250,7 +250,7 @@ def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str,
                                      batching: str) -> None:
     """N epochs, then resume to 2N == 2N straight (pruning at epochs 2 and 4 included)."""
     scale = {} if kind == "mlp" else {"init_scale": 3e-3}  # an MLP has no coefficient scale
-    kw = {"threshold": 3e-3, "threshold_every": 2, "dynamics": scale, "batching": batching}
+    kw = {"prune_below": 3e-3, "prune_every": 2, "dynamics": scale, "batching": batching}
     straight = train(config(data, tmp_path / "straight", kind, epochs=6, **kw))
     part = config(data, tmp_path / "resumed", kind, epochs=3, checkpoint_every=1, **kw)
     train(part)
@@ -267,7 +267,7 @@ def test_resume_equals_uninterrupted(data: Path, tmp_path: Path, kind: str,
 
 def test_resume_after_a_kill_mid_run(data: Path, tmp_path: Path) -> None:
     """Killed in epoch 5 with checkpoints every 2: resume restarts after epoch 4."""
-    kw = {"threshold_every": 3, "threshold": 3e-3, "dynamics": {"init_scale": 3e-3}}
+    kw = {"prune_every": 3, "prune_below": 3e-3, "dynamics": {"init_scale": 3e-3}}
     straight = train(config(data, tmp_path / "straight", epochs=6, **kw))
     cfg = config(data, tmp_path / "killed", epochs=6, checkpoint_every=2, **kw)
 
@@ -326,9 +326,9 @@ def reference_model(cfg: TrainConfig) -> tuple[LatentModel, list[float]]:
             opt.zero_grad(set_to_none=True)
             terms["total"].backward()
             opt.step()
-        if cfg.threshold_every and epoch % cfg.threshold_every == 0:
+        if cfg.prune_every and epoch % cfg.prune_every == 0:
             with torch.no_grad():
-                model.dynamics.threshold(cfg.threshold)
+                model.dynamics.prune(cfg.prune_below)
                 for key in ("exp_avg", "exp_avg_sq"):
                     opt.state[model.dynamics.psi][key].masked_fill_(~model.dynamics.mask, 0.0)
         with torch.no_grad():
@@ -341,7 +341,7 @@ def reference_model(cfg: TrainConfig) -> tuple[LatentModel, list[float]]:
 def test_eval_every_changes_the_metrics_only(data: Path, tmp_path: Path) -> None:
     """eval_every=1 gives the model and losses of the trainer as it was, bit for bit; other
     values leave val/* empty except every N-th and the last epoch, and the same model."""
-    kw = {"epochs": 5, "threshold": 3e-3, "threshold_every": 2, "dynamics": {"init_scale": 3e-3},
+    kw = {"epochs": 5, "prune_below": 3e-3, "prune_every": 2, "dynamics": {"init_scale": 3e-3},
           "batch_size": 20,  # one batch per epoch: the validation loss is one batch too
           "batching": "windows", "prune": "absolute"}
     every = train(config(data, tmp_path / "every", **kw))
@@ -385,8 +385,8 @@ def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int,
                                      batching: str) -> None:
     """Two trainings of the conv decoder (the CPU's own kernels included) from one seed give
     the same weights, bit for bit; another seed does not."""
-    kw = {"autoencoder": {"decoder": "conv"}, "epochs": 3, "threshold": 3e-3,
-          "threshold_every": 2, "dynamics": {"init_scale": 3e-3}, "batching": batching}
+    kw = {"autoencoder": {"decoder": "conv"}, "epochs": 3, "prune_below": 3e-3,
+          "prune_every": 2, "dynamics": {"init_scale": 3e-3}, "batching": batching}
     torch.set_num_threads(threads)
     try:
         a, b = (train(config(data, tmp_path / name, **kw)) for name in "ab")
@@ -509,9 +509,9 @@ def test_the_best_validation_epoch_is_kept(data: Path, tmp_path: Path, monkeypat
 
 def test_only_epochs_with_the_final_mask_are_kept(data: Path, tmp_path: Path,
                                                    monkeypatch) -> None:
-    """Pruning at epoch 2 removes every term (threshold 10): epoch 1, the lowest, has another
+    """Pruning at epoch 2 removes every term (prune_below 10): epoch 1, the lowest, has another
     mask and is not kept; the prunings at 4 and 6 remove nothing and change no mask."""
-    kw = {"threshold": 10.0, "threshold_every": 2}
+    kw = {"prune_below": 10.0, "prune_every": 2}
     scripted_validation(monkeypatch, [1.0, 5.0, 4.0, 3.0, 3.5, 6.0])
     run = train(config(data, tmp_path / "run", epochs=6, **kw))
     monkeypatch.undo()
@@ -566,7 +566,7 @@ def test_device_cuda_without_cuda_is_one_line(data: Path, tmp_path: Path, monkey
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_cuda_training_writes_cpu_files(data: Path, tmp_path: Path) -> None:
-    kw = {"threshold": 3e-3, "threshold_every": 1, "dynamics": {"init_scale": 3e-3}}
+    kw = {"prune_below": 3e-3, "prune_every": 1, "dynamics": {"init_scale": 3e-3}}
     run = train(config(data, tmp_path / "run", device="cuda", epochs=2, **kw))
     ckpt = torch.load(run / "checkpoint.pt", weights_only=True)  # no map_location needed
     assert all(t.device.type == "cpu" for t in ckpt["model"].values())
@@ -625,7 +625,7 @@ def test_nan_loss_stops_with_a_clear_error(data: Path, tmp_path: Path, monkeypat
         ({"lr": math.nan}, "--lr"),
         ({"weight_decay": math.inf}, "--weight-decay"),
         ({"lr": -1.0}, "--lr"),
-        ({"threshold_every": -1}, "--threshold-every"),
+        ({"prune_every": -1}, "--prune-every"),
         ({"resume": True, "overwrite": True}, "contradict"),
         ({"eval_every": 0}, "--eval-every 0"),
         ({"device": "tpu"}, "--device 'tpu' is unknown"),

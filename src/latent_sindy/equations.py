@@ -83,7 +83,7 @@ def pruned_note(dynamics: Any) -> str | None:
     if not getattr(dynamics, "sparse", False) or dynamics.n_active() > 0:
         return None
     return ("every SINDy term was pruned: the model predicts that nothing moves (z[t+1] = z); "
-            "lower the threshold, train longer, or try more starts")
+            "lower --prune-below, train longer, or try more starts")
 
 
 def equations_report(run_dir: str | os.PathLike, export: bool = True, precision: int = 3) -> str:

@@ -25,7 +25,7 @@ from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult,
 from latent_sindy.control.model_based_compare import compare_models
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
-from latent_sindy.control.sindy_step import SparseSindyStep
+from latent_sindy.control.sindy_step import SindyKernelStep, SparseSindyStep
 from latent_sindy.control.world import Task, World
 
 __all__ = [
@@ -44,6 +44,7 @@ __all__ = [
     "Policy",
     "PoseCost",
     "RewardCost",
+    "SindyKernelStep",
     "SparseSindyStep",
     "StateCost",
     "Task",

@@ -1,4 +1,4 @@
-"""The numba kernel behind :class:`latent_sindy.control.sindy_step.SparseSindyStep`.
+"""The numba kernel behind :class:`latent_sindy.control.sindy_step.SindyKernelStep`.
 
 Imported only when a SINDy step first runs on the CPU (importing numba takes a moment).
 Every loop over samples is innermost and contiguous, so LLVM vectorises it. Of the fast-math

@@ -98,10 +98,10 @@ class ModelBasedConfig:
     chosen from the data, as a plain fit does."""
     prune_rate: float = 0.3
     """Share of a SINDy model's active terms each warm refit prunes before its updates (the
-    smallest by the fit's ``--prune`` measure, after those below its threshold); 0: refits
+    smallest by the fit's ``--prune`` measure, after those below its ``--prune-below``); 0: refits
     prune only on the fit's own schedule."""
     prune_to: int = 48
-    """Active SINDy terms below which the refits' pruning by share stops (the threshold may
+    """Active SINDy terms below which the refits' pruning by share stops (``--prune-below`` may
     still remove terms)."""
     mppi: MPPIConfig = field(default_factory=lambda: MPPIConfig(
         samples=300, horizon=12, sigma=0.3, lambda_=1.0, shift="repeat"))

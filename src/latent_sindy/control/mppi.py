@@ -32,9 +32,9 @@ import tyro
 from torch import Tensor
 
 from latent_sindy.control.costs import LatentCost, StateCost
-from latent_sindy.control.sindy_step import SparseSindyStep
+from latent_sindy.control.sindy_step import SindyKernelStep
 from latent_sindy.errors import UserError
-from latent_sindy.models.dynamics import LatentDynamics, SindyDynamics, SparseSindyDynamics
+from latent_sindy.models.dynamics import CompiledSindy, LatentDynamics, SindyDynamics
 
 __all__ = ["MPPI", "DynamicsStep", "MPPIConfig", "MPPIInfo", "latent_step"]
 
@@ -137,13 +137,13 @@ def latent_step(model: LatentDynamics) -> DynamicsStep:
     """The fastest equivalent ``step`` of a latent model for control.
 
     A SINDy model (:class:`SindyDynamics` or its ``compile_sparse()``) becomes a
-    :class:`SparseSindyStep` over its active library terms only (a frozen snapshot: call again
+    :class:`SindyKernelStep` over its active library terms only (a frozen snapshot: call again
     after further training or pruning); every other model's own ``step`` is returned. Either
     way a model with a ``circle`` (a pose latent) keeps its angle features on the unit circle
     after every step, as in training.
     """
-    if isinstance(model, SindyDynamics | SparseSindyDynamics):
-        return SparseSindyStep(model)
+    if isinstance(model, SindyDynamics | CompiledSindy):
+        return SindyKernelStep(model)
     return model.step
 
 
@@ -299,7 +299,7 @@ class MPPI:
         """Σ_t c(z_t) + w_T c(z_H) of all K samples: z0 (1, nz), actions (K, H, nu) -> (K,).
 
         A step with a ``rollout(z0 (K, nz), actions (K, H, nu)) -> (K, H+1, nz)`` method (like
-        :class:`SparseSindyStep`) predicts the whole horizon in one call; any other step is
+        :class:`SindyKernelStep`) predicts the whole horizon in one call; any other step is
         called H times. The cost then runs once on all predicted states, (H, K, nz), or on
         the states the actions are taken in and the actions (a cost that ``takes_actions``).
         """

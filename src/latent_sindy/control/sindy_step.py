@@ -27,7 +27,7 @@ and pose latents with and without the circle).
 On devices other than the CPU, and for derived variables whose node supplies no numba
 function, the model's sparse torch step (projection included) runs instead.
 
-    >>> step = SparseSindyStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
+    >>> step = SindyKernelStep(model)  # model: SindyDynamics (pruned) or its compile_sparse()
     >>> z_next = step(z, u)  # z (K, nz), u (K, nu) -> (K, nz)
     >>> zs = step.rollout(z0, actions)  # (K, nz), (K, H, nu) -> (K, H+1, nz)
 """
@@ -41,9 +41,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from latent_sindy.models.dynamics import SindyDynamics, SparseSindyDynamics
+from latent_sindy.models.dynamics import CompiledSindy, SindyDynamics
 
-__all__ = ["SparseSindyStep"]
+__all__ = ["SindyKernelStep", "SparseSindyStep"]
 
 _FLOATS = (torch.float32, torch.float64)
 
@@ -61,11 +61,11 @@ def _kernel() -> Callable[..., None]:
     return sindy_rollout_kernel
 
 
-class SparseSindyStep:
+class SindyKernelStep:
     """Frozen, fused evaluation of ``z + Θ_S(z, u) C_S`` over the active terms S.
 
     Built from a :class:`SindyDynamics` (compiled to its active terms first: a snapshot, so
-    build again after further training or pruning) or a :class:`SparseSindyDynamics`.
+    build again after further training or pruning) or a :class:`CompiledSindy`.
     ``n_terms`` is |S| and ``n_coefficients`` the number of nonzero coefficients; ``circle``
     is the model's (the pair kept on the unit circle after every step, or None).
 
@@ -74,10 +74,10 @@ class SparseSindyStep:
     (about a second; numba caches it on disk for later processes).
     """
 
-    def __init__(self, model: SindyDynamics | SparseSindyDynamics) -> None:
+    def __init__(self, model: SindyDynamics | CompiledSindy) -> None:
         sparse = model.compile_sparse() if isinstance(model, SindyDynamics) else model
-        if not isinstance(sparse, SparseSindyDynamics):
-            raise TypeError(f"SparseSindyStep needs a SINDy model, got {type(model).__name__}")
+        if not isinstance(sparse, CompiledSindy):
+            raise TypeError(f"SindyKernelStep needs a SINDy model, got {type(model).__name__}")
         self._sparse = sparse
         nz, nu = sparse.nz, sparse.nu
         self.nz, self.nu = nz, nu
@@ -212,8 +212,11 @@ class SparseSindyStep:
         scale = 1.0 + want.abs().max()
         if not bool(((want - got).abs() <= 1e-4 * scale).all()):
             raise RuntimeError(
-                "SparseSindyStep disagrees with SparseSindyDynamics.step (max difference "
+                "SindyKernelStep disagrees with CompiledSindy.step (max difference "
                 f"{float((want - got).abs().max()):.3g}): the library's feature layout "
                 "[z, u, derived, 1, trig...] or the step's circle projection has changed; update "
                 "latent_sindy/control/sindy_step.py"
             )
+
+
+SparseSindyStep = SindyKernelStep  # old name

@@ -18,7 +18,7 @@ What a continued fit keeps and what it changes:
   (without replacement) from all of them, so a refit's cost does not grow with the data;
   otherwise whole epochs, rounded up;
 * pruning across refits (``prune_rate`` > 0, SINDy only): before its updates each refit
-  drops the coefficients below the fit's threshold (as ``--prune`` measures them) and then
+  drops the coefficients below the fit's ``--prune-below`` (as ``--prune`` measures them) and then
   the smallest ``prune_rate`` of the active ones by the same measure, never below
   ``prune_to``; the refit's updates then adapt the others to the new mask (AdamW's moments
   of the pruned entries cleared).
@@ -144,7 +144,7 @@ def warm_fit(estimator: Any, data: SequenceData, settings: dict[str, Any], state
 
 
 def _prune_step(session: Session, rate: float, floor: int) -> int:
-    """Prune the session's SINDy model below its threshold, then its smallest ``rate`` of
+    """Prune the session's SINDy model below its ``prune_below``, then its smallest ``rate`` of
     active terms (never below ``floor``), measured on its training windows; the count."""
     model = session.model
     if not model.dynamics.sparse:
@@ -153,7 +153,7 @@ def _prune_step(session: Session, rate: float, floor: int) -> int:
     with torch.no_grad():
         scale = (share_scale(model, x, u) if resolve_prune(session.cfg) == "relative"
                  else None)
-    pruned = prune(model, session.opt, session.cfg.threshold, scale)
+    pruned = prune(model, session.opt, session.cfg.prune_below, scale)
     dyn = model.dynamics
     active = dyn.n_active()
     keep = max(floor, math.ceil(active * (1 - rate)))

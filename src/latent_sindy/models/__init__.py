@@ -21,6 +21,7 @@ from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import (
     DYNAMICS_CONFIGS,
     DYNAMICS_KINDS,
+    CompiledSindy,
     DynamicsConfig,
     LatentDynamics,
     LinearConfig,
@@ -53,6 +54,7 @@ __all__ = [
     "OBSERVATION_CONFIGS",
     "Autoencoder",
     "AutoencoderConfig",
+    "CompiledSindy",
     "DynamicsConfig",
     "EncoderConfig",
     "LatentDynamics",

@@ -6,23 +6,26 @@ is divided by its root mean square (RMS) and every coefficient is judged by the 
 term's contribution, relative to the RMS of the target column it explains. A term stays
 active in column j while
 
-    |coef[i, j]| · rms(theta[:, i]) >= threshold · rms(target[:, j]),
+    |coef[i, j]| · rms(theta[:, i]) >= min_share · rms(target[:, j]),
 
-i.e. while it contributes at least ``threshold`` of that target's size. Each round solves a
-ridge regression (``alpha`` relative to the unit diagonal of the normalised Gram matrix) on
-the active terms and drops those below the rule, until nothing changes; then an ordinary
-least-squares refit on the final active set removes the ridge's shrinkage (``unbias``).
+i.e. while it contributes at least the share ``min_share`` of that target's size (a relative
+cut, unlike pysindy's STLSQ, whose ``threshold`` is an absolute coefficient magnitude). Each
+round solves a ridge regression (``alpha`` relative to the unit diagonal of the normalised
+Gram matrix) on the active terms and drops those below the rule, until nothing changes; then
+an ordinary least-squares refit on the final active set removes the ridge's shrinkage
+(``unbias``).
 The mask only ever turns terms off, so a given starting ``mask`` (e.g. a model's) is kept.
 The checked, normalised problem and the per-column solves (:func:`normalised_problem`,
 :func:`ridge_solve`, :func:`lstsq_solve`) are shared with the other sparsifiers.
 
-    >>> opt = STLSQ(threshold=1e-2).fit(theta, target)  # theta (N, p), target (N, m)
+    >>> opt = STLSQ(min_share=1e-2).fit(theta, target)  # theta (N, p), target (N, m)
     >>> opt.coef_.shape, opt.mask_.shape  # (p, m) float64, (p, m) bool
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,9 +52,10 @@ class STLSQ:
     """Sequentially thresholded least squares on RMS-normalised columns.
 
     Args:
-        threshold: smallest relative contribution of an active term (see the module
+        min_share: smallest relative contribution of an active term (see the module
             docstring): the default keeps the terms that explain at least 1 % of a target's
-            RMS. 0 keeps every term (then it is a ridge / least-squares fit).
+            RMS. 0 keeps every term (then it is a ridge / least-squares fit). ``threshold=``,
+            its old name, still reads (with a FutureWarning).
         alpha: ridge weight during thresholding, relative to the unit diagonal of the
             normalised Gram matrix ``theta_nᵀ theta_n / N``. Keep it below that matrix's
             smallest eigenvalue: a larger ridge moves weight between nearly collinear columns
@@ -76,26 +80,39 @@ class STLSQ:
 
     def __init__(
         self,
-        threshold: float = 1e-2,
+        min_share: float = 1e-2,
         alpha: float = 1e-10,
         max_iter: int = 20,
         unbias: bool = True,
+        *,
+        threshold: float | None = None,
     ) -> None:
-        for name, value in (("threshold", threshold), ("alpha", alpha)):
+        if threshold is not None:
+            warnings.warn(
+                "STLSQ(threshold=...) is now STLSQ(min_share=...): the smallest share of its "
+                "target's RMS a term must explain (on RMS-normalised columns), not pysindy's "
+                "absolute coefficient cut", FutureWarning, stacklevel=2)
+            min_share = threshold
+        for name, value in (("min_share", min_share), ("alpha", alpha)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise UserError(f"STLSQ {name}={value!r} is not valid: use a number >= 0")
         if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
             raise UserError(f"STLSQ max_iter={max_iter!r} is not valid: use an integer >= 1")
-        self.threshold = float(threshold)
+        self.min_share = float(min_share)
         self.alpha = float(alpha)
         self.max_iter = max_iter
         self.unbias = bool(unbias)
 
     def __repr__(self) -> str:
         return (
-            f"STLSQ(threshold={self.threshold:g}, alpha={self.alpha:g}, "
+            f"STLSQ(min_share={self.min_share:g}, alpha={self.alpha:g}, "
             f"max_iter={self.max_iter}, unbias={self.unbias})"
         )
+
+    @property
+    def threshold(self) -> float:
+        """:attr:`min_share` under its old name (read-only)."""
+        return self.min_share
 
     def fit(self, theta: ArrayLike, target: ArrayLike, mask: ArrayLike | None = None) -> STLSQ:
         """Fit ``target ≈ theta @ coef_``; returns ``self``.
@@ -107,7 +124,7 @@ class STLSQ:
         """
         prob = normalised_problem(theta, target, mask, "STLSQ.fit")
         gram, rhs, active = prob.gram, prob.rhs, prob.active
-        bound = self.threshold * prob.target_scale  # (m,) in the coefficients' normalised scale
+        bound = self.min_share * prob.target_scale  # (m,) in the coefficients' normalised scale
 
         n_iter = 0
         while n_iter < self.max_iter:
@@ -138,7 +155,7 @@ class STLSQ:
         trainer): ``coef`` (p, m) its current coefficients, ``theta`` (N, p) and ``target``
         (N, m) a batch of library values and targets (for latent SINDy: Θ(z_t, u_t) and
         z_{t+1} − z_t of encoded frames) that set the scales. Returns the (p, m) bool mask
-        ``mask & (|coef| · rms(theta) >= threshold · rms(target))``, on ``coef``'s device.
+        ``mask & (|coef| · rms(theta) >= min_share · rms(target))``, on ``coef``'s device.
         """
         c = torch.as_tensor(coef).detach()
         th = as_matrix(theta, "theta")
@@ -149,7 +166,7 @@ class STLSQ:
                 f"and target, got {tuple(c.shape)}"
             )
         share = c.to("cpu", torch.float64).abs() * th.square().mean(dim=0).sqrt()[:, None]
-        keep = share >= self.threshold * y.square().mean(dim=0).sqrt()[None, :]
+        keep = share >= self.min_share * y.square().mean(dim=0).sqrt()[None, :]
         if mask is not None:
             keep &= torch.as_tensor(mask).to("cpu", torch.bool)
         return keep.to(c.device)

@@ -15,13 +15,14 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import torch
 import tyro
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
+from latent_sindy.models.renamed import renamed
 
 __all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "PRUNINGS", "RESUMABLE", "TrainConfig",
            "auto_batch_size", "check_fit_settings", "default_threads", "resolve_batching",
@@ -50,6 +51,8 @@ AUTO_BATCH = (16, 500)
 DEVICES = ("auto", "cpu", "cuda")
 
 
+@renamed(threshold="prune_below", threshold_every="prune_every",
+         sindy_init_threshold="sindy_init_share")
 @dataclass(frozen=True)
 class TrainConfig:
     """Settings of one training run; with the data file they determine the final model."""
@@ -97,16 +100,16 @@ class TrainConfig:
     runs). 1: the seed's alone. Costs (starts - 1) x start-epochs more epochs."""
     start_epochs: int | None = None
     """Epochs each start trains before the choice (None: a fifth of --epochs)."""
-    threshold: float = 1e-3
+    prune_below: Annotated[float, tyro.conf.arg(aliases=("--threshold",))] = 1e-3
     """SINDy: prune the coefficients below this, as --prune measures them (the paper: |Ψ|
     below 1e-3)."""
     prune: Literal["auto", "relative", "absolute"] = "auto"
-    """SINDy: how --threshold measures a coefficient. "relative": its term's share of its
+    """SINDy: how --prune-below measures a coefficient. "relative": its term's share of its
     state's update, |Ψ_kj| rms(Θ_k) / rms(Θ Ψ_j) over the encoded training transitions, the
     same whatever the scales of the latent, the actions and the library's columns;
     "absolute": |Ψ_kj| (the paper), which prunes every term of a latent whose steps are
     small; "auto": relative for discrete-time SINDy, absolute for continuous time."""
-    threshold_every: int = 30
+    prune_every: Annotated[int, tyro.conf.arg(aliases=("--threshold-every",))] = 30
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
     refine_epochs: int = 0
     """SINDy: the last this many of the epochs refine the coefficients: no pruning (the mask
@@ -124,15 +127,15 @@ class TrainConfig:
     which needs an encoder that learns nothing (state, moments: its latents are fixed data);
     "auto": regression where the encoder learns nothing, else random. Training then goes on
     from there (the L1 term and the pruning make it sparser)."""
-    sindy_init_threshold: float = 0.0
-    """SINDy, regression start: the sequentially thresholded least squares' threshold, the
+    sindy_init_share: Annotated[float, tyro.conf.arg(aliases=("--sindy-init-threshold",))] = 0.0
+    """SINDy, regression start: the sequentially thresholded least squares' cut, the
     smallest share a term may contribute (on RMS-normalised library columns); the terms it
     drops start pruned. 0: plain least squares, every term."""
     sindy_fit: Literal["joint", "after"] = "joint"
     """SINDy: "joint" trains the coefficients with the autoencoder (the paper); "after" trains
     the autoencoder first (its loss terms as given; with the prediction weights at 0, on
     reconstruction alone) and then sets the coefficients to the sequentially thresholded
-    least squares (at --sindy-init-threshold) of the trained encoder's training transitions,
+    least squares (at --sindy-init-share) of the trained encoder's training transitions,
     as for an encoder that learns nothing: for a learned latent that the prediction terms
     would bend (RESULTS.md, "A learned object mask for the moments")."""
     order_epochs: int = 10
@@ -177,17 +180,17 @@ class TrainConfig:
              f"--betas {self.betas}: use two numbers in [0, 1)"),
             (self.weight_decay >= 0 and finite(self.weight_decay),
              f"--weight-decay {self.weight_decay}: use a finite number >= 0"),
-            (self.threshold >= 0 and finite(self.threshold),
-             f"--threshold {self.threshold}: use a finite number >= 0"),
+            (self.prune_below >= 0 and finite(self.prune_below),
+             f"--prune-below {self.prune_below}: use a finite number >= 0"),
             (self.sindy_init in ("auto", "random", "regression"),
              f"--sindy-init {self.sindy_init!r}: use auto, random or regression"),
-            (self.sindy_init_threshold >= 0 and finite(self.sindy_init_threshold),
-             f"--sindy-init-threshold {self.sindy_init_threshold}: use a finite number >= 0"),
+            (self.sindy_init_share >= 0 and finite(self.sindy_init_share),
+             f"--sindy-init-share {self.sindy_init_share}: use a finite number >= 0"),
             (self.sindy_fit in ("joint", "after"),
              f"--sindy-fit {self.sindy_fit!r}: use joint or after"),
             (self.order_epochs >= 1, f"--order-epochs {self.order_epochs}: use 1 or more"),
-            (self.threshold_every >= 0,
-             f"--threshold-every {self.threshold_every}: use 0 (never) or more"),
+            (self.prune_every >= 0,
+             f"--prune-every {self.prune_every}: use 0 (never) or more"),
             (0 <= self.refine_epochs <= self.epochs,
              f"--refine-epochs {self.refine_epochs}: use 0 to --epochs ({self.epochs}); the "
              "refinement is the last of the epochs"),
@@ -296,11 +299,12 @@ def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
     """UserError naming a keyword of ``fit`` that is no training setting, or one that the
     estimator or ``fit`` sets elsewhere."""
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    old = TrainConfig.renamed_settings  # old names read as the new ones
     for key in settings:
         if key in FIT_OWN_SETTINGS:
             raise UserError(f"fit(..., {key}=...): {key} is set by {FIT_OWN_SETTINGS[key]}, not "
                             "as a training setting")
-        if key not in fields:
+        if key not in fields and key not in old:
             close = difflib.get_close_matches(key, sorted(fields), n=1)
             raise UserError(f"fit(..., {key}=...): no such training setting"
                             + (f" (did you mean {close[0]}?)" if close else "")

@@ -1,8 +1,8 @@
 """The training core: one gradient loop over a latent model, its pruning and model selection.
 
 :func:`fit` is the loop, readable on one screen: every epoch one shuffled pass of AdamW over
-the training sequences, every ``threshold_every`` epochs the SINDy coefficients with
-|Ψ| < ``threshold`` pruned for good (the optimiser's moments of pruned entries cleared), in
+the training sequences, every ``prune_every`` epochs the SINDy coefficients with
+|Ψ| < ``prune_below`` pruned for good (the optimiser's moments of pruned entries cleared), in
 the last ``refine_epochs`` neither pruning nor the L1 term (a refinement on the fixed mask), the
 validation loss every ``eval_every`` epochs, and the weights of the best validated epoch since
 the last pruning that removed a term kept (:class:`BestValidation`). It works in memory;
@@ -76,7 +76,7 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
     best = best or BestValidation()
     x, u, s = train
     sparse = model.dynamics.sparse
-    pruning = sparse and cfg.threshold_every > 0
+    pruning = sparse and cfg.prune_every > 0
     relative = pruning and resolve_prune(cfg) == "relative"
     refine_after = cfg.epochs - cfg.refine_epochs  # the epochs after this one refine
     refining = dataclasses.replace(cfg.loss, lambda_l1=0.0)
@@ -91,9 +91,9 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
             terms = train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch, s,
                                 weights=refining if refine else None)
             row.update({f"train/{k}": v for k, v in terms.items()})
-            if pruning and not refine and epoch % cfg.threshold_every == 0:
+            if pruning and not refine and epoch % cfg.prune_every == 0:
                 scale = share_scale(model, x, u) if relative else None
-                row["sindy/pruned"] = prune(model, opt, cfg.threshold, scale)
+                row["sindy/pruned"] = prune(model, opt, cfg.prune_below, scale)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
             if val is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
@@ -258,10 +258,10 @@ def share_scale(model: LatentModel, x: torch.Tensor, u: torch.Tensor) -> torch.T
 @torch.no_grad()
 def prune(model: LatentModel, opt: torch.optim.Optimizer, tau: float,
           scale: torch.Tensor | None = None) -> int:
-    """Threshold SINDy coefficients (|Ψ| < tau, or |Ψ| · ``scale`` < tau: see
+    """Prune SINDy coefficients (|Ψ| < tau, or |Ψ| · ``scale`` < tau: see
     :func:`share_scale`); clear AdamW's moments of pruned entries so Ψ stays 0."""
     dyn = model.dynamics
-    pruned = dyn.threshold(tau, scale)
+    pruned = dyn.prune(tau, scale)
     state = opt.state.get(dyn.psi, {})
     for key in ("exp_avg", "exp_avg_sq"):
         if key in state:

@@ -4,8 +4,8 @@
 The paper's recipe (docs/design.md): AdamW on the loss of
 :meth:`~latent_sindy.models.latent_model.LatentModel.loss` over windows of ``window`` steps,
 mini-batches (of windows, or of whole sequences whose frames are encoded once: ``batching``)
-shuffled by a generator seeded from ``seed``, and every ``threshold_every`` epochs SINDy
-coefficients with ``|Ψ| < threshold`` pruned for good. ``resume=True`` continues from the run's
+shuffled by a generator seeded from ``seed``, and every ``prune_every`` epochs SINDy
+coefficients with ``|Ψ| < prune_below`` pruned for good. ``resume=True`` continues from the run's
 checkpoint to the same final model, bit for bit on CPU (for the same torch thread count), as an
 uninterrupted run with the same settings. On CUDA (``device``) the same code runs with the
 data, model and optimiser on the GPU; the shuffling generator stays on the CPU, so both

@@ -93,8 +93,8 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
     if cfg.sindy_fit == "after" and (not sindy or model.dynamics.continuous):
         raise UserError("--sindy-fit after fits SINDy coefficients to the trained encoder's "
                         "transitions: use it with discrete-time SINDy dynamics, or drop it")
-    if cfg.sindy_init_threshold > 0 and not regression and cfg.sindy_fit != "after":
-        raise UserError(f"--sindy-init-threshold {cfg.sindy_init_threshold} is for a SINDy "
+    if cfg.sindy_init_share > 0 and not regression and cfg.sindy_fit != "after":
+        raise UserError(f"--sindy-init-share {cfg.sindy_init_share} is for a SINDy "
                         "model that starts from regression (a state or moments encoder, "
                         "--sindy-init auto or regression) or --sindy-fit after: drop it")
     return regression
@@ -102,8 +102,8 @@ def regression_init(cfg: TrainConfig, model: LatentModel) -> bool:
 
 @torch.no_grad()
 def fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
-                 device: torch.device, threshold: float) -> None:
-    """Sparse regression (STLSQ at ``threshold``) of every encoded training transition
+                 device: torch.device, min_share: float) -> None:
+    """Sparse regression (STLSQ at ``min_share``) of every encoded training transition
     (x (N, T+1, ..), u (N, T, nu)) on the SINDy library: the coefficients and the mask
     training starts from."""
     frames = x.flatten(0, 1)
@@ -111,7 +111,7 @@ def fit_dynamics(model: LatentModel, x: torch.Tensor, u: torch.Tensor,
                    for i in range(0, len(frames), ENCODE_CHUNK)]).reshape(*x.shape[:2], -1)
     nz, nu = z.shape[-1], u.shape[-1]
     model.dynamics.fit_state_data(z[:, :-1].reshape(-1, nz), u.to(device).reshape(-1, nu),
-                                  z[:, 1:].reshape(-1, nz), optimizer=STLSQ(threshold=threshold))
+                                  z[:, 1:].reshape(-1, nz), optimizer=STLSQ(min_share=min_share))
 
 
 #: The moment order a mask_moments encoder is first fitted at when the data chooses it.
@@ -130,7 +130,7 @@ def choose_moment_order(model_cfg, data: SequenceData, norm: Normalizer, cfg: Tr
     if not getattr(model_cfg.observation, "order_from_data", False):
         return model_cfg
     first = model_cfg.with_moment_order(PROVISIONAL_ORDER)
-    short = replace(cfg, epochs=cfg.order_epochs, refine_epochs=0, threshold_every=0,
+    short = replace(cfg, epochs=cfg.order_epochs, refine_epochs=0, prune_every=0,
                     sindy_fit="joint")
     model, opt, gen = new_model(first, short, device)
     regression_init(cfg, model)  # the real fit's settings refused before the short one
@@ -168,10 +168,10 @@ def settle_model(record: dict, data: SequenceData, norm: Normalizer, cfg: TrainC
 def fit_after(model: LatentModel, data: SequenceData, norm: Normalizer, cfg: TrainConfig,
               device: torch.device) -> None:
     """``--sindy-fit after``: the trained encoder's training transitions fitted by STLSQ at
-    ``cfg.sindy_init_threshold`` (the coefficients and the mask; the encoder as it is)."""
+    ``cfg.sindy_init_share`` (the coefficients and the mask; the encoder as it is)."""
     windows = WindowDataset(data.split("train"), 1, norm, model.config.observation.kind)
     model.eval()
-    fit_dynamics(model, *windows.trajectories(), device, cfg.sindy_init_threshold)
+    fit_dynamics(model, *windows.trajectories(), device, cfg.sindy_init_share)
 
 
 def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
@@ -217,7 +217,7 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
         m.fit_statistics(train_windows.images.to(device),
                          train_windows.poses if m.pose_head is not None else None)
         if regression:
-            fit_dynamics(m, *train_windows.trajectories(), device, cfg.sindy_init_threshold)
+            fit_dynamics(m, *train_windows.trajectories(), device, cfg.sindy_init_share)
 
     if fresh:  # a resumed model has its statistics in its state
         prime(model)

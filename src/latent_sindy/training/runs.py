@@ -76,7 +76,7 @@ DERIVED: tuple[tuple[str, tuple[str, ...], Any], ...] = (
 
 
 #: Training settings added after runs were recorded, at the values those runs had: batches
-#: of windows, |Ψ| thresholds, one start.
+#: of windows, pruning by |Ψ|, one start.
 SINCE_ADDED = {"batching": "windows", "prune": "absolute", "starts": 1, "start_epochs": None}
 
 #: Parts of the model record under the names runs recorded before the renaming used.

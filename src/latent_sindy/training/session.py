@@ -62,7 +62,7 @@ __all__ = ["Phase", "Restarts", "Session", "fit_in_memory", "kept_value", "prepa
 @dataclass(frozen=True)
 class Phase:
     """A stretch of ``epochs`` epochs trained with settings of its own (``changes``: any
-    :class:`TrainConfig` fields, e.g. ``loss``, ``lr``, ``threshold_every``,
+    :class:`TrainConfig` fields, e.g. ``loss``, ``lr``, ``prune_every``,
     ``refine_epochs``), after whatever the session has trained. Its epochs keep counting
     from the session's, so pruning every k epochs falls where it would in one run. A phase
     chooses its kept weights among its own epochs (its objective may differ from the last
@@ -76,6 +76,8 @@ class Phase:
     def __post_init__(self) -> None:
         if self.epochs < 0:
             raise UserError(f"phase {self.name!r}: epochs {self.epochs}: use 0 or more")
+        old = TrainConfig.renamed_settings  # settings renamed since: read as the new names
+        object.__setattr__(self, "changes", {old.get(k, k): v for k, v in self.changes.items()})
         unknown = set(self.changes) - {f.name for f in dataclasses.fields(TrainConfig)}
         if unknown or "epochs" in self.changes:
             raise UserError(f"phase {self.name!r} changes {sorted(unknown or {'epochs'})}: "

@@ -34,11 +34,17 @@ from latent_sindy.models.dynamics.continuous import (
 )
 from latent_sindy.models.dynamics.linear import LinearConfig, LinearDynamics
 from latent_sindy.models.dynamics.mlp import MlpConfig, MlpDynamics
-from latent_sindy.models.dynamics.sindy import SindyConfig, SindyDynamics, SparseSindyDynamics
+from latent_sindy.models.dynamics.sindy import (
+    CompiledSindy,
+    SindyConfig,
+    SindyDynamics,
+    SparseSindyDynamics,
+)
 
 __all__ = [
     "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
+    "CompiledSindy",
     "ContinuousSindyConfig",
     "ContinuousSindyDynamics",
     "DynamicsConfig",

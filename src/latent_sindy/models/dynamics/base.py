@@ -200,10 +200,14 @@ class SparseDynamics(LatentDynamics):
         """The effective coefficients M ⊙ Ψ: (p, nz)."""
         raise NotImplementedError
 
-    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
+    def prune(self, tau: float, scale: torch.Tensor | None = None) -> int:
         """Prune active coefficients with ``|Ψ| < tau`` (``|Ψ| · scale < tau`` with weights
         ``scale`` (p, nz)); return how many were newly pruned."""
         raise NotImplementedError
+
+    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
+        """:meth:`prune` under its old name."""
+        return self.prune(tau, scale)
 
     def set_coefficients(self, coef: torch.Tensor, mask: torch.Tensor | None = None
                          ) -> SparseDynamics:

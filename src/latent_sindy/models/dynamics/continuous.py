@@ -160,7 +160,7 @@ class ContinuousSindyDynamics(SparseDynamics):
 
     # The mask, the pruning and the coefficient rows are the discrete model's, read from
     # the same Ψ, M and names: one implementation for both.
-    threshold = SindyDynamics.threshold
+    prune = SindyDynamics.prune
     coefficient_rows = SindyDynamics.coefficient_rows
     n_candidates = SindyDynamics.n_candidates
 

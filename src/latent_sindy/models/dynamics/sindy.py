@@ -47,14 +47,14 @@ from latent_sindy.sindy import (
 from latent_sindy.sindy import fit as sindy_fit
 from latent_sindy.sindy.optimizers import STLSQ
 
-__all__ = ["SindyConfig", "SindyDynamics", "SparseSindyDynamics"]
+__all__ = ["CompiledSindy", "SindyConfig", "SindyDynamics", "SparseSindyDynamics"]
 
 
 class SindyDynamics(SparseDynamics):
     """Residual SINDy step ``z_{t+1} = z_t + Θ(z_t, u_t) (M ⊙ Ψ)``.
 
     Ψ (p, nz) is a parameter; M (p, nz) is a persistent boolean buffer (part of the state
-    dict) that :meth:`threshold` only ever turns off. Column j of ``M ⊙ Ψ`` holds the
+    dict) that :meth:`prune` only ever turns off. Column j of ``M ⊙ Ψ`` holds the
     coefficients of latent state j.
 
     Args:
@@ -126,7 +126,7 @@ class SindyDynamics(SparseDynamics):
         return z + theta @ self.coefficients()  # (K, nz)
 
     @torch.no_grad()
-    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
+    def prune(self, tau: float, scale: torch.Tensor | None = None) -> int:
         """Prune active coefficients with ``|Ψ| < tau`` (with weights ``scale`` (p, nz):
         ``|Ψ| · scale < tau``); return how many were newly pruned.
 
@@ -134,7 +134,7 @@ class SindyDynamics(SparseDynamics):
         only goes from on to off; pruned entries of Ψ are set to 0.
         """
         if tau < 0 or math.isnan(tau):
-            raise ValueError(f"threshold tau must be a non-negative number, got {tau}")
+            raise ValueError(f"prune: tau must be a non-negative number, got {tau}")
         size = self.psi.abs() if scale is None else self.psi.abs() * scale
         newly = self.mask & (size < tau)
         self.mask &= ~newly
@@ -146,7 +146,7 @@ class SindyDynamics(SparseDynamics):
         self, coef: torch.Tensor, mask: torch.Tensor | None = None
     ) -> SindyDynamics:
         """Set Ψ = ``coef`` (p, nz) and M = ``mask`` (p, nz) bool, default ``coef != 0``;
-        returns ``self``. Unlike :meth:`threshold` this replaces the mask (it may turn terms
+        returns ``self``. Unlike :meth:`prune` this replaces the mask (it may turn terms
         back on); Ψ is set to 0 where the mask is off."""
         coef = torch.as_tensor(coef)
         mask = coef != 0 if mask is None else torch.as_tensor(mask)
@@ -174,7 +174,7 @@ class SindyDynamics(SparseDynamics):
         ``Znext − Z = Θ(Z, U) (M ⊙ Ψ)`` is linear in Ψ: ``optimizer`` (default ``STLSQ()``,
         fitted in place, so pass one to read its ``n_iter_`` etc.) solves it in closed form.
         Z (N, nz), U (N, nu), Znext (N, nz). With ``restrict_to_mask`` only terms the current
-        mask allows may be active (``STLSQ(threshold=0)`` then refits them by least squares).
+        mask allows may be active (``STLSQ(min_share=0)`` then refits them by least squares).
         The regression fits the update before the circle's projection (which :meth:`step`
         then applies); with ``turn``, z_a's target is the angle from (z_a, z_b) to the next
         pair and z_b's none.
@@ -248,20 +248,20 @@ class SindyDynamics(SparseDynamics):
             self.mask[:, self.circle[1]] = False
             self.psi[:, self.circle[1]] = 0.0
 
-    def compile_sparse(self) -> SparseSindyDynamics:
+    def compile_sparse(self) -> CompiledSindy:
         """A frozen copy of the current model that evaluates only the active library terms.
 
         Its ``step`` equals this model's ``step`` to float precision (the circle's projection
         included). It holds a snapshot of the coefficients (no gradient): compile again after
         further training or pruning.
         """
-        return SparseSindyDynamics(self)
+        return CompiledSindy(self)
 
     def extra_repr(self) -> str:
         return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
 
 
-class SparseSindyDynamics(LatentDynamics):
+class CompiledSindy(LatentDynamics):
     """Fast, frozen SINDy step over the terms active in any state (for control).
 
     ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
@@ -283,6 +283,9 @@ class SparseSindyDynamics(LatentDynamics):
 
     def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         return z + self.library(z, u) @ self.coef  # (K, nz)
+
+
+SparseSindyDynamics = CompiledSindy  # old name
 
 
 @dataclass(frozen=True)
