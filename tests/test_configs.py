@@ -75,7 +75,7 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
     assert SCALES["demo"] == base
     paper = {f.name for f in dataclasses.fields(Scale)
              if getattr(SCALES["paper"], f.name) != getattr(base, f.name)}
-    assert paper == {"epochs", "lr", "batch_size", "threshold_every", "eval_every",
+    assert paper == {"epochs", "lr", "batch_size", "prune_every", "eval_every",
                      "paper_episodes", "random_episodes", "other_random_episodes",
                      "image_paper_episodes", "image_random_episodes", "batching"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)

@@ -165,7 +165,7 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
         assert spec.model.dynamics.library == library
         assert spec.loss.lambda_pred_x == 0
         # fitted by sparse regression on its fixed latents, then kept as fitted
-        assert spec.init_threshold > 0 and spec.loss.lambda_l1 == 0 and spec.threshold == 0
+        assert spec.init_share > 0 and spec.loss.lambda_l1 == 0 and spec.prune_below == 0
         assert spec.model.encoder.decoder_kind == "sprite"
 
 

@@ -276,13 +276,13 @@ def test_the_success_figure_draws_every_count_with_its_interval(tmp_path, succes
 def test_a_poor_first_start_is_restarted_and_the_calibration_can_prune():
     """Schedule.restarts: a first phase that reconstructs the validation frames worse than
     ``restart_above`` gets a fresh start (never with an unreachable bound, always with 0);
-    the calibration runs scale-free and thresholds when asked."""
+    the calibration runs scale-free and prunes when asked."""
     from dataclasses import replace
 
     video = video_pca.compressed_video(8, 5, "exact", (4, 2, 2), 50)
     data, lo, span = video_study.as_sequences(video)
     base = replace(video_study.SCHEDULES["scalefree"], epochs=2, refine_epochs=1,
-                   threshold_every=1, calibrate_epochs=3, calibrate_prune_every=1,
+                   prune_every=1, calibrate_epochs=3, calibrate_prune_every=1,
                    restart_fvu=float("inf"))
     never = video_study.train_seed(0, replace(base, restart_above=float("inf")), data, 8,
                                    video, lo, span)

@@ -48,11 +48,11 @@ def test_the_centroid_sindy_finds_the_frame_shift_and_predicts_steps(data):
     assert model.sparsity() > 0.9
     assert model.selection_ is not None and model.setting_ == model.selection_.setting
     # STLSQ judges coefficients, and on the circles the terms are dependent: it keeps more
-    stlsq = CentroidSindy(order=4, threshold=0.03, sparsifier="stlsq").fit(data)
+    stlsq = CentroidSindy(order=4, min_share=0.03, sparsifier="stlsq").fit(data)
     assert stlsq.sparsity() < model.sparsity() and stlsq.selection_ is None
     with pytest.raises(UserError, match="sparsifier"):
         CentroidSindy(sparsifier="lasso")
-    linear = CentroidSindy(order=1, threshold=0.0, sparsifier="stlsq").fit(data)
+    linear = CentroidSindy(order=1, min_share=0.0, sparsifier="stlsq").fit(data)
     assert float((linear.step(z, u) - z_next).norm(dim=1).mean()) > float(err)
     mlp = CentroidMlp(width=16, epochs=2, seed=0).fit(data)
     assert mlp.step(z[:3].float(), u[:3].float()).shape == (3, 4)
@@ -60,7 +60,7 @@ def test_the_centroid_sindy_finds_the_frame_shift_and_predicts_steps(data):
 
 def test_the_study_runs_the_centroid_rows_with_its_settings():
     assert StudyConfig().centroid_models == ("sindy", "mlp", "linear")
-    assert (StudyConfig().centroid_order, StudyConfig().centroid_threshold,
+    assert (StudyConfig().centroid_order, StudyConfig().centroid_min_share,
             StudyConfig().centroid_sparsifier) == (4, None, "stepwise")
     assert (StudyConfig().samples, StudyConfig().lambda_) == (500, 0.3)
     with pytest.raises(UserError, match="models"):

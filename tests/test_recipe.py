@@ -24,7 +24,7 @@ def small_video(omega2: float = 2.0) -> SequenceData:
 def test_the_recipe_is_the_studys_scalefree_schedule() -> None:
     s = SCHEDULES["scalefree"]
     assert recipe.SCHEDULE == {"epochs": s.epochs, "lr": s.lr, "batch_size": s.batch,
-                               "threshold": s.threshold, "threshold_every": s.threshold_every,
+                               "prune_below": s.prune_below, "prune_every": s.prune_every,
                                "refine_epochs": s.refine_epochs, "weight_decay": 0.0,
                                "starts": 1}
     assert recipe.INIT == {"init": s.init, "init_scale": s.init_scale}
@@ -32,7 +32,7 @@ def test_the_recipe_is_the_studys_scalefree_schedule() -> None:
     calib = recipe.calibration(0.5)
     assert calib.epochs == s.calibrate_epochs
     assert calib.changes["lr"] == s.calibrate_lr
-    assert calib.changes["threshold_every"] == s.calibrate_prune_every
+    assert calib.changes["prune_every"] == s.calibrate_prune_every
     assert calib.changes["loss"].lambda_pred_x == s.calibrate_x
     assert calib.changes["loss"].lambda_pred_z == s.calibrate_relative
     assert calib.changes["loss"].relative_pred_z

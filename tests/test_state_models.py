@@ -33,7 +33,7 @@ def test_sindy_on_a_fixed_encoder_starts_at_the_least_squares_fit(data: Path,
     # a thresholded regression starts, and so ends, with fewer terms (pruning only removes)
     out = tmp_path / "sparse"
     assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "2",
-                 "--batch-size", "4", "--sindy-init-threshold", "0.3", "--no-progress", "sindy",
+                 "--batch-size", "4", "--sindy-init-share", "0.3", "--no-progress", "sindy",
                  "--order", "1", "state"]) == 0
     active = {name: RunDir(tmp_path / name).load().model.dynamics.n_active()
               for name in ("regression", "sparse")}
@@ -87,7 +87,7 @@ def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_pat
     """The projection follows from the run's config: after training, saving and loading, the
     state SINDy's rollouts (torch and MPPI's fused kernel alike) keep (z2, z3) on the unit
     circle over 50 random pushes, and its equations say so."""
-    from latent_sindy.control import SparseSindyStep, latent_step
+    from latent_sindy.control import SindyKernelStep, latent_step
     from latent_sindy.data import write_sequences
     from latent_sindy.equations import equations_report
     from synthetic import make_trajectories
@@ -110,7 +110,7 @@ def test_a_saved_face_library_run_keeps_the_angle_features_on_the_circle(tmp_pat
     norms = zs[:, 1:, 2:].norm(dim=-1)
     torch.testing.assert_close(norms, torch.ones_like(norms), rtol=0, atol=1e-5)
     step = latent_step(model.dynamics)
-    assert isinstance(step, SparseSindyStep) and step.circle == (2, 3)
+    assert isinstance(step, SindyKernelStep) and step.circle == (2, 3)
     torch.testing.assert_close(step.rollout(z0, actions), zs, rtol=1e-4, atol=1e-4)
     assert "(z2, z3) is scaled onto the unit circle" in equations_report(out, export=False)
 
@@ -143,7 +143,7 @@ def test_sindy_on_simulated_poses_prints_the_push_kinematics(symmetric_pushes) -
 
     (Z, U, Zn), (Zv, Uv, Znv) = symmetric_pushes
     sindy = SindyConfig(order=1, library="push", include_sine=False).build(4, 3).double()
-    sindy.fit_state_data(Z, U, Zn, optimizer=STLSQ(threshold=0.1))
+    sindy.fit_state_data(Z, U, Zn, optimizer=STLSQ(min_share=0.1))
     rows = sindy.coefficient_rows()
 
     def gain(state: str, term: str, x: float = 0.525) -> float:
@@ -238,7 +238,7 @@ def test_the_face_library_predicts_the_turn_that_the_push_library_cannot(
     errors = {}
     for library in ("push", "face"):
         model = SindyConfig(order=1, library=library, include_sine=False).build(4, 3).double()
-        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(threshold=0.1))
+        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(min_share=0.1))
         with torch.no_grad():
             errors[library] = float(_angle_error_deg(model.step(Zv, Uv), Znv, period).mean())
         if library == "face":
@@ -262,7 +262,7 @@ def test_the_frame_library_predicts_the_push_closer_than_the_face_library(
     for library in ("face", "frame"):
         model = SindyConfig(order=1, library=library, include_sine=False).build(
             4, 3, circle=(2, 3)).double()
-        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(threshold=0.1))
+        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(min_share=0.1))
         with torch.no_grad():
             errors[library] = float((model.step(Zv, Uv)[:, :2] - Znv[:, :2]).norm(dim=1).mean())
     still = float((Zv[:, :2] - Znv[:, :2]).norm(dim=1).mean())
@@ -282,7 +282,7 @@ def test_a_model_that_turns_its_orientation_predicts_the_turn_closer(symmetric_p
     for turn in (False, True):
         model = SindyConfig(order=1, library="frame", include_sine=False).build(
             4, 3, circle=(2, 3), turn=turn).double()
-        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(threshold=0.05))
+        model.fit_state_data(Z, U, Zn, optimizer=STLSQ(min_share=0.05))
         with torch.no_grad():
             errors[turn] = float(_angle_error_deg(model.step(Zv, Uv), Znv, period).mean())
         lines[turn] = model.equations()
@@ -309,7 +309,7 @@ def test_a_turning_frame_run_reloads_turning(data: Path, tmp_path: Path) -> None
     """--turn and the frame library survive saving and loading: the reloaded model, its
     sparse form and MPPI's kernel turn the pair, z3's column stays free of terms, and the
     coefficient files say that z2's coefficients are the turn."""
-    from latent_sindy.control import SparseSindyStep, latent_step
+    from latent_sindy.control import SindyKernelStep, latent_step
 
     out = tmp_path / "run"
     assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "2",
@@ -319,7 +319,7 @@ def test_a_turning_frame_run_reloads_turning(data: Path, tmp_path: Path) -> None
     assert dyn.turn and not dyn.mask[:, 3].any() and dyn.mask[:, 2].any()
     assert dyn.compile_sparse().turn
     step = latent_step(dyn)
-    assert isinstance(step, SparseSindyStep) and step._turn
+    assert isinstance(step, SindyKernelStep) and step._turn
     assert dyn.export_info()["turn"] is True and dyn.export_info()["circle"] == [2, 3]
     # a state dict of a model that did not turn cannot switch z3's column back on
     plain = type(dyn)(**{**dyn.hparams(), "turn": False})
@@ -337,8 +337,8 @@ def test_sindy_init_settings_that_would_be_ignored_are_refused(data: Path, tmp_p
                  "linear", "state"]) != 0
     assert "dynamics are linear" in capsys.readouterr().err
     assert main([*common, "--out", str(tmp_path / "b"), "--sindy-init", "random",
-                 "--sindy-init-threshold", "0.1", "sindy", "state"]) != 0
-    assert "--sindy-init-threshold 0.1 is for a SINDy model" in capsys.readouterr().err
+                 "--sindy-init-share", "0.1", "sindy", "state"]) != 0
+    assert "--sindy-init-share 0.1 is for a SINDy model" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     with pytest.raises(UserError, match="--sindy-init 'regresion'"):
         TrainConfig(sindy_init="regresion")  # type: ignore[arg-type]
@@ -353,7 +353,7 @@ def test_a_run_recorded_before_regression_starts_reads_as_random(data: Path,
                  "--sindy-init", "random", "--no-progress", "sindy", "--order", "1",
                  "state"]) == 0
     config = json.loads((out / "config.json").read_text())
-    del config["train"]["sindy_init"], config["train"]["sindy_init_threshold"]
+    del config["train"]["sindy_init"], config["train"]["sindy_init_share"]
     (out / "config.json").write_text(json.dumps(config))
     assert RunDir(out).train_config().sindy_init == "random"
 
@@ -372,17 +372,17 @@ def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
     assert "use --angle-frequency 4" in capsys.readouterr().err
 
 
-def test_the_init_threshold_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
+def test_the_init_share_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
     from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
     from latent_sindy.worlds.push.study.sweeps import Sweep
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path,
                           models=("sindy2", "sindy_moments", "state_sindy"),
-                          sweep=(Sweep.parse("init_threshold=0,0.2"),))
+                          sweep=(Sweep.parse("init_share=0,0.2"),))
     names = [s.name for s in study_specs(cfg)]
-    assert names == ["sindy2", "sindy_moments.init_threshold=0",
-                     "sindy_moments.init_threshold=0.2", "state_sindy.init_threshold=0",
-                     "state_sindy.init_threshold=0.2"], names
+    assert names == ["sindy2", "sindy_moments.init_share=0",
+                     "sindy_moments.init_share=0.2", "state_sindy.init_share=0",
+                     "state_sindy.init_share=0.2"], names
 
 
 def test_a_turning_models_coefficient_map_counts_its_candidates(data: Path, tmp_path: Path,

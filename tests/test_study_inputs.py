@@ -104,7 +104,7 @@ def test_an_order_sweep_skips_the_libraries_of_fixed_order(tmp_path):
 
 
 # ----------------------------------------------------------------------------- D11, D12: values
-BAD_SWEEPS = ["threshold=-1", "threshold=nan", "init_threshold=-0.5", "window=100",
+BAD_SWEEPS = ["prune_below=-1", "threshold=nan", "init_share=-0.5", "window=100",
               "lambda_l1=nan", "lambda_pred_x=inf", "lambda_pred_z=-1", "order=0", "window=0"]
 
 
@@ -114,7 +114,7 @@ def test_every_sweep_value_is_checked_up_front_and_named_as_the_sweeps(tmp_path,
         ReproduceConfig(scale="tiny", out=tmp_path, sweep=(Sweep.parse(sweep),))
 
 
-@pytest.mark.parametrize("sweep", ["threshold=-1", "window=100"])
+@pytest.mark.parametrize("sweep", ["prune_below=-1", "window=100"])
 def test_a_bad_sweep_value_collects_nothing(tmp_path, capsys, sweep):
     out = tmp_path / "study"
     line = _error_line(capsys, "reproduce", "--scale", "tiny", "--out", str(out), "--workers",

@@ -84,23 +84,23 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
     assert summary["config"]["sweep"] == [{"setting": "lambda_l1", "values": [1e-4, 1e-2]}]
 
 
-def test_the_threshold_is_a_sindy_setting_the_study_trains_with(tmp_path):
-    """--sweep threshold applies to SINDy models only, and the study trains each spec with
-    its own threshold where it sets one (the moments row), else the scale's."""
+def test_the_pruning_cut_is_a_sindy_setting_the_study_trains_with(tmp_path):
+    """--sweep prune_below applies to SINDy models only, and the study trains each spec with
+    its own pruning cut where it sets one (the moments row), else the scale's."""
     from latent_sindy.worlds.push.study.config import StudyPlan
     from latent_sindy.worlds.push.study.stages import train_config
 
     cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
-                          sweep=(Sweep.parse("threshold=0.01,0.1"),))
+                          sweep=(Sweep.parse("prune_below=0.01,0.1"),))
     specs = {s.name: s for s in study_specs(cfg)}
-    assert list(specs) == ["sindy2.threshold=0.01", "sindy2.threshold=0.1", "linear"]
+    assert list(specs) == ["sindy2.prune_below=0.01", "sindy2.prune_below=0.1", "linear"]
     plain = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "sindy_moments"))
     for config in (cfg, plain):
         chosen = study_specs(config)
         plan = StudyPlan(config, chosen, {0: {s.name: tmp_path / s.name for s in chosen}})
         for spec in chosen:
-            want = SCALES["tiny"].threshold if spec.threshold is None else spec.threshold
-            assert train_config(plan, spec, 0, tmp_path / "d.h5").threshold == want
+            want = SCALES["tiny"].prune_below if spec.prune_below is None else spec.prune_below
+            assert train_config(plan, spec, 0, tmp_path / "d.h5").prune_below == want
     moments = next(s for s in study_specs(plain) if s.name == "sindy_moments")
-    assert moments.threshold != SCALES["tiny"].threshold
-    assert specs["sindy2.threshold=0.1"].threshold == 0.1
+    assert moments.prune_below != SCALES["tiny"].prune_below
+    assert specs["sindy2.prune_below=0.1"].prune_below == 0.1

@@ -34,8 +34,8 @@ __all__ = ["COMPONENTS", "INIT", "RESTARTS", "SCHEDULE", "apply_recipe", "calibr
 #: Principal components in front of the networks (the published model's 48).
 COMPONENTS = 48
 #: The main fit's settings (the pendulum video study's ``scalefree`` schedule).
-SCHEDULE: dict[str, Any] = {"epochs": 250, "lr": 3e-3, "batch_size": 100, "threshold": 0.1,
-                            "threshold_every": 25, "refine_epochs": 50, "weight_decay": 0.0,
+SCHEDULE: dict[str, Any] = {"epochs": 250, "lr": 3e-3, "batch_size": 100, "prune_below": 0.1,
+                            "prune_every": 25, "refine_epochs": 50, "weight_decay": 0.0,
                             "starts": 1}
 #: The coefficients' start.
 INIT: dict[str, Any] = {"init": "normal", "init_scale": 1e-3}
@@ -69,7 +69,7 @@ def calibration(spread: float, epochs: int = 300) -> Phase:
     it), pruning every 25 epochs through its first two thirds, the last third refining."""
     return Phase(epochs, "calibration", {
         "lr": 1e-3, "loss": recipe_loss(spread, pred_x=5e-2, relative_z=100.0),
-        "refine_epochs": epochs - 2 * epochs // 3, "threshold_every": 25})
+        "refine_epochs": epochs - 2 * epochs // 3, "prune_every": 25})
 
 
 def components_for(data: SequenceData) -> int:

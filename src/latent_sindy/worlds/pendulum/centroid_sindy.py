@@ -17,7 +17,7 @@ On these latents the dynamics are fitted by regression on the encoded transition
   circle about the pivot), so the default sparsifier is backward elimination by the fit a
   term costs, most complex terms first (:class:`~latent_sindy.sindy.StepwiseSR`); STLSQ,
   which judges terms by their coefficients, keeps about half of the library there;
-* ``CentroidSindy(order=1, threshold=0, sparsifier="stlsq")``: least squares on (1, z, u),
+* ``CentroidSindy(order=1, min_share=0, sparsifier="stlsq")``: least squares on (1, z, u),
   the linear model z' = A z + B u + c;
 * :class:`CentroidMlp`: z' = z + MLP([z, u]), trained by Adam on one-step errors.
 
@@ -46,10 +46,10 @@ __all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "frame_centroids", "tr
 
 SPARSIFIERS = ("stepwise", "stlsq")
 """The sparse regressions of :class:`CentroidSindy`: :class:`~latent_sindy.sindy.StepwiseSR`
-(``threshold``: its tolerance) or :class:`~latent_sindy.sindy.optimizers.STLSQ`."""
+(``min_share``: its tolerance) or :class:`~latent_sindy.sindy.optimizers.STLSQ`."""
 
-STLSQ_THRESHOLDS = (0.003, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2, 0.3)
-"""STLSQ thresholds tried when the threshold is chosen on rollouts."""
+STLSQ_SHARES = (0.003, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2, 0.3)
+"""STLSQ shares tried when the share is chosen on rollouts."""
 
 
 @torch.no_grad()
@@ -84,23 +84,25 @@ class CentroidSindy:
 
     Args:
         order: highest degree of the monomials of (z, u).
-        threshold: the sparsifier's setting: StepwiseSR's tolerance (the share of a step's
-            mean square a dropped term may cost) or STLSQ's threshold. None: chosen on the
+        min_share: the sparsifier's setting: StepwiseSR's tolerance (the share of a step's
+            mean square a dropped term may cost) or STLSQ's ``min_share``. None: chosen on the
             validation sequences' rollouts (:func:`~latent_sindy.sindy.select_on_rollouts`,
             the sparsest fit within three times the best rollout error; the training
             sequences stand in when the data has no validation split).
         sparsifier: one of :data:`SPARSIFIERS`.
+        threshold: ``min_share`` under its old name.
 
-    Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the threshold used)
+    Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the setting used)
     and ``selection_`` (the path it was chosen from, or None when it was given).
     """
 
-    def __init__(self, order: int = 4, threshold: float | None = None,
-                 sparsifier: str = "stepwise") -> None:
+    def __init__(self, order: int = 4, min_share: float | None = None,
+                 sparsifier: str = "stepwise", *, threshold: float | None = None) -> None:
         if sparsifier not in SPARSIFIERS:
             raise UserError(f"centroid SINDy sparsifier {sparsifier!r}: choose from "
                             f"{', '.join(SPARSIFIERS)}")
-        self.order, self.threshold, self.sparsifier = order, threshold, sparsifier
+        min_share = threshold if threshold is not None else min_share
+        self.order, self.min_share, self.sparsifier = order, min_share, sparsifier
         self.library: SindyLibrary | None = None
 
     def fit(self, data: SequenceData) -> CentroidSindy:
@@ -110,19 +112,19 @@ class CentroidSindy:
 
         def make(setting: float):
             return (StepwiseSR(setting, complexity=self.library.degrees)
-                    if self.sparsifier == "stepwise" else STLSQ(threshold=setting))
+                    if self.sparsifier == "stepwise" else STLSQ(min_share=setting))
 
         self.selection_ = None
-        if self.threshold is None:
+        if self.min_share is None:
             held = data.split("val") if data.split_counts()["val"] else data.split("train")
             self.selection_ = select_on_rollouts(
                 self.library, z, u, z_next, frame_centroids(held.images).double(),
                 torch.as_tensor(held.actions, dtype=torch.float64),
-                TOLERANCES if self.sparsifier == "stepwise" else STLSQ_THRESHOLDS, make)
+                TOLERANCES if self.sparsifier == "stepwise" else STLSQ_SHARES, make)
             fit, self.setting_ = self.selection_.model, self.selection_.setting
         else:
-            fit = fit_state_data(self.library, z, u, z_next, make(self.threshold))
-            self.setting_ = self.threshold
+            fit = fit_state_data(self.library, z, u, z_next, make(self.min_share))
+            self.setting_ = self.min_share
         self.mask_ = np.asarray(fit.mask_, bool)
         self.coef_ = torch.as_tensor(fit.coef_, dtype=torch.float64) * torch.as_tensor(
             self.mask_)  # (p, nz), pruned entries 0

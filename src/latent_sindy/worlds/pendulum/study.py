@@ -24,10 +24,11 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import torch
+import tyro
 
 import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.api import LatentSINDy
@@ -36,6 +37,7 @@ from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models import LossWeights
+from latent_sindy.models.renamed import renamed
 from latent_sindy.stats import wilson_interval
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum.centroid_sindy import (
@@ -56,6 +58,7 @@ __all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study
 MODELS = ("sindy", "mlp", "linear")
 
 
+@renamed(centroid_threshold="centroid_min_share")
 @dataclass(frozen=True)
 class StudyConfig:
     """Settings of one pendulum study (the defaults: the measured runs of RESULTS.md and,
@@ -88,7 +91,8 @@ class StudyConfig:
     """The centroid SINDy's sparse regression: backward elimination by the fit a term costs,
     most complex first (``StepwiseSR``), or STLSQ (keeps about half of the library there:
     the centroids stay on circles, so the library's terms are dependent)."""
-    centroid_threshold: float | None = None
+    centroid_min_share: Annotated[float | None,
+                                  tyro.conf.arg(aliases=("--centroid-threshold",))] = None
     """The sparsifier's setting: stepwise, the share of a step's mean square one dropped
     term may cost; STLSQ, the smallest relative contribution of a kept term. None: chosen
     on the validation sequences, the sparsest fit whose rollouts are within three times the
@@ -330,7 +334,7 @@ def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
         model, eq = CentroidMlp(seed=cfg.seed).fit(data), ["(an MLP: no equations)"]
     else:
         model = (CentroidSindy(1, 0.0, "stlsq") if kind == "linear" else CentroidSindy(
-            cfg.centroid_order, cfg.centroid_threshold, cfg.centroid_sparsifier)).fit(data)
+            cfg.centroid_order, cfg.centroid_min_share, cfg.centroid_sparsifier)).fit(data)
         eq = model.equations()
     row = ModelRow(f"{kind} (images, centroid latent)", [], eq,
                    sparsity=model.sparsity() if kind == "sindy" else None,
@@ -338,14 +342,12 @@ def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
     row.step = model.step
     chosen = getattr(model, "selection_", None)
     if chosen is not None:
-        report(f"{row.name}: {kind} threshold chosen on validation rollouts\n{chosen.table()}")
+        report(f"{row.name}: {kind} setting chosen on validation rollouts\n{chosen.table()}")
     report(f"{row.name}: fitted in {row.fit_seconds:.1f} s\n  " + "\n  ".join(eq))
     return row
 
 
 def main(argv: list[str] | None = None) -> StudyResult:
-    import tyro
-
     torch.set_num_threads(1)
     cfg = tyro.cli(StudyConfig, args=argv, description=__doc__.split("\n\n")[0])
     t0 = time.perf_counter()

@@ -7,11 +7,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.renamed import renamed
 from latent_sindy.worlds.pendulum.video_pca import PIXELS
 
 __all__ = ["SCHEDULES", "Schedule", "weights"]
 
 
+@renamed(threshold="prune_below", threshold_every="prune_every")
 @dataclass(frozen=True)
 class Schedule:
     """A training schedule; loss weights as published (pixels in [0, 1], 1/12 of L1 on the
@@ -21,9 +23,9 @@ class Schedule:
     lr: float
     batch: int
     frames_every: int
-    threshold_every: int
+    prune_every: int
     refine_epochs: int
-    threshold: float = 0.1
+    prune_below: float = 0.1
     pred_x: float = 5e-4
     pred_z: float = 5e-5
     l1: float = 1e-5
@@ -47,7 +49,7 @@ class Schedule:
     the fraction of the encoder's z̈ variance the library leaves unexplained) with this
     weight, in place of ``calibrate_z``: it straightens z instead of shrinking it."""
     calibrate_prune_every: int = 0
-    """If > 0, thresholding (at ``threshold``) every this many epochs through the first two
+    """If > 0, pruning (below ``prune_below``) every this many epochs through the first two
     thirds of the calibration, the last third refining; 0: the mask stays as it was."""
     restarts: int = 0
     """Fresh starts (seed + 1000 r) of the first phase allowed when its kept model's
@@ -101,7 +103,7 @@ SCHEDULES = {
                            calibrate_z=5e-4, calibrate_lr=1e-3),
     # lite100, then 300 epochs of calibration with the z̈ term scale-free (weight 100 on the
     # fraction of the encoder's z̈ the library misses: it straightens a stretched z where the
-    # absolute term shrank it), thresholding at 0.1 every 25 epochs through its first 200;
+    # absolute term shrank it), pruning below 0.1 every 25 epochs through its first 200;
     # one fresh start when the first reconstructs the validation frames poorly or its
     # calibrated equations leave over 1 % of the encoder's z̈ unexplained.
     "scalefree": Schedule(250, 3e-3, 100, 5, 25, 50, pred_z=5e-7, l1=1e-9, init="normal",

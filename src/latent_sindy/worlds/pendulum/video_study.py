@@ -124,12 +124,12 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
                                        init=s.init, init_scale=s.init_scale, time_unit=None),
         encoder=AutoencoderConfig(latent_dim=1, encoder_kind="mlp", decoder_kind="mlp"))
     cfg = TrainConfig(epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
-                      weight_decay=0.0, batch_size=s.batch, threshold=s.threshold,
-                      threshold_every=s.threshold_every, eval_every=s.eval_every, starts=1)
+                      weight_decay=0.0, batch_size=s.batch, prune_below=s.prune_below,
+                      prune_every=s.prune_every, eval_every=s.eval_every, starts=1)
     reconstruct = LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0)
     # (its last epoch's weights go on: nothing to select on yet)
     warmup = [Phase(s.warmup, "warm-up", {"loss": reconstruct, "refine_epochs": 0,
-                                          "threshold_every": 0}, adopt=False)] * bool(s.warmup)
+                                          "prune_every": 0}, adopt=False)] * bool(s.warmup)
     phases = [calibration(s, data, k, span)] if s.calibrate_epochs else []
     # A start whose first phase reconstructs the validation frames poorly, or whose
     # calibrated equations leave much of the encoder's z̈ unexplained, found another system
@@ -155,7 +155,7 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
 
 def calibration(s: Schedule, data, k: int, span: float):
     """The schedule's calibration: a :class:`~latent_sindy.Phase` of refinement with the
-    calibration weights and learning rate, thresholding when asked (the z̈ term scale-free
+    calibration weights and learning rate, pruning when asked (the z̈ term scale-free
     with ``calibrate_relative``)."""
     from latent_sindy.training.session import Phase
 
@@ -167,7 +167,14 @@ def calibration(s: Schedule, data, k: int, span: float):
     refine = s.calibrate_epochs - (2 * s.calibrate_epochs // 3 if prune else 0)
     return Phase(s.calibrate_epochs, "calibration", {
         "lr": s.calibrate_lr or s.lr, "loss": loss, "refine_epochs": refine,
-        "threshold_every": prune})
+        "prune_every": prune})
+
+
+def _as_keyed(s: Schedule) -> dict[str, Any]:
+    """The schedule's settings under the names finished rows were first keyed by (a renamed
+    setting under its old name), so rows trained before the renaming are still reused."""
+    old = {new: name for name, new in Schedule.renamed_settings.items()}
+    return {old.get(k, k): v for k, v in asdict(s).items()}
 
 
 @dataclass(frozen=True)
@@ -225,7 +232,7 @@ class VideoStudyConfig:
         this matches; the device and threads change the bits, not the study)."""
         return {"schedule": self.schedule, "derivatives": self.derivatives,
                 "components": self.components, "splits": list(self.splits),
-                "steps": self.steps, **asdict(self.resolved_schedule()),
+                "steps": self.steps, **_as_keyed(self.resolved_schedule()),
                 "time_unit": "data", **({} if self.omega2 == 1 else {"omega2": self.omega2}),
                 **({} if self.starts == "own_time" else {"starts": self.starts})}
 

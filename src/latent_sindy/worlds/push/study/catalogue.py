@@ -63,17 +63,19 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
 
     return (
         *(ModelSpec(f"sindy{k}", f"SINDy-{k}", model(SindyConfig(order=k)),
-                    cost=(1.0, 1.1, 1.2, 1.6)[k - 1], headline=k == 2, image_space=k == 2)
+                    relative_time=(1.0, 1.1, 1.2, 1.6)[k - 1], headline=k == 2,
+                    image_space=k == 2)
           for k in (1, 2, 3, 4)),
-        ModelSpec("linear", "linear (E2C)", model(LinearConfig()), cost=0.8, headline=True),
-        ModelSpec("mlp", "MLP", model(MlpConfig()), cost=0.9),
+        ModelSpec("linear", "linear (E2C)", model(LinearConfig()), relative_time=0.8,
+                  headline=True),
+        ModelSpec("mlp", "MLP", model(MlpConfig()), relative_time=0.9),
         ModelSpec(f"sindy2_h{h}", f"SINDy-2, H={h}", model(SindyConfig(order=2)),
-                  window=h, cost=1.1 * (h + 1) / 2),
+                  window=h, relative_time=1.1 * (h + 1) / 2),
         # The latent model with the push's geometry in its library (u2 sin(u1),
         # z_i u2 cos(u1), ...): it plans better than the classic library (RESULTS.md, "The
         # push-library row").
         ModelSpec("sindy2_push", "SINDy-2 (push library)",
-                  model(SindyConfig(order=2, library="push")), cost=1.15, headline=True),
+                  model(SindyConfig(order=2, library="push")), relative_time=1.15, headline=True),
         # The same with a pose head trained on the simulator's poses (privileged, training
         # only) and MPPI's cost on the head's reading (goal read from the goal image): the
         # unsupervised latents drop the block's orientation (issue 11). λ4 = 10: where the
@@ -81,7 +83,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         ModelSpec("sindy2_pose", "SINDy-2 (push library), pose-supervised (privileged)",
                   dataclasses.replace(model(SindyConfig(order=2, library="push")),
                                       pose_head="linear"),
-                  loss=LossWeights(lambda_pose=10.0), cost=1.2, headline=True,
+                  loss=LossWeights(lambda_pose=10.0), relative_time=1.2, headline=True,
                   latent_cost="pose"),
         # The latent is the pose read from the image: four coordinates supervised to be
         # (x, y, cos 4θ, sin 4θ) (privileged, training only), a wider encoder (16 channels:
@@ -92,8 +94,8 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                   ModelConfig(observation=dataclasses.replace(auto, latent_dim=4,
                                                           conv_channels=(16, 16)),
                               dynamics=pose_dynamics, pose_head="coordinates"),
-                  loss=LossWeights(lambda_pose=10.0, lambda_l1=1e-3), cost=1.3, headline=True,
-                  latent_cost="pose"),
+                  loss=LossWeights(lambda_pose=10.0, lambda_l1=1e-3), relative_time=1.3,
+                  headline=True, latent_cost="pose"),
         # The latent is the block's pose read from the image's moments (nothing learned and no
         # simulator pose: the centroid and the n-th angular moment of what differs from the
         # empty table, :class:`~latent_sindy.models.autoencoder.MomentEncoder`) and the state
@@ -105,18 +107,18 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # STLSQ at 0.2, the sprite decoder: RESULTS.md, "The moments row".
         ModelSpec("sindy_moments", f"SINDy ({library} library), image moments",
                   ModelConfig(observation=moments, dynamics=pose_dynamics),
-                  loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
-                  init_threshold=0.2,
-                  cost=0.6, headline=True),
+                  loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), prune_below=0.0,
+                  init_share=0.2,
+                  relative_time=0.6, headline=True),
         # The frame library on the moments latent (its orientation sense and offset taken
         # from the data's camera at training), fitted as the face row but at a lower STLSQ
-        # threshold: the image row that predicts pushes best, at less sparsity (RESULTS.md,
+        # share: the image row that predicts pushes best, at less sparsity (RESULTS.md,
         # "The moments frame row").
         *((ModelSpec("sindy_moments_frame", "SINDy (frame library, turning), image moments",
                      dataclasses.replace(ModelConfig(observation=moments, dynamics=frame_dynamics),
                                          turn=True),
-                     loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), threshold=0.0,
-                     init_threshold=0.05, cost=0.6, headline=True),
+                     loss=LossWeights(lambda_pred_x=0.0, lambda_l1=0.0), prune_below=0.0,
+                     init_share=0.05, relative_time=0.6, headline=True),
            ) if frame else ()),
         # The same latent with nothing set by hand: the mask that says which pixels count is
         # learned (mask_moments: 3x3 convolutions, trained by reconstruction through the
@@ -128,7 +130,7 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
                   ModelConfig(observation=learned,
                               dynamics=dataclasses.replace(pose_dynamics, angle_frequency=0.0)),
                   loss=LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0),
-                  threshold=0.0, init_threshold=0.2, sindy_fit="after", cost=1.0,
+                  prune_below=0.0, init_share=0.2, sindy_fit="after", relative_time=1.0,
                   headline=True),
         # The face library: the push as it is (x += 0.080 ℓ cos ψ, y += 0.080 ℓ sin ψ) and the
         # turn, through the push angle relative to the pushed face (sin 4ψ, cos 4ψ times the
@@ -138,21 +140,21 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # (The push library's row, kept for the worlds with pushes relative to the block:
         # λ3 = 1e-4, as the images' 1e-2 shrank its push terms.)
         ModelSpec("state_sindy", f"SINDy ({library} library), state", state(pose_dynamics),
-                  loss=LossWeights(lambda_l1=1e-3 if library == "face" else 1e-4), cost=0.1,
-                  headline=True, epochs_factor=10),
+                  loss=LossWeights(lambda_l1=1e-3 if library == "face" else 1e-4),
+                  relative_time=0.1, headline=True, epochs_factor=10),
         # The frame library (the push in the pushed face's frame: its angle a from the face
         # normal, the normal's direction n): the best state row, at λ3 = 1e-4 (RESULTS.md,
         # "The state rows").
         *((ModelSpec("state_sindy_frame", "SINDy (frame library, turning), state",
                      dataclasses.replace(state(frame_dynamics), turn=True),
-                     loss=LossWeights(lambda_l1=1e-4), cost=0.1, headline=True,
+                     loss=LossWeights(lambda_l1=1e-4), relative_time=0.1, headline=True,
                      epochs_factor=10),
            ) if frame else ()),
-        ModelSpec("state_linear", "linear, state", state(LinearConfig()), cost=0.1,
+        ModelSpec("state_linear", "linear, state", state(LinearConfig()), relative_time=0.1,
                   headline=True, epochs_factor=10),
         # The push angle also as cos / sin of 1-4 times it: a square block's pose features turn
         # 4 times per revolution. 10 times the epochs: it still improves after the images'
         # schedule (RESULTS.md, "The state rows").
-        ModelSpec("state_mlp", "MLP, state", state(MlpConfig(harmonics=4)), cost=0.1,
+        ModelSpec("state_mlp", "MLP, state", state(MlpConfig(harmonics=4)), relative_time=0.1,
                   headline=True, epochs_factor=10),
     )

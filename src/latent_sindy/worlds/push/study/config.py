@@ -36,11 +36,11 @@ from latent_sindy.worlds.push.study.scales import SCALES, Scale
 from latent_sindy.worlds.push.study.spec import SINGLE_STEP, ModelSpec
 from latent_sindy.worlds.push.study.sweeps import (
     MAX_SEEDS,
-    SWEEPABLE,
     Seeds,
     Sweeps,
     check_windows,
     sweep_help,
+    sweepable,
 )
 
 __all__ = ["ReproduceConfig", "StudyPlan", "study_specs"]
@@ -262,25 +262,25 @@ def study_specs(config: ReproduceConfig) -> tuple[ModelSpec, ...]:
         specs = tuple(s for s in specs if s.name in config.models)
     out: list[ModelSpec] = []
     for sweep in config.sweep:
-        setting = SWEEPABLE[sweep.setting]
+        setting = sweepable(sweep.setting)
         if not any(setting.applies(s) for s in specs):
             raise UserError(f"{sweep.text}: none of the chosen models "
                             f"({', '.join(s.name for s in specs)}) has this setting; "
                             f"{sweep.setting} is a setting of {setting.models}: choose such "
                             "models with --models")
     for spec in specs:
-        sweeps = [sw for sw in config.sweep if SWEEPABLE[sw.setting].applies(spec)]
+        sweeps = [sw for sw in config.sweep if sweepable(sw.setting).applies(spec)]
         for combo in itertools.product(*(sw.variants() for sw in sweeps)):
             variant = spec
             for sw, (name, value) in zip(sweeps, combo, strict=True):
                 try:
-                    variant = SWEEPABLE[sw.setting].apply(variant, value)
+                    variant = sweepable(sw.setting).apply(variant, value)
                 except UserError as e:  # a value this model does not take: name both
                     raise UserError(f"--sweep {name}: model {spec.name}: {e}; leave it out "
                                     "with --models") from None
             if combo:
                 suffix = ".".join(name for name, _ in combo)
-                label = ", ".join(f"{SWEEPABLE[sw.setting].label}={v:g}"
+                label = ", ".join(f"{sweepable(sw.setting).label}={v:g}"
                                   for sw, (_, v) in zip(sweeps, combo, strict=True))
                 variant = dataclasses.replace(variant, name=f"{spec.name}.{suffix}",
                                               label=f"{spec.label}, {label}")

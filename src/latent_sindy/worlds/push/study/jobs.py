@@ -53,7 +53,7 @@ class TrainJob:
     seed: int
     threads: int
     verbose: bool
-    cost: float
+    relative_time: float
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.models.renamed import renamed
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
 from latent_sindy.worlds.push.planner import world_planner
@@ -57,6 +58,7 @@ class Condition:
         return self.cost or self.space
 
 
+@renamed(threshold="prune_below", threshold_every="prune_every")
 @dataclass(frozen=True)
 class Scale:
     """How big a study is: data, training schedule and control episodes.
@@ -79,9 +81,9 @@ class Scale:
     batch_size: int = 64
     lr: float = 2e-3
     """Adam's learning rate (the paper's: 1e-3)."""
-    threshold: float = 1e-3
+    prune_below: float = 1e-3
     """SINDy: prune |Ψ| below this ..."""
-    threshold_every: int = 6
+    prune_every: int = 6
     """... every this many epochs."""
     eval_every: int = 1
     """Validation loss every this many epochs (and at the last); it does not change the model."""
@@ -150,10 +152,10 @@ class Scale:
 #: demo's budget on 2 cores (RESULTS.md); every other scale lists what differs from it.
 DEMO = Scale()
 
-#: The paper's settings: 3000 epochs, batch 500, thresholding every 300 epochs; 10 paper-task
+#: The paper's settings: 3000 epochs, batch 500, pruning every 300 epochs; 10 paper-task
 #: runs (as its image-space test) and more random tasks per model and planner.
 PAPER = dataclasses.replace(
-    DEMO, epochs=3000, lr=1e-3, batch_size=500, threshold_every=300, eval_every=10, batching="auto",
+    DEMO, epochs=3000, lr=1e-3, batch_size=500, prune_every=300, eval_every=10, batching="auto",
     paper_episodes=10, random_episodes=100, other_random_episodes=50, image_paper_episodes=10,
     image_random_episodes=50)
 
@@ -170,7 +172,7 @@ LARGE = dataclasses.replace(ROUND_ONE, trajectories=2000)
 
 #: Seconds: only checks that the pipeline runs end to end (tests).
 TINY = dataclasses.replace(
-    DEMO, trajectories=6, steps=3, epochs=2, batch_size=500, threshold_every=1,
+    DEMO, trajectories=6, steps=3, epochs=2, batch_size=500, prune_every=1,
     multistep_window=2, paper_episodes=1, random_episodes=1, other_random_episodes=1,
     image_paper_episodes=1, image_random_episodes=1, max_steps=2, image_max_steps=2,
     mppi=MPPIConfig(samples=8, horizon=2))

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
+from latent_sindy.models.renamed import renamed
 
 __all__ = ["SINGLE_STEP", "ModelSpec"]
 
@@ -16,6 +17,7 @@ __all__ = ["SINGLE_STEP", "ModelSpec"]
 SINGLE_STEP = "sindy2"
 
 
+@renamed(threshold="prune_below", init_threshold="init_share", cost="relative_time")
 @dataclass(frozen=True)
 class ModelSpec:
     """One model of the study: its name (folder, table column), label and training recipe."""
@@ -25,7 +27,7 @@ class ModelSpec:
     model: ModelConfig
     window: int = 1
     """Training window H (1: single-step)."""
-    cost: float = 1.0
+    relative_time: float = 1.0
     """Relative training time, to start the longest jobs first."""
     loss: LossWeights = field(default_factory=LossWeights)
     """Weights of the loss terms."""
@@ -39,11 +41,12 @@ class ModelSpec:
     """Also plan with image-space MPPI (the paper's variant; needs an image model). The study
     runs it for SINDy-2 only: a step decodes K·H images (Table I's "planning ms per step,
     image-space MPPI")."""
-    threshold: float | None = None
-    """SINDy's pruning threshold τ (|Ψ| < τ pruned); None: the scale's."""
-    init_threshold: float = 0.0
-    """SINDy on a fixed encoder: the threshold of the sparse regression its coefficients start
-    from (``TrainConfig.sindy_init_threshold``)."""
+    prune_below: float | None = None
+    """SINDy's pruning cut τ (|Ψ| < τ pruned, ``TrainConfig.prune_below``); None: the
+    scale's."""
+    init_share: float = 0.0
+    """SINDy on a fixed encoder: the smallest share a term may contribute in the sparse
+    regression its coefficients start from (``TrainConfig.sindy_init_share``)."""
     sindy_fit: Literal["joint", "after"] = "joint"
     """SINDy: trained with the autoencoder ("joint") or fitted by sparse regression to the
     trained encoder's latents ("after", ``TrainConfig.sindy_fit``)."""

@@ -139,8 +139,8 @@ def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say,
     for seed in cfg.seeds:
         for spec in plan.specs:
             tc = train_config(plan, spec, seed, data)
-            jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.cost))
-    jobs.sort(key=lambda j: -j.cost)  # longest first: the pool's tail stays short
+            jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.relative_time))
+    jobs.sort(key=lambda j: -j.relative_time)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in plan.specs for c in scale.conditions(spec))
     say(f"[2/4] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
         f"({scale.epochs} epochs; {episodes} control episodes per seed), "
@@ -237,17 +237,18 @@ def baseline_stage(data: SequenceData) -> Baselines:
 @torch.no_grad()
 def train_config(plan: StudyPlan, spec: ModelSpec, seed: int, data: Path) -> TrainConfig:
     """How the study trains ``spec`` for ``seed``: the scale's schedule (times the spec's
-    epochs factor), the spec's model, loss weights, window and threshold (if it sets one)."""
+    epochs factor), the spec's model, loss weights, window and pruning cut (if it sets one)."""
     scale = plan.scale
     return TrainConfig(data=data, out=plan.runs[seed][spec.name], model=spec.model,
                        loss=spec.loss, window=spec.window,
                        epochs=scale.epochs * spec.epochs_factor,
                        batch_size=scale.batch_size, lr=scale.lr,
-                       threshold=scale.threshold if spec.threshold is None else spec.threshold,
+                       prune_below=(scale.prune_below if spec.prune_below is None
+                                    else spec.prune_below),
                        prune="absolute", starts=1,
-                       threshold_every=scale.threshold_every * spec.epochs_factor,
+                       prune_every=scale.prune_every * spec.epochs_factor,
                        eval_every=scale.eval_every * spec.epochs_factor,
-                       sindy_init_threshold=spec.init_threshold,
+                       sindy_init_share=spec.init_share,
                        sindy_fit=spec.sindy_fit,
                        batching=scale.batching, seed=seed,
                        device="auto" if plan.config.gpus > 0 else "cpu")

@@ -231,8 +231,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     r.paragraph(
         f"Data: {data['trajectories']} trajectories of {data['steps']} pushes (splits "
         f"{data['splits']}). Every model trained {scale.epochs} epochs, batch "
-        f"{scale.batch_size}, SINDy thresholding every {scale.threshold_every} epochs at "
-        f"{scale.threshold:g}; seeds {seeds}; {control_note}. Training took "
+        f"{scale.batch_size}, SINDy pruning every {scale.prune_every} epochs at "
+        f"{scale.prune_below:g}; seeds {seeds}; {control_note}. Training took "
         f"{train_s:.0f} s summed over all models and seeds; this invocation took "
         f"{study.timings.get('total', math.nan):.0f} s of wall time on "
         f"{summary['machine']['cpus']} CPUs (load average {load}; finished pieces of "

@@ -3,7 +3,9 @@
 A sweep names one model setting (:data:`SWEEPABLE`) and its values; the study trains every
 chosen model that has the setting once per value (:func:`.catalogue.study_specs`). Every
 value is checked when the sweep is read, before anything runs; :data:`SWEEPABLE` is also
-what ``reproduce --help`` lists (:func:`sweep_help`).
+what ``reproduce --help`` lists (:func:`sweep_help`). A renamed setting's old name
+(:data:`RENAMED_SWEEPS`) still sweeps it, and names its runs as before, so an earlier
+study's finished runs are found again.
 
     latent-sindy reproduce --models sindy2 --sweep lambda_l1=1e-3,1e-2 --seeds 0..2
 
@@ -29,8 +31,8 @@ from latent_sindy.sindy import VALID_ORDERS
 if TYPE_CHECKING:
     from latent_sindy.worlds.push.study.spec import ModelSpec
 
-__all__ = ["MAX_SEEDS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps", "check_windows",
-           "parse_seeds", "parse_sweeps", "sweep_help"]
+__all__ = ["MAX_SEEDS", "RENAMED_SWEEPS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps",
+           "check_windows", "parse_seeds", "parse_sweeps", "sweep_help", "sweepable"]
 
 #: The most seeds a study takes (each trains and evaluates every model).
 MAX_SEEDS = 1000
@@ -134,16 +136,25 @@ SWEEPABLE: dict[str, Sweepable] = {
     "window": Sweepable(int, "H", "the training window in pushes", "every model",
                         _every_model, lambda spec, v: dataclasses.replace(spec, window=v),
                         lambda v: v >= 1, "1 or more pushes"),
-    "threshold": Sweepable(float, "τ", "the pruning threshold", "SINDy models", _is_sindy,
-                           lambda spec, v: dataclasses.replace(spec, threshold=v),
-                           _non_negative, "a finite number >= 0"),
-    "init_threshold": Sweepable(float, "STLSQ threshold",
-                                "the threshold of the sparse regression the coefficients "
-                                "start from", "SINDy models on a fixed encoder (moments, state)",
-                                _is_sindy_on_fixed_encoder,
-                                lambda spec, v: dataclasses.replace(spec, init_threshold=v),
-                                _non_negative, "a finite number >= 0"),
+    "prune_below": Sweepable(float, "τ", "the pruning cut, |Ψ| < τ pruned", "SINDy models",
+                             _is_sindy, lambda spec, v: dataclasses.replace(spec, prune_below=v),
+                             _non_negative, "a finite number >= 0"),
+    "init_share": Sweepable(float, "STLSQ share",
+                            "the smallest share a term may contribute in the sparse regression "
+                            "the coefficients start from",
+                            "SINDy models on a fixed encoder (moments, state)",
+                            _is_sindy_on_fixed_encoder,
+                            lambda spec, v: dataclasses.replace(spec, init_share=v),
+                            _non_negative, "a finite number >= 0"),
 }
+
+#: Old sweep names -> the settings' names now.
+RENAMED_SWEEPS = {"threshold": "prune_below", "init_threshold": "init_share"}
+
+
+def sweepable(setting: str) -> Sweepable:
+    """The :data:`SWEEPABLE` entry of ``setting`` (its name now or an old one)."""
+    return SWEEPABLE[RENAMED_SWEEPS.get(setting, setting)]
 
 
 def sweep_help() -> str:
@@ -159,12 +170,12 @@ def sweep_help() -> str:
 def _check_values(setting: str, values: tuple[Any, ...], text: str) -> None:
     """UserError, named as the sweep ``text``, for an unknown setting or a value it
     does not take."""
-    if setting not in SWEEPABLE:
+    if setting not in SWEEPABLE and setting not in RENAMED_SWEEPS:
         raise UserError(f"{text}: unknown setting {setting!r}; sweepable: "
                         f"{', '.join(SWEEPABLE)}")
     if not values or len(set(values)) != len(values):
         raise UserError(f"{text}: give distinct values, e.g. {setting}=1,2")
-    s = SWEEPABLE[setting]
+    s = sweepable(setting)
     bad = [v for v in values if not s.valid(v)]
     if bad:
         raise UserError(f"{text}: {setting} {', '.join(f'{v:g}' for v in bad)}: use "
@@ -193,7 +204,8 @@ class Sweep:
         if not eq or not values:
             raise UserError(f"--sweep {text!r}: write SETTING=V1,V2 (e.g. lambda_l1=1e-3,1e-2); "
                             f"sweepable: {', '.join(SWEEPABLE)}")
-        kind = SWEEPABLE[setting].kind if setting in SWEEPABLE else float
+        known = setting in SWEEPABLE or setting in RENAMED_SWEEPS
+        kind = sweepable(setting).kind if known else float
         parsed = []
         for v in values.split(","):
             try:
@@ -225,7 +237,7 @@ def check_windows(sweeps: tuple[Sweep, ...], steps: int, trajectories: str) -> N
 
 def parse_sweeps(args: list[str]) -> tuple[Sweep, ...]:
     sweeps = tuple(Sweep.parse(a) for a in args)
-    names = [s.setting for s in sweeps]
+    names = [RENAMED_SWEEPS.get(s.setting, s.setting) for s in sweeps]
     if len(set(names)) != len(names):
         raise UserError(f"--sweep {' '.join(args)}: name each setting once")
     return sweeps
