@@ -10,7 +10,7 @@ training time (wall and process CPU). Runs go one after another in this process,
 
     .venv/bin/python benchmarks/batching.py --data data/push.h5 --seeds 0 1
     .venv/bin/python benchmarks/batching.py --data data/push.h5 --epochs 600 --batch-size 500 \
-        --threshold-every 60 --eval-every 10
+        --prune-every 60 --eval-every 10
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def main() -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--epochs", type=int, default=60)
     p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--threshold-every", type=int, default=6)
+    p.add_argument("--prune-every", "--threshold-every", type=int, default=6)
     p.add_argument("--eval-every", type=int, default=1)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--batchings", nargs="+", default=["windows", "trajectories"])
@@ -50,7 +50,7 @@ def main() -> None:
     data = read_sequences(args.data)
     print(f"torch {torch.__version__}, {args.threads} thread(s); SINDy-2, conv decoder; "
           f"{args.epochs} epochs, batch {args.batch_size}, pruning every "
-          f"{args.threshold_every}, validation every {args.eval_every}; data {args.data} "
+          f"{args.prune_every}, validation every {args.eval_every}; data {args.data} "
           f"({data.split_counts()})")
     print(f"{'seed':>4} {'batching':<13} {'kept':>5} {'val obj':>9} {'test obj':>9} "
           f"{'recon':>8} {'pred_x':>8} {'pred_z':>9} {'active':>7} {'wall s':>7} "
@@ -62,7 +62,7 @@ def main() -> None:
                                     dynamics=SindyConfig(order=2))
                 cfg = TrainConfig(data=args.data, out=Path(tmp) / f"{batching}{seed}",
                                   model=model, epochs=args.epochs, batch_size=args.batch_size,
-                                  threshold_every=args.threshold_every, threshold=1e-3,
+                                  prune_every=args.prune_every, prune_below=1e-3,
                                   eval_every=args.eval_every, seed=seed, batching=batching)
                 t0, c0 = time.perf_counter(), time.process_time()
                 run = train(cfg)

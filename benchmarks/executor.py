@@ -82,9 +82,9 @@ def probe(data: Path, work: Path, world: str) -> list[dict]:
         out = work / "probe" / spec.name
         tc = TrainConfig(data=data, out=out, model=spec.model, loss=spec.loss,
                          window=spec.window, epochs=PROBE_EPOCHS, batch_size=paper.batch_size,
-                         threshold=paper.threshold, threshold_every=paper.threshold_every,
+                         prune_below=paper.prune_below, prune_every=paper.prune_every,
                          eval_every=1, seed=0)
-        train_job(TrainJob(tc, spec.name, 0, 1, False, spec.cost))
+        train_job(TrainJob(tc, spec.name, 0, 1, False, spec.relative_time))
         s_epoch = RunDir(out).read_metrics()[-1]["time_s"]
         base = eval_job(EvalJob(out, data, spec.name, 0, (), 1)).seconds  # losses, cached
         episodes = {}

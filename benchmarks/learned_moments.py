@@ -22,7 +22,7 @@ on its test split, fitted on its training split:
   ``benchmarks/textured_world.py`` reads them; at random, 22.5° for n = 4);
 * R² of the linear and the kernel probes (``worlds/push/study/probe.py``) for x, y and the angle
   (mean of the cos and sin features');
-* a SINDy model (order-2 polynomial library, STLSQ at ``--threshold``) fitted to each
+* a SINDy model (order-2 polynomial library, STLSQ at ``--min-share``) fitted to each
   latent's training transitions: active terms and its one-push latent squared error on the
   test split, in % of that of "nothing moves".
 
@@ -77,7 +77,7 @@ def readout(z_tr: np.ndarray, p_tr: np.ndarray, z_te: np.ndarray, p_te: np.ndarr
             "within 10 deg (%)": float(100 * (best < 10).mean())}
 
 
-def sindy_fit(model: LatentModel, data: SequenceData, norm: Normalizer, threshold: float
+def sindy_fit(model: LatentModel, data: SequenceData, norm: Normalizer, min_share: float
               ) -> dict[str, float]:
     """Active terms of STLSQ on the training transitions, and its one-push latent squared
     error on the test split in % of "nothing moves" (z_t for z_t+1)."""
@@ -88,7 +88,7 @@ def sindy_fit(model: LatentModel, data: SequenceData, norm: Normalizer, threshol
     dyn = model.dynamics
     nz, nu = z.shape[-1], u.shape[-1]
     dyn.fit_state_data(z[:, :-1].reshape(-1, nz), u.reshape(-1, nu), z[:, 1:].reshape(-1, nz),
-                       optimizer=STLSQ(threshold=threshold))
+                       optimizer=STLSQ(min_share=min_share))
     with torch.no_grad():
         pred = model.step(zt[:, :-1].reshape(-1, nz), ut.reshape(-1, nu))
     nxt = zt[:, 1:].reshape(-1, nz)
@@ -98,7 +98,7 @@ def sindy_fit(model: LatentModel, data: SequenceData, norm: Normalizer, threshol
 
 
 def measure(model: LatentModel, data: SequenceData, norm: Normalizer, order: int,
-            threshold: float, seed: int) -> dict[str, float]:
+            min_share: float, seed: int) -> dict[str, float]:
     """Every figure of one encoder on one world's data."""
     model.eval()
     train, test = data.split("train"), data.split("test")
@@ -110,7 +110,7 @@ def measure(model: LatentModel, data: SequenceData, norm: Normalizer, order: int
             "linear R2 angle": (probes["cos"] + probes["sin"]) / 2,
             "kernel R2 x": probes["kernel/x"], "kernel R2 y": probes["kernel/y"],
             "kernel R2 angle": probes["kernel/angle"]}
-    return out | sindy_fit(model, data, norm, threshold)
+    return out | sindy_fit(model, data, norm, min_share)
 
 
 def moments_model(data: SequenceData, norm: Normalizer, order: int) -> LatentModel:
@@ -131,7 +131,7 @@ def learned_model(data: SequenceData, obs: AutoencoderConfig, args: argparse.Nam
     t0 = time.perf_counter()
     est = LatentSINDy(model=ModelConfig(dynamics=SindyConfig(order=2), observation=obs),
                       settings=TrainConfig(lr=args.lr, batch_size=args.batch_size,
-                                           threshold_every=0),
+                                           prune_every=0),
                       loss=LossWeights(lambda_pred_x=args.lambda_pred_x,
                                        lambda_pred_z=args.lambda_pred_z, lambda_l1=1e-3),
                       seed=args.seed)
@@ -146,7 +146,7 @@ def world(path: Path, args: argparse.Namespace) -> tuple[dict[str, dict[str, flo
     norm = Normalizer.from_trajectories(data.split("train"))
     block_order = round(2 * math.pi / data.env_config.angle_period)
     rows = {"moments": measure(moments_model(data, norm, block_order), data, norm,
-                               block_order, args.threshold, args.seed)}
+                               block_order, args.min_share, args.seed)}
     obs = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,
                             moment_order=args.provisional_order,
                             mask_channels=args.mask_channels, mask_weight=args.weight,
@@ -162,7 +162,7 @@ def world(path: Path, args: argparse.Namespace) -> tuple[dict[str, dict[str, flo
     model, norm, seconds = learned_model(data, dataclasses.replace(obs, moment_order=order),
                                          args, args.epochs)
     note += f", fitted at order {order} ({seconds:.0f} s)"
-    rows["mask_moments"] = measure(model, data, norm, order, args.threshold, args.seed)
+    rows["mask_moments"] = measure(model, data, norm, order, args.min_share, args.seed)
     return rows, note
 
 
@@ -194,7 +194,8 @@ def main() -> None:
     ap.add_argument("--refine", type=int, default=3,
                     help="the mask_moments encoder's --mask-refine (mean-shift steps; 0: the "
                          "masked weights' own pose, as first measured)")
-    ap.add_argument("--threshold", type=float, default=0.2, help="STLSQ threshold")
+    ap.add_argument("--min-share", "--threshold", type=float, default=0.2,
+                    help="STLSQ's min_share")
     ap.add_argument("--seed", type=int, default=0, help="seed of the weights, batches, probes")
     args = ap.parse_args()
     if args.standard is None and args.textured is None:

@@ -51,7 +51,7 @@ def pruned_sindy(order: int, keep: float) -> SindyDynamics:
     model = SindyDynamics(NZ, NU, order=order, seed=order)
     mags = model.psi.detach().abs().flatten()
     tau = float(mags.kthvalue(max(1, int(mags.numel() * (1 - keep)))).values)
-    model.threshold(math.nextafter(tau, math.inf))
+    model.prune(math.nextafter(tau, math.inf))
     return model
 
 

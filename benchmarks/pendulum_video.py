@@ -54,7 +54,7 @@ def main() -> None:
     cfg = TrainConfig(model=model_cfg, lr=1e-4, weight_decay=0.0, batch_size=args.batch,
                       loss=LossWeights(lambda_pred_x=5e-4, lambda_pred_z=5e-5,
                                        lambda_l1=1e-5 / 12),
-                      threshold=0.1, threshold_every=500, epochs=6002, refine_epochs=1001,
+                      prune_below=0.1, prune_every=500, epochs=6002, refine_epochs=1001,
                       device=args.device)
     record = run_record(cfg, data)
     model, opt, gen = new_model(from_json(ModelConfig, record["model"], "model"), cfg,

@@ -106,7 +106,7 @@ def _fit_frame(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, turn: b
     model = SindyConfig(order=1, library="frame", include_sine=False,
                         angle_frequency=f).build(4, 3, circle=(2, 3), turn=turn).double()
     model.fit_state_data(z[:, :-1].reshape(-1, 4)[m], u.reshape(-1, 3)[m],
-                         z[:, 1:].reshape(-1, 4)[m], optimizer=STLSQ(threshold=0.0))
+                         z[:, 1:].reshape(-1, 4)[m], optimizer=STLSQ(min_share=0.0))
     return _frame_step(model, f)
 
 

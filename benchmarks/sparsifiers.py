@@ -44,7 +44,7 @@ def main() -> None:
         u = torch.randn(args.rows, nu, generator=gen, dtype=torch.float64)
         theta = lib(z, u)
         target = 0.5 * z + 0.01 * torch.randn(args.rows, nz, generator=gen, dtype=torch.float64)
-        a, _ = _timed(STLSQ(threshold=0.01), theta, target)
+        a, _ = _timed(STLSQ(min_share=0.01), theta, target)
         b, _ = _timed(StepwiseSR(1e-4, complexity=lib.degrees), theta, target)
         print(f"  ({nz}, {nu}, {order}) | {lib.n_terms} | {nz} | {a:.3f} | {b:.3f} | {b / a:.0f}")
 
@@ -58,8 +58,8 @@ def main() -> None:
     dot = (p * q).sum(1, keepdim=True)
     law = 2 * dot * p - q - p  # a steady turn's step, p' - p, written in (p, q)
     target = law + 1e-4 * torch.randn(law.shape, generator=gen, dtype=torch.float64)
-    for name, opt in (("STLSQ 0.01", STLSQ(threshold=0.01)),
-                      ("STLSQ 0.1", STLSQ(threshold=0.1)),
+    for name, opt in (("STLSQ 0.01", STLSQ(min_share=0.01)),
+                      ("STLSQ 0.1", STLSQ(min_share=0.1)),
                       ("StepwiseSR 1e-4, no complexity", StepwiseSR(1e-4)),
                       ("StepwiseSR 1e-4, by degree", StepwiseSR(1e-4, complexity=lib.degrees))):
         seconds, kept = _timed(opt, theta, target)

@@ -180,7 +180,7 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
     model = ModelConfig(encoder=AutoencoderConfig(decoder=args.decoder),
                         dynamics=SindyConfig(order=2))
     cfg = TrainConfig(data=data, out=out, model=model, epochs=2 * args.epochs,
-                      batch_size=500, threshold_every=300, threshold=1e-3,
+                      batch_size=500, prune_every=300, prune_below=1e-3,
                       eval_every=v.eval_every, batching=v.batching, parallel=v.parallel,
                       overwrite=True)
     clock = Clock(args.epochs)
