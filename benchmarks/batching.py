@@ -28,7 +28,7 @@ from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import WindowDataset
 from latent_sindy.models import AutoencoderConfig, ModelConfig, SindyConfig
 from latent_sindy.training import TrainConfig, load_run, train
-from latent_sindy.training.core import evaluate
+from latent_sindy.training.core import Sequences, evaluate
 
 
 def load() -> str:
@@ -70,7 +70,7 @@ def main() -> None:
                 loaded = load_run(run)
                 record = json.loads((run / "config.json").read_text())["kept"]
                 x, u = WindowDataset(data.split("test"), 1, loaded.normalizer).tensors()
-                test = evaluate(loaded.model, x, u, cfg.loss)
+                test = evaluate(loaded.model, Sequences(x, u), cfg.loss)
                 dyn = loaded.model.dynamics
                 print(f"{seed:>4} {batching:<13} {record['epoch']:>5} "
                       f"{record['val_objective']:9.5f} {test['objective']:9.5f} "

@@ -60,8 +60,8 @@ def main() -> None:
     model, opt, gen = new_model(from_json(ModelConfig, record["model"], "model"), cfg,
                                 torch.device(args.device))
     norm = Normalizer.from_dict(record["normalizer"])
-    x, u = derivative_samples(data.split("train"), norm, 2, cfg)  # (N F, 3, 1, 51, 51)
-    x, u = x.to(args.device), u.to(args.device)
+    samples = derivative_samples(data.split("train"), norm, 2, cfg).to(args.device)
+    x = samples.frames  # (N F, 3, 1, 51, 51)
     grads = Gradients(model, 1)
     times = []
     for k in range(args.steps + 1):
@@ -69,7 +69,7 @@ def main() -> None:
         if args.device == "cuda":
             torch.cuda.synchronize()
         s = time.perf_counter()
-        train_epoch(grads, opt, x[idx], u[idx], cfg, args.batch, gen, 1)
+        train_epoch(grads, opt, samples.pick(idx), cfg, args.batch, gen, 1)
         if args.device == "cuda":
             torch.cuda.synchronize()
         if k:  # the first step warms up

@@ -679,6 +679,7 @@ def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
     added, are those of the whole batch (to float rounding), the pose head's unused
     parameters stay without a gradient, and the same batch gives the same bits again."""
     from latent_sindy.training.core import Gradients as _Gradients
+    from latent_sindy.training.core import Sequences
 
     torch.manual_seed(0)
     cfg = ModelConfig(encoder=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),
@@ -691,7 +692,7 @@ def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
     def run(parts: int) -> tuple[dict, list]:
         grads = _Gradients(model, parts)
         try:
-            terms = grads(x, u, weights, None, 1)
+            terms = grads(Sequences(x, u), weights, 1)
         finally:
             grads.close()
         return terms, [None if p.grad is None else p.grad.clone() for p in model.parameters()]

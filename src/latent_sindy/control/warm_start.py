@@ -94,7 +94,7 @@ def _state(session: Session, epochs: int, updates: int, pruned: int = 0) -> Warm
 
 
 def _updates_per_epoch(session: Session) -> int:
-    return max(1, math.ceil(len(session.tensors.train[0]) / session.tensors.per_batch))
+    return max(1, math.ceil(session.tensors.train.n / session.tensors.per_batch))
 
 
 def first_fit(estimator: Any, data: SequenceData, settings: dict[str, Any]
@@ -127,10 +127,9 @@ def warm_fit(estimator: Any, data: SequenceData, settings: dict[str, Any], state
     session.opt.load_state_dict(state.optimizer)
     train, per_batch = session.tensors.train, session.tensors.per_batch
     if _updates_per_epoch(session) > updates:  # the budget, whatever the data so far
-        take = torch.randperm(len(train[0]), generator=session.gen)[:updates * per_batch]
-        take = take.sort().values.to(train[0].device)
-        sample = tuple(None if t is None else t[take] for t in train)
-        session.tensors = dataclasses.replace(session.tensors, train=sample)
+        take = torch.randperm(train.n, generator=session.gen)[:updates * per_batch]
+        take = take.sort().values.to(train.device)
+        session.tensors = dataclasses.replace(session.tensors, train=train.pick(take))
     pruned = _prune_step(session, prune_rate, prune_to) if prune_rate else 0
     epochs = math.ceil(updates / _updates_per_epoch(session))
     session.cfg = dataclasses.replace(session.cfg, epochs=epochs,
@@ -149,10 +148,9 @@ def _prune_step(session: Session, rate: float, floor: int) -> int:
     model = session.model
     if not model.dynamics.sparse:
         return 0
-    x, u = session.tensors.train[0], session.tensors.train[1]
-    with torch.no_grad():
-        scale = (share_scale(model, x, u) if resolve_prune(session.cfg) == "relative"
-                 else None)
+    with torch.no_grad():  # (relative: sequences; continuous time prunes |Ξ|)
+        scale = (share_scale(model, session.tensors.train.x, session.tensors.train.u)
+                 if resolve_prune(session.cfg) == "relative" else None)
     pruned = prune(model, session.opt, session.cfg.prune_below, scale)
     dyn = model.dynamics
     active = dyn.n_active()

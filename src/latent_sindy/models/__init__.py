@@ -8,6 +8,7 @@ loss. Nothing here knows a world: what a latent coordinate means comes from the 
     autoencoder_parts.py  each encoder and decoder kind's own settings (tagged by kind)
     autoencoder_flags.py  the same settings flat: the command line's, older records'
     pose_head.py  a readout of the pose features     latent_model.py  ModelConfig, the loss
+    continuous_model.py  the continuous-time model: its loss on frames and their derivatives
     costs.py      weights of a quadratic latent cost renamed.py    old setting names
     reward_head.py  r̂(z, u), a reward predicted along the latent rollout
 
@@ -17,6 +18,7 @@ torch.Size([8, 16])
 """
 
 from latent_sindy.models.autoencoder import Autoencoder, AutoencoderConfig
+from latent_sindy.models.continuous_model import ContinuousLatentModel
 from latent_sindy.models.costs import cost_weights
 from latent_sindy.models.dynamics import (
     DYNAMICS_CONFIGS,
@@ -55,6 +57,7 @@ __all__ = [
     "Autoencoder",
     "AutoencoderConfig",
     "CompiledSindy",
+    "ContinuousLatentModel",
     "DynamicsConfig",
     "EncoderConfig",
     "LatentDynamics",

@@ -35,12 +35,10 @@ actions in them while encoding and reconstructing each frame once (the trainer's
 and recon (and the pose term on encoded frames) weighs every frame once instead of once per
 window that holds it.
 
-A continuous-time model (:attr:`LatentDynamics.continuous`: z^(k) = Θ(z[, ż], u) Ξ, k = 1 or
-2) takes samples of one frame and its k time derivatives instead, x (B, 1+k, C, h, w) =
-(x, ẋ[, ẍ]) and u (B, nu), and the SINDy autoencoder's terms
-(:mod:`~latent_sindy.models.derivatives` takes ż, z̈ and the decoder's ones by the chain rule):
-recon as above; pred_x the error of x^(k) predicted through the decoder from z[, ż] and the
-library's z^(k); pred_z the error of the library's z^(k) against the encoder's.
+A continuous-time model (:attr:`LatentDynamics.continuous`) is a
+:class:`~latent_sindy.models.continuous_model.ContinuousLatentModel`, which
+``LatentModel(config)`` builds for such a config: its loss, the SINDy autoencoder's, is on a
+frame and its time derivatives instead (formulas in :mod:`latent_sindy.models.continuous_model`).
 
 Dimensions: B batch, H horizon, C channels, h × w image, nz latent size, nu action size.
 
@@ -55,7 +53,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import torch
 import tyro
@@ -63,7 +61,6 @@ from torch import nn
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder import AutoencoderConfig, ImageSize
-from latent_sindy.models.derivatives import along
 from latent_sindy.models.dynamics import (
     DynamicsConfig,
     LatentDynamics,
@@ -221,6 +218,24 @@ class LatentModel(nn.Module):
             global torch generator (seed it for reproducible runs).
     """
 
+    #: The model types of the dynamics kinds that have their own (the kind's module
+    #: registers it by subclassing: ``class ContinuousLatentModel(LatentModel,
+    #: dynamics_kind="continuous")``; :mod:`latent_sindy.models` imports them all).
+    _by_dynamics: ClassVar[dict[str, type[LatentModel]]] = {}
+
+    def __init_subclass__(cls, dynamics_kind: str | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if dynamics_kind is not None:
+            LatentModel._by_dynamics[dynamics_kind] = cls
+
+    def __new__(cls, config: ModelConfig | None = None, *args: Any, **kwargs: Any
+                ) -> LatentModel:
+        """``LatentModel(config)`` is the model type of the config's dynamics kind (the one
+        place that chooses it); None (unpickling, copying): ``cls`` itself."""
+        if cls is LatentModel and config is not None:
+            cls = LatentModel._by_dynamics.get(config.dynamics.kind, cls)
+        return super().__new__(cls)
+
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         if not config.resolved:
@@ -294,8 +309,6 @@ class LatentModel(nn.Module):
         weights = weights or DEFAULT_WEIGHTS
         poses, rewards = (poses.poses, poses.rewards) if isinstance(poses, Targets) else (
             poses, None)
-        if self.dynamics.continuous:
-            return self._continuous_loss(x, u, weights)
         if x.ndim < 3 or u.ndim != 3 or u.shape[:2] != (x.shape[0], x.shape[1] - 1):
             raise ValueError(
                 f"loss expects x (B, T+1, ...) and u (B, T, nu), got {tuple(x.shape)} and "
@@ -363,28 +376,3 @@ class LatentModel(nn.Module):
         head = self.pose_head.standardized
         return ((head(z) - target).square().mean()
                 + (head(z_hat) - targets(target)).square().mean())
-
-    def _continuous_loss(self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights
-                         ) -> dict[str, torch.Tensor]:
-        """The terms on frames and their derivatives x (B, 1+k, C, h, w), u (B, nu)."""
-        k = self.dynamics.derivative_order
-        if x.ndim != 5 or x.shape[1] != k + 1 or u.shape != (x.shape[0], self.dynamics.nu):
-            raise ValueError(f"a continuous-time loss of order {k} expects x (B, {k + 1}, C, h, "
-                             f"w) and u (B, nu), got {tuple(x.shape)} and {tuple(u.shape)}")
-        frames = x.unbind(1)  # x, ẋ[, ẍ]: (B, C, h, w) each
-        ae = self.autoencoder
-        z = along(ae.encoder, *frames)  # z, ż[, z̈]: (B, nz) each
-        top = self.dynamics.derivative(torch.cat(z[:k], -1), u)  # the library's z^(k)
-        x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
-        recon = (x_hat[0] - frames[0]).square().mean()
-        pred_x = (x_hat[k] - frames[k]).square().mean()
-        pred_z = latent_error(top, z[k], weights.relative_pred_z)
-        unit = self.dynamics.time_unit ** (2 * k)  # the derivative terms in the model's time
-        if unit != 1.0:
-            pred_x = pred_x * unit
-            pred_z = pred_z if weights.relative_pred_z else pred_z * unit
-        l1 = self.l1_penalty()
-        objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
-        return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,
-                "pred_z": pred_z, "l1": l1, "pose": recon.new_zeros(()), "objective": objective,
-                "reward": recon.new_zeros(())}

@@ -29,7 +29,7 @@ import torch
 from latent_sindy.data import SPLITS, SequenceData
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer, WindowDataset
 from latent_sindy.models.latent_model import LatentModel, LossWeights
-from latent_sindy.training import evaluate
+from latent_sindy.training import Sequences, evaluate
 
 __all__ = ["BASELINES", "Stat", "aggregate", "baseline_errors", "horizon_errors", "mean_std",
            "model_stats", "rollouts", "split_losses"]
@@ -47,7 +47,7 @@ def split_losses(model: LatentModel, data: SequenceData, normalizer: Normalizer,
         if part.n == 0:
             continue
         windows = WindowDataset(part, 1, normalizer, model.config.observation.kind)
-        terms = evaluate(model, *windows.tensors(), weights)
+        terms = evaluate(model, Sequences(*windows.tensors()), weights)
         out[split] = {k: terms[k] for k in ("objective", "recon", "pred_x", "pred_z")}
     return out
 

@@ -1,6 +1,8 @@
 """Training a latent model: the one gradient loop and the run folder around it.
 
-``core`` holds the loop (:func:`~latent_sindy.training.core.fit`, in memory), ``session`` the
+``core`` holds the loop (:func:`~latent_sindy.training.core.fit`, in memory) and ``samples``
+what it trains on (:class:`Sequences`, a continuous-time model's :class:`DerivativeSamples`),
+``session`` the
 one set-up every training goes through (:func:`~latent_sindy.training.session.prepare`, a
 :class:`~latent_sindy.training.session.Session` trained whole or by phases), ``prepare`` the
 tensors it trains on and the model's start, ``record`` what config.json records, ``runs`` the
@@ -18,7 +20,8 @@ from latent_sindy.training.loop import train
 from latent_sindy.training.metrics import METRIC_COLUMNS
 from latent_sindy.training.record import run_record
 from latent_sindy.training.runs import Run, RunDir, load_run, read_metrics
+from latent_sindy.training.samples import DerivativeSamples, Sequences
 
-__all__ = ["METRIC_COLUMNS", "RESUMABLE", "FitResult", "Run", "RunDir", "TrainConfig",
-           "TrainingDiverged", "default_threads", "evaluate", "fit", "load_run",
-           "read_metrics", "run_record", "train"]
+__all__ = ["METRIC_COLUMNS", "RESUMABLE", "DerivativeSamples", "FitResult", "Run", "RunDir",
+           "Sequences", "TrainConfig", "TrainingDiverged", "default_threads", "evaluate", "fit",
+           "load_run", "read_metrics", "run_record", "train"]

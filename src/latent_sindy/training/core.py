@@ -10,7 +10,7 @@ every training reaches it through a :class:`~latent_sindy.training.session.Sessi
 run folder (checkpoints, resume, metrics file, progress) wraps it through ``on_epoch``
 (:mod:`latent_sindy.training.loop`).
 
-    result = fit(model, opt, gen, (x, u, None), (xv, uv, None), settings)
+    result = fit(model, opt, gen, Sequences(x, u), Sequences(xv, uv), settings)
     model.load_state_dict(result.state)
 """
 
@@ -32,13 +32,11 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights
 from latent_sindy.training.config import TrainConfig, resolve_prune
 from latent_sindy.training.metrics import METRIC_COLUMNS
+from latent_sindy.training.samples import DerivativeSamples, Sequences
 
-__all__ = ["BestValidation", "FitResult", "Gradients", "TrainingDiverged", "evaluate", "fit",
-           "keep_freed_memory", "prune", "share_scale", "to_cpu"]
-
-#: (x, u, s): sequences (N, T+1, ...) or windows (W, H+1, ...), their actions (N, T, nu),
-#: and their true state features (privileged data of a pose head) or None.
-Sequences = tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]
+__all__ = ["BestValidation", "DerivativeSamples", "FitResult", "Gradients", "Sequences",
+           "TrainingDiverged", "evaluate", "fit", "keep_freed_memory", "prune", "share_scale",
+           "to_cpu"]
 
 
 class TrainingDiverged(UserError):
@@ -64,17 +62,16 @@ class FitResult:
 
 
 def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
-        train: Sequences, val: Sequences | None, cfg: TrainConfig, *, per_batch: int,
-        parts: int = 1, done: int = 0, metrics: list[dict[str, Any]] | None = None,
-        best: BestValidation | None = None,
+        train: Sequences | DerivativeSamples, val: Sequences | DerivativeSamples | None,
+        cfg: TrainConfig, *, per_batch: int, parts: int = 1, done: int = 0,
+        metrics: list[dict[str, Any]] | None = None, best: BestValidation | None = None,
         on_epoch: Callable[[int, dict[str, Any]], None] | None = None) -> FitResult:
     """Train ``model`` from epoch ``done`` + 1 to ``cfg.epochs`` (``metrics`` and ``best``:
-    a resumed run's); ``per_batch`` sequences per mini-batch, gradients split over ``parts``
+    a resumed run's); ``per_batch`` samples per mini-batch, gradients split over ``parts``
     threads; ``on_epoch(epoch, row)`` after every epoch (checkpoints, progress), once the row
     is appended to ``metrics`` (the list given is extended in place)."""
     metrics = [] if metrics is None else metrics
     best = best or BestValidation()
-    x, u, s = train
     sparse = model.dynamics.sparse
     pruning = sparse and cfg.prune_every > 0
     relative = pruning and resolve_prune(cfg) == "relative"
@@ -88,16 +85,16 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
             row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
             row["epoch"] = epoch
             refine = epoch > refine_after
-            terms = train_epoch(grads, opt, x, u, cfg, per_batch, gen, epoch, s,
+            terms = train_epoch(grads, opt, train, cfg, per_batch, gen, epoch,
                                 weights=refining if refine else None)
             row.update({f"train/{k}": v for k, v in terms.items()})
             if pruning and not refine and epoch % cfg.prune_every == 0:
-                scale = share_scale(model, x, u) if relative else None
+                scale = share_scale(model, train.x, train.u) if relative else None
                 row["sindy/pruned"] = prune(model, opt, cfg.prune_below, scale)
                 if row["sindy/pruned"]:
                     best.mask_changed(epoch)
             if val is not None and (epoch % cfg.eval_every == 0 or epoch == cfg.epochs):
-                val_terms = evaluate(model, val[0], val[1], cfg.loss, cfg.batch_size, val[2])
+                val_terms = evaluate(model, val, cfg.loss, cfg.batch_size)
                 if not math.isfinite(val_terms["total"]):
                     raise TrainingDiverged(epoch, "the validation loss")
                 row.update({f"val/{k}": v for k, v in val_terms.items()})
@@ -121,26 +118,21 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
 
 
 @torch.inference_mode()
-def evaluate(
-    model: LatentModel,
-    x: torch.Tensor,
-    u: torch.Tensor,
-    weights: LossWeights | None = None,
-    batch_size: int = 500,
-    poses: torch.Tensor | None = None,
-) -> dict[str, float]:
-    """Mean loss terms over windows x (W, H+1, C, S, S), u (W, H, nu), in batches (on the
-    device of the model and the windows); ``poses`` (W, H+1, 4) for a pose head's term."""
+def evaluate(model: LatentModel, samples: Sequences | DerivativeSamples,
+             weights: LossWeights | None = None, batch_size: int = 500) -> dict[str, float]:
+    """Mean loss terms over ``samples``, in batches (on the device of the model and the
+    samples): windows (:class:`Sequences`, whole: no window is cut; with the true poses for
+    a pose head's term) or a continuous-time model's :class:`DerivativeSamples`."""
     was_training = model.training
     model.eval()
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
-    for b in range(0, len(x), batch_size):
-        s = None if poses is None else poses[b : b + batch_size]
-        terms = model.loss(x[b : b + batch_size], u[b : b + batch_size], weights, s)
+    for b in range(0, samples.n, batch_size):
+        batch = samples.pick(slice(b, b + batch_size))
+        terms = batch.loss(model, weights, None)
         values = torch.stack([terms[k] for k in LOSS_TERMS]).double().cpu()
-        sums += values * len(x[b : b + batch_size])
+        sums += values * batch.n
     model.train(was_training)
-    return dict(zip(LOSS_TERMS, (sums / max(len(x), 1)).tolist(), strict=True))
+    return dict(zip(LOSS_TERMS, (sums / max(samples.n, 1)).tolist(), strict=True))
 
 
 class Gradients:
@@ -149,7 +141,7 @@ class Gradients:
     With ``parts`` > 1 the batch is cut into that many slices whose losses and gradients
     that many threads compute at once, each with one torch thread (torch's own threads are
     set to 1 until :meth:`close`), and the gradients are added in slice order; the loss terms
-    are means, so each slice counts by its share of the sequences. Deterministic: every
+    are means, so each slice counts by its share of the samples. Deterministic: every
     slice runs single-threaded and the sums have a fixed order. With ``parts`` = 1 it is one
     ``loss(...).backward()``.
     """
@@ -169,22 +161,23 @@ class Gradients:
             self._pool = None
             torch.set_num_threads(self._threads)
 
-    def __call__(self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights,
-                 poses: torch.Tensor | None, window: int) -> dict[str, torch.Tensor]:
-        """Set every parameter's ``.grad`` to d total / d parameter on sequences x, u;
-        returns the loss terms (detached)."""
-        if self._pool is None or len(x) < 2:
-            terms = self.model.loss(x, u, weights, poses, window=window)
+    def __call__(self, batch: Sequences | DerivativeSamples, weights: LossWeights,
+                 window: int | None) -> dict[str, torch.Tensor]:
+        """Set every parameter's ``.grad`` to d total / d parameter on the ``batch``
+        (sequences cut into windows of ``window`` actions, or derivative samples, which take
+        none); returns the loss terms (detached)."""
+        n = batch.n
+        if self._pool is None or n < 2:
+            terms = batch.loss(self.model, weights, window)
             for p in self.params:
                 p.grad = None
             terms["total"].backward()
             return {k: v.detach() for k, v in terms.items()}
-        bounds = torch.linspace(0, len(x), min(self.parts, len(x)) + 1).round().long().tolist()
+        bounds = torch.linspace(0, n, min(self.parts, n) + 1).round().long().tolist()
 
         def part(a: int, b: int) -> tuple[dict[str, torch.Tensor], tuple]:
-            share = (b - a) / len(x)
-            terms = self.model.loss(x[a:b], u[a:b], weights,
-                                    None if poses is None else poses[a:b], window=window)
+            share = (b - a) / n
+            terms = batch.pick(slice(a, b)).loss(self.model, weights, window)
             g = torch.autograd.grad(terms["total"] * share, self.params, allow_unused=True)
             return {k: v.detach() * share for k, v in terms.items()}, g
 
@@ -197,23 +190,21 @@ class Gradients:
         return terms
 
 
-def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
-                u: torch.Tensor, cfg: TrainConfig, per_batch: int, gen: torch.Generator,
-                epoch: int, poses: torch.Tensor | None = None,
-                weights: LossWeights | None = None) -> dict[str, float]:
-    """One shuffled pass over sequences x (N, T+1, ...), u (N, T, nu) (windows or whole
-    trajectories; a continuous-time model's samples), ``per_batch`` of them per batch; mean
-    loss terms per sequence (as seen before each batch's update). ``poses`` (N, T+1, ns): the
-    sequences' true state features, for a pose head; ``weights``: the loss's (default
-    ``cfg.loss``)."""
+def train_epoch(grads: Gradients, opt: torch.optim.Optimizer,
+                samples: Sequences | DerivativeSamples, cfg: TrainConfig, per_batch: int,
+                gen: torch.Generator, epoch: int, weights: LossWeights | None = None
+                ) -> dict[str, float]:
+    """One shuffled pass over the training ``samples`` (sequences: windows or whole
+    trajectories, with their true states for a pose or reward head; or a continuous-time
+    model's derivative samples), ``per_batch`` of them per batch; mean loss terms per sample
+    (as seen before each batch's update). ``weights``: the loss's (default ``cfg.loss``)."""
     weights = weights or cfg.loss
     # The generator lives on the CPU: the same mini-batches on every device.
-    order = torch.randperm(len(x), generator=gen).to(x.device)
+    order = torch.randperm(samples.n, generator=gen).to(samples.device)
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
-    for b in range(0, len(x), per_batch):
+    for b in range(0, samples.n, per_batch):
         idx = order[b : b + per_batch]
-        terms = grads(x[idx], u[idx], weights, None if poses is None else poses[idx],
-                      cfg.window)
+        terms = grads(samples.pick(idx), weights, cfg.window)
         values = torch.stack([terms[k] for k in LOSS_TERMS])  # (8,)
         if not torch.isfinite(values).all():
             bad = next(k for k in ("recon", "pred_x", "pred_z", "l1", "pose", "reward", "total")
@@ -224,7 +215,7 @@ def train_epoch(grads: Gradients, opt: torch.optim.Optimizer, x: torch.Tensor,
     for name, p in grads.model.named_parameters():
         if not torch.isfinite(p).all():
             raise TrainingDiverged(epoch, f"parameter {name}")
-    return dict(zip(LOSS_TERMS, (sums / len(x)).tolist(), strict=True))
+    return dict(zip(LOSS_TERMS, (sums / samples.n).tolist(), strict=True))
 
 
 #: Frames encoded at once where a whole split is encoded (bounds the encoder's activations).

@@ -1,7 +1,7 @@
 """The tensors a fit trains on, cut from the data as the settings ask, and the model's start:
 its data statistics and, for SINDy on fixed latents, the sparse-regression coefficients.
 A continuous-time model trains on single frames with their time derivatives instead
-(:func:`derivative_samples`).
+(:func:`derivative_samples`: :class:`~latent_sindy.training.samples.DerivativeSamples`).
 
     tensors = training_tensors(model, data, normalizer, cfg, torch.device("cpu"))
     fit(model, opt, gen, tensors.train, tensors.val, cfg, per_batch=tensors.per_batch)
@@ -23,7 +23,8 @@ from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.models.reward_head import Targets
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
-from latent_sindy.training.core import ENCODE_CHUNK, Sequences
+from latent_sindy.training.core import ENCODE_CHUNK
+from latent_sindy.training.samples import DerivativeSamples, Sequences
 
 __all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
            "regression_init", "settle_model", "settle_settings", "training_tensors"]
@@ -65,8 +66,9 @@ def new_model(model_cfg, cfg: TrainConfig, device: torch.device
 class TrainingTensors:
     """What :func:`~latent_sindy.training.core.fit` trains and validates on."""
 
-    train: Sequences
-    val: Sequences | None
+    train: Sequences | DerivativeSamples
+    """Sequences (windows or whole trajectories), or a continuous-time model's samples."""
+    val: Sequences | DerivativeSamples | None
     per_batch: int
     prime: Callable[[LatentModel], None] | None = None
     """Give another fresh model of the same config what these tensors gave theirs (its data
@@ -181,17 +183,16 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
     (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
     if model.dynamics.continuous:
         order = model.dynamics.derivative_order
-        x, u = derivative_samples(data.split("train"), norm, order, cfg)
+        train = derivative_samples(data.split("train"), norm, order, cfg)
         val = data.split("val")
-        xv, uv = derivative_samples(val, norm, order, cfg) if val.n else (None, None)
+        samples = derivative_samples(val, norm, order, cfg) if val.n else None
         def prime_continuous(m: LatentModel) -> None:
-            m.fit_statistics(x[:, 0].to(device), None)
+            m.fit_statistics(train.frames[:, 0].to(device), None)
 
         if fresh:
             prime_continuous(model)
-        return TrainingTensors((x.to(device), u.to(device), None), None if xv is None else
-                               (xv.to(device), uv.to(device), None), cfg.batch_size,
-                               prime_continuous)
+        return TrainingTensors(train.to(device), None if samples is None else
+                               samples.to(device), cfg.batch_size, prime_continuous)
     kind = model.config.observation.kind
     train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
     by_trajectory = resolve_batching(cfg) == "trajectories"
@@ -221,16 +222,18 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
 
     if fresh:  # a resumed model has its statistics in its state
         prime(model)
-    return TrainingTensors((x, u, s), None if xv is None else (xv, uv, sv), per_batch, prime)
+    return TrainingTensors(Sequences(x, u, s), None if xv is None else Sequences(xv, uv, sv),
+                           per_batch, prime)
 
 
 def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: TrainConfig
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+                       ) -> DerivativeSamples:
     """Every frame of ``data`` with its ``order`` time derivatives, normalised as the frames
-    (derivatives divided by the pixel std), x (N (T+1), 1 + order, C, H, W), and the action
-    acting at it, u (N (T+1), nu) (the last frame keeps the last action). The derivatives are
-    the data's where it has them and ``cfg.derivatives`` is "auto", else estimated from the
-    frames (:func:`~latent_sindy.models.derivatives.estimate_derivatives`, ``data.dt`` apart).
+    (derivatives divided by the pixel std), frames (N (T+1), 1 + order, C, H, W), and the
+    action acting at it, actions (N (T+1), nu) (the last frame keeps the last action). The
+    derivatives are the data's where it has them and ``cfg.derivatives`` is "auto", else
+    estimated from the frames (:func:`~latent_sindy.models.derivatives.estimate_derivatives`,
+    ``data.dt`` apart).
     """
     given = [data.images_dot, data.images_ddot][:order] if cfg.derivatives == "auto" else []
     if len(given) == order and all(g is not None for g in given):
@@ -248,4 +251,4 @@ def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: Tr
     x = x.masked_fill(x.abs() < torch.finfo(x.dtype).tiny, 0.0)
     a = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
     u = torch.cat([a, a[:, -1:]], 1).flatten(0, 1)  # (N (T+1), nu)
-    return x, u
+    return DerivativeSamples(x, u)

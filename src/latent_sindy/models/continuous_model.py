@@ -1,0 +1,97 @@
+"""The continuous-time latent model: the SINDy autoencoder's loss (Champion et al., PNAS 2019)
+on a frame and its time derivatives.
+
+:class:`ContinuousLatentModel` is the :class:`~latent_sindy.models.latent_model.LatentModel`
+of continuous-time dynamics (:mod:`latent_sindy.models.dynamics.continuous`: z^(k) =
+Θ(z[, ż], u) Ξ, k = 1 or 2); ``LatentModel(config)`` builds it for such a config, with the
+same parameters (and state dict keys). It trains not on sequences but on samples of one frame
+and its k time derivatives, x (B, 1+k, C, h, w) = (x, ẋ[, ẍ]), with the action acting at it,
+u (B, nu) (the trainer's ``DerivativeSamples``). :func:`~latent_sindy.models.derivatives.along`
+takes the encoder's ż, z̈ and the decoder's derivatives by the chain rule (forward mode), and
+the loss terms are, every one a mean squared error per element as the discrete loss's:
+
+    z, ż[, z̈] = enc along (x, ẋ[, ẍ])         the encoder's latent and its derivatives
+    ẑ^(k)     = Θ(z[, ż], u) Ξ                the dynamics' k-th derivative of z
+    x̂, x̂^(k)  = dec along (z[, ż], ẑ^(k))     x̂^(k): x^(k) predicted through the decoder
+    recon  = mean_b ‖x − x̂‖² / (C·h·w)
+    pred_x = T^(2k) mean_b ‖x^(k) − x̂^(k)‖² / (C·h·w)
+    pred_z = T^(2k) mean_b ‖z^(k) − ẑ^(k)‖² / nz    (``relative_pred_z``: the relative error,
+                                                  without T^(2k))
+    l1     = ‖M ⊙ Ψ‖₁                         (Ψ: the trained coefficients, Ξ at T = 1)
+    objective = recon + λ1 pred_x + λ2 pred_z
+    total  = objective + λ3 l1                    (pose and reward: 0)
+
+T is the dynamics' ``time_unit`` (1 unless set): it weighs the derivative terms as in the
+model's own time, so that a fit in real time is the fit in model time. A window, poses and
+rewards belong to sequences: the loss refuses them.
+
+    >>> from latent_sindy.models import AutoencoderConfig, ModelConfig
+    >>> from latent_sindy.models.dynamics import ContinuousSindyConfig
+    >>> cfg = ModelConfig(dynamics=ContinuousSindyConfig(derivative_order=2),
+    ...                   observation=AutoencoderConfig(latent_dim=1, encoder_kind="mlp",
+    ...                                                 decoder_kind="mlp")).resolve(1, 8, 0)
+    >>> model = LatentModel(cfg)  # a ContinuousLatentModel
+    >>> terms = model.loss(torch.zeros(4, 3, 1, 8, 8), torch.zeros(4, 0))
+    >>> type(model).__name__, sorted(terms)[:3]
+    ('ContinuousLatentModel', ['l1', 'objective', 'pose'])
+"""
+
+from __future__ import annotations
+
+import torch
+
+from latent_sindy.models.derivatives import along
+from latent_sindy.models.latent_model import LatentModel, ModelConfig
+from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, latent_error
+from latent_sindy.models.reward_head import Targets
+
+__all__ = ["ContinuousLatentModel"]
+
+
+class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
+    """Autoencoder + continuous-time dynamics, trained on frames and their time derivatives
+    (the module's docstring); ``step(z, u)`` integrates the dynamics over one ``dt``."""
+
+    def __init__(self, config: ModelConfig) -> None:
+        if config.dynamics.kind != "continuous":
+            raise ValueError(f"ContinuousLatentModel takes continuous-time dynamics, got "
+                             f"{config.dynamics.kind!r}: build LatentModel(config) instead")
+        super().__init__(config)
+
+    def loss(
+        self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
+        poses: torch.Tensor | Targets | None = None, window: int | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """The loss terms of :data:`~latent_sindy.models.latent_model.LOSS_TERMS` on frames
+        and their k time derivatives x (B, 1+k, C, h, w) and their actions u (B, nu).
+        ``weights`` None uses the defaults of :class:`LossWeights`; ``poses`` and ``window``
+        (a discrete model's) must be None."""
+        k = self.dynamics.derivative_order
+        if poses is not None:
+            raise ValueError("a continuous-time model's loss has no pose or reward term: call "
+                             "loss(x, u, weights) without poses or targets")
+        if window is not None:
+            raise ValueError(f"a continuous-time model's loss takes single frames with their "
+                             f"derivatives, not sequences to cut into windows: call "
+                             f"loss(x, u, weights) without window (got window={window})")
+        if x.ndim != 5 or x.shape[1] != k + 1 or u.shape != (x.shape[0], self.dynamics.nu):
+            raise ValueError(f"a continuous-time loss of order {k} expects x (B, {k + 1}, C, h, "
+                             f"w) and u (B, nu), got {tuple(x.shape)} and {tuple(u.shape)}")
+        weights = weights or DEFAULT_WEIGHTS
+        frames = x.unbind(1)  # x, ẋ[, ẍ]: (B, C, h, w) each
+        ae = self.autoencoder
+        z = along(ae.encoder, *frames)  # z, ż[, z̈]: (B, nz) each
+        top = self.dynamics.derivative(torch.cat(z[:k], -1), u)  # the library's z^(k)
+        x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
+        recon = (x_hat[0] - frames[0]).square().mean()
+        pred_x = (x_hat[k] - frames[k]).square().mean()
+        pred_z = latent_error(top, z[k], weights.relative_pred_z)
+        unit = self.dynamics.time_unit ** (2 * k)  # the derivative terms in the model's time
+        if unit != 1.0:
+            pred_x = pred_x * unit
+            pred_z = pred_z if weights.relative_pred_z else pred_z * unit
+        l1 = self.l1_penalty()
+        objective = recon + weights.lambda_pred_x * pred_x + weights.lambda_pred_z * pred_z
+        return {"total": objective + weights.lambda_l1 * l1, "recon": recon, "pred_x": pred_x,
+                "pred_z": pred_z, "l1": l1, "pose": recon.new_zeros(()), "objective": objective,
+                "reward": recon.new_zeros(())}

@@ -1,0 +1,80 @@
+"""What the trainer trains on: sequences for a discrete-time model, a frame and its time
+derivatives for a continuous-time one.
+
+Both sample types index alike (``pick``, over the first axis of their ``n`` samples, on
+their ``device``) and hand the model's loss what it takes (``loss``), so that the training
+loop never asks which it has:
+
+    Sequences(x, u, s)                 x (N, T+1, ...) sequences or (W, H+1, ...) windows,
+                                       u their actions (N, T, nu), s their true states or None
+    DerivativeSamples(frames, actions) frames (N, 1+k, C, h, w): a frame and its k time
+                                       derivatives; actions (N, nu): the action at each frame
+
+    batch = samples.pick(idx)
+    terms = batch.loss(model, weights, window)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+from latent_sindy.models.latent_model import LatentModel, LossWeights
+from latent_sindy.models.reward_head import Targets
+
+__all__ = ["DerivativeSamples", "Sequences"]
+
+
+class Sequences(NamedTuple):
+    """Sequences x (N, T+1, ...) or windows (W, H+1, ...), their actions u (N, T, nu), and
+    their true state features s (privileged data of a pose head; :class:`Targets` with the
+    rewards for a reward head) or None."""
+
+    x: torch.Tensor
+    u: torch.Tensor
+    s: torch.Tensor | Targets | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.x)
+
+    @property
+    def device(self) -> torch.device:
+        return self.x.device
+
+    def pick(self, idx: torch.Tensor | slice) -> Sequences:
+        return Sequences(self.x[idx], self.u[idx], None if self.s is None else self.s[idx])
+
+    def loss(self, model: LatentModel, weights: LossWeights, window: int | None
+             ) -> dict[str, torch.Tensor]:
+        """The model's loss terms on windows of ``window`` actions cut from the sequences."""
+        return model.loss(self.x, self.u, weights, self.s, window=window)
+
+
+class DerivativeSamples(NamedTuple):
+    """A continuous-time model's samples: frames (N, 1+k, C, h, w), each a frame with its k
+    time derivatives (x, ẋ[, ẍ]), normalised, and the action acting at each, actions (N, nu)."""
+
+    frames: torch.Tensor
+    actions: torch.Tensor
+
+    @property
+    def n(self) -> int:
+        return len(self.frames)
+
+    @property
+    def device(self) -> torch.device:
+        return self.frames.device
+
+    def pick(self, idx: torch.Tensor | slice) -> DerivativeSamples:
+        return DerivativeSamples(self.frames[idx], self.actions[idx])
+
+    def to(self, device: torch.device | str) -> DerivativeSamples:
+        return DerivativeSamples(self.frames.to(device), self.actions.to(device))
+
+    def loss(self, model: LatentModel, weights: LossWeights, window: int | None
+             ) -> dict[str, torch.Tensor]:
+        """The model's loss terms on the samples: single frames, so no window is cut (the
+        trainer's ``window`` is a sequence's and does not apply), and no true states."""
+        return model.loss(self.frames, self.actions, weights)
