@@ -25,6 +25,15 @@ T is the dynamics' ``time_unit`` (1 unless set): it weighs the derivative terms 
 model's own time, so that a fit in real time is the fit in model time. A window, poses and
 rewards belong to sequences: the loss refuses them.
 
+Behind a principal-component front (``pca_components``: the encoder's first layer and the
+decoder's last are one fixed linear map E and its inverse D = W c + mean, W's columns
+orthogonal), the same terms need no pixel: a frame is its coordinates c = E(x) and what the
+front leaves out r = x − D(c), so ‖x − D(ĉ)‖² = ‖r‖² + Σ_j ‖W_j‖² (c_j − ĉ_j)² (r is
+orthogonal to W's columns), and likewise for the derivatives. :meth:`~ContinuousLatentModel.
+coordinates` turns samples into (c, ‖r‖²) once; :meth:`~ContinuousLatentModel.
+coordinate_loss` gives the terms from them, equal to :meth:`~ContinuousLatentModel.loss` on
+the frames up to rounding, at the networks' cost without the pixels'.
+
     >>> from latent_sindy.models import AutoencoderConfig, ModelConfig
     >>> from latent_sindy.models.dynamics import ContinuousSindyConfig
     >>> cfg = ModelConfig(dynamics=ContinuousSindyConfig(derivative_order=2),
@@ -40,7 +49,8 @@ from __future__ import annotations
 
 import torch
 
-from latent_sindy.models.derivatives import along
+from latent_sindy.models.derivatives import along, along_layers
+from latent_sindy.models.front import LinearMap
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, latent_error
 from latent_sindy.models.reward_head import Targets
@@ -77,7 +87,6 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         if x.ndim != 5 or x.shape[1] != k + 1 or u.shape != (x.shape[0], self.dynamics.nu):
             raise ValueError(f"a continuous-time loss of order {k} expects x (B, {k + 1}, C, h, "
                              f"w) and u (B, nu), got {tuple(x.shape)} and {tuple(u.shape)}")
-        weights = weights or DEFAULT_WEIGHTS
         frames = x.unbind(1)  # x, ẋ[, ẍ]: (B, C, h, w) each
         ae = self.autoencoder
         z = along(ae.encoder, *frames)  # z, ż[, z̈]: (B, nz) each
@@ -85,7 +94,68 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         x_hat = along(ae.decoder, *z[:k], top)  # x̂, and x̂^(k) from z[, ż] and top
         recon = (x_hat[0] - frames[0]).square().mean()
         pred_x = (x_hat[k] - frames[k]).square().mean()
-        pred_z = latent_error(top, z[k], weights.relative_pred_z)
+        return self._terms(recon, pred_x, top, z[k], weights or DEFAULT_WEIGHTS)
+
+    def front(self) -> tuple[LinearMap, LinearMap] | None:
+        """The fixed linear front (the encoder's first map, the decoder's last), or None."""
+        enc = getattr(self.autoencoder.encoder, "net", None)
+        dec = getattr(self.autoencoder.decoder, "net", None)
+        if enc is not None and dec is not None and isinstance(enc[0], LinearMap) and (
+                isinstance(dec[-1], LinearMap)):
+            return enc[0], dec[-1]
+        return None
+
+    @torch.no_grad()
+    def coordinates(self, x: torch.Tensor, chunk: int = 1024
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames and their derivatives x (B, 1+k, C, h, w) on the front: their coordinates
+        (B, 1+k, K) (the derivatives' without the mean) and the squared norm of what the
+        front leaves out of each (B, 1+k), summed over pixels in float64; ValueError without
+        a front."""
+        front = self.front()
+        if front is None:
+            raise ValueError("coordinates: this model has no principal-component front "
+                             "(pca_components 0, or not the mlp encoder and decoder)")
+        enc, dec = front
+        coords, left = [], []
+        for part in x.split(chunk):
+            flat = part.flatten(2)  # (b, 1+k, P)
+            c = flat @ enc.weight.T
+            c[:, 0] += enc.bias
+            back = c.double() @ dec.weight.T.double()
+            back[:, 0] += dec.bias.double()
+            coords.append(c)
+            left.append((flat.double() - back).square().sum(-1).float())
+        return torch.cat(coords), torch.cat(left)
+
+    def coordinate_loss(self, c: torch.Tensor, u: torch.Tensor, left: torch.Tensor,
+                        weights: LossWeights | None = None) -> dict[str, torch.Tensor]:
+        """:meth:`loss` from the samples' coordinates c (B, 1+k, K) and what the front leaves
+        out of them, ``left`` (B, 1+k) (:meth:`coordinates`), through the networks without
+        the front: the same terms up to rounding."""
+        k = self.dynamics.derivative_order
+        _, dec = self.front() or (None, None)
+        if dec is None or c.ndim != 3 or c.shape[1:] != (k + 1, dec.weight.shape[1]) or (
+                left.shape != c.shape[:2]):
+            raise ValueError(f"coordinate_loss expects coordinates (B, {k + 1}, K) on the "
+                             f"model's front and left (B, {k + 1}), got {tuple(c.shape)} and "
+                             f"{tuple(left.shape)}")
+        parts = c.unbind(1)
+        z = along_layers(self.autoencoder.encoder.net[1:], *parts)
+        top = self.dynamics.derivative(torch.cat(z[:k], -1), u)
+        c_hat = along_layers(self.autoencoder.decoder.net[:-1], *z[:k], top)
+        column = dec.weight.square().sum(0)  # (K,): ‖W_j‖²
+        pixels = dec.weight.shape[0]
+        recon = ((c_hat[0] - parts[0]).square() @ column + left[:, 0]).mean() / pixels
+        pred_x = ((c_hat[k] - parts[k]).square() @ column + left[:, k]).mean() / pixels
+        return self._terms(recon, pred_x, top, z[k], weights or DEFAULT_WEIGHTS)
+
+    def _terms(self, recon: torch.Tensor, pred_x: torch.Tensor, top: torch.Tensor,
+               zk: torch.Tensor, weights: LossWeights) -> dict[str, torch.Tensor]:
+        """The terms from the reconstruction and x^(k) errors, the library's z^(k) and the
+        encoder's."""
+        k = self.dynamics.derivative_order
+        pred_z = latent_error(top, zk, weights.relative_pred_z)
         unit = self.dynamics.time_unit ** (2 * k)  # the derivative terms in the model's time
         if unit != 1.0:
             pred_x = pred_x * unit

@@ -32,7 +32,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LOSS_TERMS, LatentModel, LossWeights
 from latent_sindy.training.config import TrainConfig, resolve_prune
 from latent_sindy.training.metrics import METRIC_COLUMNS
-from latent_sindy.training.samples import DerivativeSamples, Sequences
+from latent_sindy.training.samples import DerivativeSamples, Samples, Sequences
 
 __all__ = ["BestValidation", "DerivativeSamples", "FitResult", "Gradients", "Sequences",
            "TrainingDiverged", "evaluate", "fit", "keep_freed_memory", "prune", "share_scale",
@@ -62,7 +62,7 @@ class FitResult:
 
 
 def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
-        train: Sequences | DerivativeSamples, val: Sequences | DerivativeSamples | None,
+        train: Samples, val: Samples | None,
         cfg: TrainConfig, *, per_batch: int, parts: int = 1, done: int = 0,
         metrics: list[dict[str, Any]] | None = None, best: BestValidation | None = None,
         on_epoch: Callable[[int, dict[str, Any]], None] | None = None) -> FitResult:
@@ -118,11 +118,12 @@ def fit(model: LatentModel, opt: torch.optim.Optimizer, gen: torch.Generator,
 
 
 @torch.inference_mode()
-def evaluate(model: LatentModel, samples: Sequences | DerivativeSamples,
+def evaluate(model: LatentModel, samples: Samples,
              weights: LossWeights | None = None, batch_size: int = 500) -> dict[str, float]:
     """Mean loss terms over ``samples``, in batches (on the device of the model and the
     samples): windows (:class:`Sequences`, whole: no window is cut; with the true poses for
-    a pose head's term) or a continuous-time model's :class:`DerivativeSamples`."""
+    a pose head's term) or a continuous-time model's :class:`DerivativeSamples` (or
+    :class:`CoordinateSamples`)."""
     was_training = model.training
     model.eval()
     sums = torch.zeros(len(LOSS_TERMS), dtype=torch.float64)
@@ -161,7 +162,7 @@ class Gradients:
             self._pool = None
             torch.set_num_threads(self._threads)
 
-    def __call__(self, batch: Sequences | DerivativeSamples, weights: LossWeights,
+    def __call__(self, batch: Samples, weights: LossWeights,
                  window: int | None) -> dict[str, torch.Tensor]:
         """Set every parameter's ``.grad`` to d total / d parameter on the ``batch``
         (sequences cut into windows of ``window`` actions, or derivative samples, which take
@@ -191,7 +192,7 @@ class Gradients:
 
 
 def train_epoch(grads: Gradients, opt: torch.optim.Optimizer,
-                samples: Sequences | DerivativeSamples, cfg: TrainConfig, per_batch: int,
+                samples: Samples, cfg: TrainConfig, per_batch: int,
                 gen: torch.Generator, epoch: int, weights: LossWeights | None = None
                 ) -> dict[str, float]:
     """One shuffled pass over the training ``samples`` (sequences: windows or whole

@@ -1,7 +1,8 @@
 """The tensors a fit trains on, cut from the data as the settings ask, and the model's start:
 its data statistics and, for SINDy on fixed latents, the sparse-regression coefficients.
 A continuous-time model trains on single frames with their time derivatives instead
-(:func:`derivative_samples`: :class:`~latent_sindy.training.samples.DerivativeSamples`).
+(:func:`derivative_samples`: :class:`~latent_sindy.training.samples.DerivativeSamples`), or,
+behind a principal-component front, on their coordinates on it (``CoordinateSamples``).
 
     tensors = training_tensors(model, data, normalizer, cfg, torch.device("cpu"))
     fit(model, opt, gen, tensors.train, tensors.val, cfg, per_batch=tensors.per_batch)
@@ -24,7 +25,7 @@ from latent_sindy.models.reward_head import Targets
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
 from latent_sindy.training.core import ENCODE_CHUNK
-from latent_sindy.training.samples import DerivativeSamples, Sequences
+from latent_sindy.training.samples import CoordinateSamples, DerivativeSamples, Samples, Sequences
 
 __all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
            "regression_init", "settle_model", "settle_settings", "training_tensors"]
@@ -66,9 +67,9 @@ def new_model(model_cfg, cfg: TrainConfig, device: torch.device
 class TrainingTensors:
     """What :func:`~latent_sindy.training.core.fit` trains and validates on."""
 
-    train: Sequences | DerivativeSamples
+    train: Samples
     """Sequences (windows or whole trajectories), or a continuous-time model's samples."""
-    val: Sequences | DerivativeSamples | None
+    val: Samples | None
     per_batch: int
     prime: Callable[[LatentModel], None] | None = None
     """Give another fresh model of the same config what these tensors gave theirs (its data
@@ -186,13 +187,27 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
         train = derivative_samples(data.split("train"), norm, order, cfg)
         val = data.split("val")
         samples = derivative_samples(val, norm, order, cfg) if val.n else None
-        def prime_continuous(m: LatentModel) -> None:
-            m.fit_statistics(train.frames[:, 0].to(device), None)
-
         if fresh:
-            prime_continuous(model)
-        return TrainingTensors(train.to(device), None if samples is None else
-                               samples.to(device), cfg.batch_size, prime_continuous)
+            model.fit_statistics(train.frames[:, 0].to(device), None)
+        front = model.front()
+        if front is None:
+            def prime_continuous(m: LatentModel) -> None:
+                m.fit_statistics(train.frames[:, 0].to(device), None)
+
+            return TrainingTensors(train.to(device), None if samples is None else
+                                   samples.to(device), cfg.batch_size, prime_continuous)
+        # Behind a principal-component front the frames train as their coordinates on it
+        # (the same loss up to rounding, without the pixels); another start gets this front.
+        maps = [(m.weight.clone(), m.bias.clone()) for m in front]
+
+        def prime_front(m: LatentModel) -> None:
+            for target, (weight, bias) in zip(m.front(), maps, strict=True):
+                target.set(weight, bias)
+
+        return TrainingTensors(
+            CoordinateSamples.of(train.to(device), model),
+            None if samples is None else CoordinateSamples.of(samples.to(device), model),
+            cfg.batch_size, prime_front)
     kind = model.config.observation.kind
     train_windows = WindowDataset(data.split("train"), cfg.window, norm, kind)
     by_trajectory = resolve_batching(cfg) == "trajectories"

@@ -9,6 +9,9 @@ loop never asks which it has:
                                        u their actions (N, T, nu), s their true states or None
     DerivativeSamples(frames, actions) frames (N, 1+k, C, h, w): a frame and its k time
                                        derivatives; actions (N, nu): the action at each frame
+    CoordinateSamples(coords, actions, left)   the same on a model's principal-component
+                                       front: coordinates (N, 1+k, K) and the squared norm of
+                                       what the front leaves out of each (N, 1+k)
 
     batch = samples.pick(idx)
     terms = batch.loss(model, weights, window)
@@ -23,7 +26,7 @@ import torch
 from latent_sindy.models.latent_model import LatentModel, LossWeights
 from latent_sindy.models.reward_head import Targets
 
-__all__ = ["DerivativeSamples", "Sequences"]
+__all__ = ["CoordinateSamples", "DerivativeSamples", "Samples", "Sequences"]
 
 
 class Sequences(NamedTuple):
@@ -78,3 +81,44 @@ class DerivativeSamples(NamedTuple):
         """The model's loss terms on the samples: single frames, so no window is cut (the
         trainer's ``window`` is a sequence's and does not apply), and no true states."""
         return model.loss(self.frames, self.actions, weights)
+
+
+class CoordinateSamples(NamedTuple):
+    """:class:`DerivativeSamples` on a continuous-time model's fixed principal-component
+    front (:meth:`~latent_sindy.models.continuous_model.ContinuousLatentModel.coordinates`):
+    coords (N, 1+k, K), actions (N, nu) and ``left`` (N, 1+k), the squared norm of what the
+    front leaves out of each frame and derivative. The loss is the frames' up to rounding,
+    without a pass over the pixels."""
+
+    coords: torch.Tensor
+    actions: torch.Tensor
+    left: torch.Tensor
+
+    @classmethod
+    def of(cls, samples: DerivativeSamples, model: LatentModel) -> CoordinateSamples:
+        """``samples`` on ``model``'s front (fitted: after its statistics)."""
+        coords, left = model.coordinates(samples.frames)
+        return cls(coords, samples.actions, left)
+
+    @property
+    def n(self) -> int:
+        return len(self.coords)
+
+    @property
+    def device(self) -> torch.device:
+        return self.coords.device
+
+    def pick(self, idx: torch.Tensor | slice) -> CoordinateSamples:
+        return CoordinateSamples(self.coords[idx], self.actions[idx], self.left[idx])
+
+    def to(self, device: torch.device | str) -> CoordinateSamples:
+        return CoordinateSamples(*(t.to(device) for t in self))
+
+    def loss(self, model: LatentModel, weights: LossWeights, window: int | None
+             ) -> dict[str, torch.Tensor]:
+        """The model's loss terms on the samples' coordinates (no window, no true states)."""
+        return model.coordinate_loss(self.coords, self.actions, self.left, weights)
+
+
+#: Any of the trainer's sample types.
+Samples = Sequences | DerivativeSamples | CoordinateSamples
