@@ -6,8 +6,10 @@ terms and names, ``latent_sindy.sindy.torch_library`` the differentiable librari
 ``latent_sindy.sindy.presets`` the library presets by name; ``latent_sindy.sindy.optimizers``
 the sparsifier (:class:`STLSQ`), ``latent_sindy.sindy.ensemble`` its bagged form for noisy data
 (:class:`EnsembleSTLSQ`), ``latent_sindy.sindy.stepwise`` backward elimination for libraries
-whose terms are dependent on the data (:class:`StepwiseSR`); ``latent_sindy.sindy.fit`` the
-fits to state transitions and, in a windowed form for noisy data, to whole trajectories;
+whose terms are dependent on the data (:class:`StepwiseSR`), ``latent_sindy.sindy.trimmed``
+any of them fitted to the rows a smooth library explains (:class:`Trimmed`: limits,
+contacts); ``latent_sindy.sindy.fit`` the fits to state transitions and, in a windowed
+form for noisy data, to whole trajectories;
 ``latent_sindy.sindy.selection`` a sparsifier's setting chosen on held-out rollouts.
 The package works on libraries and arrays only: it imports neither :mod:`latent_sindy.models`
 (which builds on it) nor any world (worlds register their presets and nodes here).
@@ -51,6 +53,7 @@ from latent_sindy.sindy.torch_library import (
     LibrarySubset,
     SindyLibrary,
 )
+from latent_sindy.sindy.trimmed import Trimmed
 
 __all__ = [
     "LIBRARY_PRESETS",
@@ -71,6 +74,7 @@ __all__ = [
     "Sine",
     "StepwiseSR",
     "Sum",
+    "Trimmed",
     "fit_state_data",
     "fit_trajectory_data",
     "has_preset",

@@ -32,6 +32,7 @@ from latent_sindy.sindy.ensemble import EnsembleSTLSQ
 from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import SindyLibrary
+from latent_sindy.sindy.trimmed import Trimmed
 
 __all__ = [
     "Sparsifier",
@@ -41,7 +42,7 @@ __all__ = [
     "window_regression_data",
 ]
 
-Sparsifier = STLSQ | EnsembleSTLSQ | StepwiseSR
+Sparsifier = STLSQ | EnsembleSTLSQ | StepwiseSR | Trimmed
 
 
 def _check_data(nz: int, nu: int, Z: torch.Tensor, U: torch.Tensor, Znext: torch.Tensor) -> None:
