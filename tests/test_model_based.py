@@ -177,3 +177,21 @@ def test_the_loop_in_the_deepmind_control_cartpole(tmp_path):
     assert result.log["episodes"][-1]["env_steps"] == 4 * 4 * 8
     assert all(0 <= r <= 4 * 8 for r in result.returns)
     assert isinstance(result.data, SequenceData)
+
+
+def test_test_episodes_are_planned_without_noise_and_kept_out_of_the_data():
+    world, fit = Rail(), {"epochs": 30, "batch_size": 8}
+    plain = model_based(world, estimator, LOOP, fit_settings=fit)
+    cfg = ModelBasedConfig(**{**LOOP.__dict__, "eval_episodes": 2})
+    tested = model_based(world, estimator, cfg, fit_settings=fit)
+    assert tested.returns == plain.returns and tested.data.n == plain.data.n
+    its = tested.log["iterations"]
+    assert [len(it["evaluation"]) for it in its] == [2, 2]
+    assert [it["fit_env_steps"] for it in its] == [18, 24]
+    assert all(np.isfinite(it["evaluation"]).all() for it in its)
+    # Iteration 1's fit sees only the seed episodes, so its test returns do not depend on
+    # the training episodes' exploration noise: they have none.
+    noisier = model_based(world, estimator, ModelBasedConfig(
+        **{**cfg.__dict__, "explore": 0.9, "iterations": 1}), fit_settings=fit)
+    assert noisier.log["iterations"][0]["evaluation"] == its[0]["evaluation"]
+    assert noisier.returns[-1] != tested.returns[3]

@@ -20,6 +20,10 @@ from the data, so a refit costs the same however much data there is; and a SINDy
 pruned before each warm refit (``prune_rate`` of its active terms, down to ``prune_to``),
 so its active terms fall across the refits, as the log's ``active_terms`` records.
 
+With ``eval_episodes`` each iteration also plans that many test episodes without noise,
+kept out of the data: their returns (the log's ``evaluation``) are what published tables
+report.
+
 With ``out`` the folder holds the data so far (``data.h5``), the log (``log.json``, the
 settings, every episode's return and each iteration's times, equations and active terms)
 and, when warm-started, the last iteration's model and optimiser (``model_<iteration>.pt``,
@@ -103,13 +107,18 @@ class ModelBasedConfig:
     prune_to: int = 48
     """Active SINDy terms below which the refits' pruning by share stops (``--prune-below`` may
     still remove terms)."""
+    eval_episodes: int = 0
+    """Episodes planned after each fit without exploration noise and not added to the data
+    (the test episodes PlaNet and CURL report), from the same starts every iteration; their
+    returns are the log's ``evaluation`` per iteration, beside ``fit_env_steps``, the
+    environment steps of the data the fit saw."""
     mppi: MPPIConfig = field(default_factory=lambda: MPPIConfig(
         samples=300, horizon=12, sigma=0.3, lambda_=1.0, shift="repeat"))
     """The planner's settings (λ on the scale of a horizon's summed reward)."""
 
     def __post_init__(self) -> None:
         for name in ("seed_episodes", "iterations", "episodes_per_iteration", "episode_steps",
-                     "validation_every", "steps_per_action", "warm_updates"):
+                     "validation_every", "steps_per_action", "warm_updates", "eval_episodes"):
             v = getattr(self, name)
             least = 1 if name in ("seed_episodes", "episode_steps", "steps_per_action") else 0
             if isinstance(v, bool) or not isinstance(v, int) or v < least:
@@ -191,13 +200,15 @@ def _labels(first: int, n: int, every: int) -> np.ndarray:
 
 
 def _planned(world: World, env: Any, planner: Any, cfg: ModelBasedConfig, index: int,
-             template: SequenceData) -> SequenceData:
-    """Episode ``index``, planned: one sequence, with the context of ``template``."""
-    rng = np.random.default_rng([cfg.seed, index])
+             template: SequenceData, test: bool = False) -> SequenceData:
+    """Episode ``index``, planned: one sequence, with the context of ``template``; ``test``:
+    the index-th test start, without exploration noise."""
+    rng = np.random.default_rng([cfg.seed, index] + ([1] if test else []))
     low, high = np.asarray(world.action_low, float), np.asarray(world.action_high, float)
-    image = world.reset(env, world.sample_task(rng), cfg.seed * 100_003 + index)
+    image = world.reset(env, world.sample_task(rng), cfg.seed * 100_003 + index + test * 50_021)
     rec = _Recorder(world, env, image)
-    policy = _Exploring(planner, cfg.explore * (high - low) / 2, rng, low, high)
+    policy = _Exploring(planner, (0.0 if test else cfg.explore) * (high - low) / 2, rng, low,
+                        high)
     n = run_loop(policy, rec, Observation(image, rec.states[0]), None, cfg.episode_steps,
                  cfg.seed * 1000 + index)
     if n < cfg.episode_steps:
@@ -263,6 +274,10 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                 steps = (index + 1) * cfg.episode_steps * per_action
                 entries.append(_entry(parts[-1], 0, iteration, "planned", steps,
                                       time.perf_counter() - t1) | {"episode": index})
+            t1, seen = time.perf_counter(), data.n * cfg.episode_steps * per_action
+            tests = [_planned(world, env, planner, cfg, k, data, test=True)
+                     for k in range(cfg.eval_episodes)]
+            test_s = time.perf_counter() - t1
             data = concatenate(parts)
             log["episodes"] += entries
             active = _active(estimator)
@@ -272,11 +287,15 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                 "updates": None if state is None else state.updates,
                 "batch_size": None if state is None else state.batch_size,
                 "pruned": None if state is None else state.pruned,
-                "equations": _equations(estimator), "active_terms": active})
+                "equations": _equations(estimator), "active_terms": active,
+                "fit_env_steps": seen, "eval_seconds": round(test_s, 3),
+                "evaluation": [float(t.rewards.astype(np.float64).sum()) for t in tests]})
             log["done"] = iteration
             _save(folder, data, log, state)
             mean = float(np.mean([e["return"] for e in entries])) if entries else None
-            progress.update(iteration, {"return": mean, "env_steps": float(
+            test = log["iterations"][-1]["evaluation"]
+            progress.update(iteration, {"return": mean, "evaluation": float(np.mean(test))
+                                        if test else None, "env_steps": float(
                 log["episodes"][-1]["env_steps"]), "sindy/active": active,
                 "fit_seconds": fit_s})
     finally:
@@ -358,7 +377,8 @@ def _resume(folder: Path, settings: dict[str, Any]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise UserError(f"{path} is damaged ({e}): delete {folder} to start again") from e
     # (a log of before a setting existed: the behaviour it had then)
-    was = {"warm_updates": 0, "batch_size": None, "prune_rate": 0.0, "prune_to": 0} | {
+    was = {"warm_updates": 0, "batch_size": None, "prune_rate": 0.0, "prune_to": 0,
+           "eval_episodes": 0} | {
         k: v for k, v in log["settings"].items() if k != "iterations"}
     now = {k: v for k, v in settings.items() if k != "iterations"}
     if was != now:

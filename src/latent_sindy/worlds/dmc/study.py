@@ -134,8 +134,10 @@ class _Say:
     def update(self, iteration: int, metrics: dict[str, Any]) -> None:
         active = metrics.get("sindy/active")
         fit = metrics.get("fit_seconds")
+        test = metrics.get("evaluation")
         self.say(f"{self.name}: iteration {iteration}, return {metrics['return']:.1f} at "
                  f"{metrics['env_steps']:.0f} environment steps"
+                 + ("" if test is None else f", {test:.1f} without exploration noise")
                  + ("" if fit is None else f", fit {fit:.1f} s")
                  + ("" if active is None else f", {active:.0f} active terms"))
 
