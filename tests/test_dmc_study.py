@@ -58,6 +58,12 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
     runs = summary["results"]["runs"]
     assert set(runs) == {"sindy/seed0", "linear/seed0", "mlp/seed0"}
     assert all(len(r["returns"]) == 4 for r in runs.values())  # 2 seed + 2 planned episodes
+    # one test episode after each fit, without noise, reported beside the collected ones
+    assert [len(it["evaluation"]) for it in its] == [1, 1]
+    tests = summary["results"]["tests"]["sindy"]
+    assert [t["env_steps"] for t in tests] == [2 * 8 * 8, 3 * 8 * 8]
+    assert [t["mean"] for t in tests] == [it["evaluation"][0] for it in its]
+    assert "Test episodes, without exploration noise" in table
 
     # interrupted while the linear model's loop runs: then run again to the end
     part = tmp_path / "part"

@@ -68,18 +68,28 @@ class DmcScale:
     """Share of SINDy's active terms each warm refit prunes first (the smallest shares)."""
     prune_to: int = 48
     """Active SINDy terms below which the refits stop pruning by share."""
+    lambda_: float = 0.1
+    """MPPI's temperature on the horizon's summed reward (0.1: from the state, 0.1 planned the
+    cartpole to 814 where 1 gave about 700; RESULTS.md)."""
+    foreground_weight: float = 10.0
+    """Extra weight of the moving pixels in the image terms (the cartpole's pole is a line of
+    about one pixel at 32x32; with 10 the latent held more of the state and planned better,
+    RESULTS.md)."""
+    eval_episodes: int = 2
+    """Test episodes after each fit, without exploration noise, kept out of the data."""
 
 
 #: How the larger scales' fits batch and prune, for --help.
 _FITS = ("; batches of 32 windows, each warm refit first pruning SINDy's smallest 30% of "
-         "terms, down to 48")
+         "terms, down to 48; MPPI λ 0.1, moving pixels weighted 11x, 2 test episodes a fit "
+         "(5 at the benchmark scale)")
 
 SCALES: dict[str, DmcScale] = {
     "tiny": DmcScale(
         "about a minute on 2 cores, for tests: 16x16 single frames, 2 seed episodes and 2 "
         "planned ones of 8 actions, 2 epochs then 4 updates a refit in batches of 8, MPPI K "
         "16 H 3; seed 0",
-        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16, batch_size=8),
+        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16, batch_size=8, eval_episodes=1),
     "small": DmcScale(
         "a few minutes a model on a CPU core: 32x32, 2 frames, 5 seed episodes and 6 planned "
         "ones of 125 actions, latent size 6 (SINDy's 252 terms), 15 epochs then 100 updates "
@@ -94,7 +104,8 @@ SCALES: dict[str, DmcScale] = {
         "the 100k-step benchmark (PlaNet's and CURL's setting): 64x64, 2 frames, 5 seed "
         "episodes and 95 planned ones of 1000 environment steps (100k in all), 100 epochs then "
         "100 updates a refit, MPPI K 1000 H 12; seeds 0..4; days on a CPU, for a GPU" + _FITS,
-        (0, 1, 2, 3, 4), 64, 2, 5, 95, 125, 100, 100, 4, 8, "conv", 1000, 12),
+        (0, 1, 2, 3, 4), 64, 2, 5, 95, 125, 100, 100, 4, 8, "conv", 1000, 12,
+        eval_episodes=5),
 }
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
@@ -171,7 +182,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
 
     from latent_sindy import LatentSINDy
     from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
-    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, ModelConfig
+    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
     from latent_sindy.training.config import resolve_device
     from latent_sindy.worlds.dmc.world import DmcWorld
 
@@ -191,8 +202,9 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
                             observation=AutoencoderConfig(latent_dim=s.latent_dim,
                                                           encoder_kind=s.encoder,
                                                           decoder_kind=s.encoder))
+        loss = LossWeights(foreground_weight=s.foreground_weight)
         return lambda iteration: LatentSINDy(model=model, seed=seed * 1000 + iteration,
-                                             device=on)
+                                             device=on, loss=loss)
 
     runs: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in MODELS}
     for seed in s.seeds:
@@ -200,9 +212,9 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
             seed_episodes=s.seed_episodes, iterations=s.iterations,
             episode_steps=s.episode_steps, steps_per_action=world.config.action_repeat,
             warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
-            prune_rate=s.prune_rate, prune_to=s.prune_to,
-            mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3, lambda_=1.0,
-                            shift="repeat"))
+            prune_rate=s.prune_rate, prune_to=s.prune_to, eval_episodes=s.eval_episodes,
+            mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3,
+                            lambda_=s.lambda_, shift="repeat"))
         for kind in MODELS:  # one at a time: each model's wall time its own
             t0 = time.perf_counter()
             result = compare_models(world, {kind: maker(kind, seed)}, cfg,

@@ -50,8 +50,32 @@ def _curves(runs: dict[str, dict[int, dict[str, Any]]]) -> dict[str, list[dict[s
     return curves
 
 
+def _tests(runs: dict[str, dict[int, dict[str, Any]]]) -> dict[str, list[dict[str, Any]]]:
+    """Per model, per iteration with test episodes: the environment steps its fit saw, each
+    seed's mean test return, their mean, 95% half-width and sd (empty without tests)."""
+    tests: dict[str, list[dict[str, Any]]] = {}
+    for model, by_seed in runs.items():
+        points: dict[int, dict[str, Any]] = {}
+        for seed, run in by_seed.items():
+            for it in run["log"]["iterations"]:
+                if it.get("evaluation"):
+                    p = points.setdefault(it["iteration"], {"steps": 0, "by_seed": {}})
+                    p["steps"] = max(p["steps"], it["fit_env_steps"])
+                    p["by_seed"][seed] = sum(it["evaluation"]) / len(it["evaluation"])
+        rows = []
+        for it in sorted(points):
+            per_seed = list(points[it]["by_seed"].values())
+            mean, half, sd = mean_interval(per_seed)
+            rows.append({"iteration": it, "env_steps": points[it]["steps"], "mean": mean,
+                         "half_width": half, "sd": sd, "seeds": len(per_seed),
+                         "returns": per_seed})
+        tests[model] = rows
+    return tests
+
+
 def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[float]],
-            show_reference: bool, path: Path) -> Path:
+            show_reference: bool, path: Path,
+            tests: dict[str, list[dict[str, Any]]] | None = None) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -67,6 +91,10 @@ def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[f
             h = [r["half_width"] or 0.0 for r in rows]
             ax.fill_between(x, [a - b for a, b in zip(y, h, strict=True)],
                             [a + b for a, b in zip(y, h, strict=True)], alpha=0.2)
+    for model, rows in (tests or {}).items():
+        if rows:
+            ax.plot([r["env_steps"] for r in rows], [r["mean"] for r in rows], ls="--",
+                    marker="x", label=f"{model}, test (no noise)")
     if show_reference:
         for name, (mean, _) in reference.items():
             ax.axhline(mean, ls=":", lw=0.8, color="gray")
@@ -85,13 +113,15 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     """The study at ``scale`` in ``out`` (finished loops reused), as a WorldStudy."""
     result = run_dmc_study(config, scale, out, seeds, device, threads, say)
     runs, task = result["runs"], result["settings"]["world"]["task"]
-    curves = _curves(runs)
+    curves, tests = _curves(runs), _tests(runs)
     is_reference = task == result["reference_task"]
     rows = [[m, str(r["iteration"]), str(r["env_steps"]), _fmt(r["mean"], r["half_width"]),
              str(r["seeds"])] for m in MODELS for r in curves[m]]
     last = {m: curves[m][-1] for m in MODELS}
     final = [[m, str(last[m]["env_steps"]), _fmt(last[m]["mean"], last[m]["sd"]),
-              "this study"] for m in MODELS]
+              "this study, collected episodes"] for m in MODELS]
+    final += [[m, str(tests[m][-1]["env_steps"]), _fmt(tests[m][-1]["mean"], tests[m][-1]["sd"]),
+               "this study, test episodes of the last fit"] for m in MODELS if tests[m]]
     final += [[name, f"{result['reference_steps']:,}", f"{mean} ± {sd}",
                "published: " + ("DrQ's paper, Table 1" if name == "DrQ" else
                                 "CURL's paper, Table 1")]
@@ -118,7 +148,7 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
                 "fit_seconds": fit, "plan_seconds": plan, "active_terms": active,
                 "active_terms_per_fit": per_fit,
                 "wall_s": run["wall_s"]}
-    figure = _figure(curves, result["reference"], is_reference, out / "returns.png")
+    figure = _figure(curves, result["reference"], is_reference, out / "returns.png", tests)
     best = max(MODELS, key=lambda m: last[m]["mean"])
     findings = [
         f"{task} from {result['settings']['world']['size']}-pixel images, {scale} scale: "
@@ -140,6 +170,12 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
               "mean return (95% interval over seeds)", "seeds"], rows,
               "Iteration 0: the seed episodes of random actions; then one planned episode an "
               "iteration (with exploration noise). Interval: " + result["interval"] + "."),
+        Table("Test episodes, without exploration noise", ["model", "iteration",
+              "env steps the fit saw", "mean test return (95% interval over seeds)", "seeds"],
+              [[m, str(r["iteration"]), str(r["env_steps"]), _fmt(r["mean"], r["half_width"]),
+                str(r["seeds"])] for m in MODELS for r in tests[m]],
+              "After each fit, episodes planned from the same starts without noise and kept "
+              "out of the data: what published tables report."),
         Table("Last return and the published lines", ["model", "env steps",
               "return (mean ± sd over seeds)", "source"], final),
         Table("Costs and sparsity", ["model", "seed", "first fit s", "refit s (mean)",
@@ -151,7 +187,7 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     return WorldStudy(
         title=f"DeepMind Control from pixels: {task}, model-based, SINDy / linear / MLP",
         settings=result["settings"], seeds=result["seeds"],
-        numbers={"curves": curves, "runs": numbers,
+        numbers={"curves": curves, "tests": tests, "runs": numbers,
                  "reference": {"task": result["reference_task"],
                                "steps": result["reference_steps"],
                                "returns": result["reference"]}},
