@@ -32,6 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warm-updates", type=int, default=100,
                    help="updates of each refit after the first, continuing the last model; "
                         "0: every fit from scratch (as the smoke run of RESULTS.md)")
+    p.add_argument("--lambda", dest="lambda_", type=float, default=1.0)
+    p.add_argument("--foreground-weight", type=float, default=0.0,
+                   help="extra weight of the moving pixels in the image terms")
+    p.add_argument("--eval-episodes", type=int, default=0,
+                   help="test episodes after each fit, without exploration noise")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
@@ -40,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from latent_sindy import LatentSINDy
     from latent_sindy.control import ModelBasedConfig, MPPIConfig, model_based
-    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, ModelConfig
+    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
     from latent_sindy.progress import say_stderr
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.plugin import DmcWorld
@@ -53,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
                         reward_head=64)
 
     def make(iteration: int) -> LatentSINDy:
-        return LatentSINDy(model=model, seed=args.seed * 1000 + iteration)
+        return LatentSINDy(model=model, seed=args.seed * 1000 + iteration,
+                           loss=LossWeights(foreground_weight=args.foreground_weight))
 
     class Say:
         def start(self, total: int, initial: int) -> None: ...
@@ -65,9 +71,9 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = ModelBasedConfig(seed_episodes=args.seed_episodes, iterations=args.iterations,
                            episode_steps=args.steps, steps_per_action=repeat, seed=args.seed,
-                           warm_updates=args.warm_updates,
+                           warm_updates=args.warm_updates, eval_episodes=args.eval_episodes,
                            mppi=MPPIConfig(samples=args.samples, horizon=args.horizon,
-                                           sigma=0.3, lambda_=1.0, shift="repeat"))
+                                           sigma=0.3, lambda_=args.lambda_, shift="repeat"))
     t0 = time.perf_counter()
     result = model_based(world, make, cfg, out=args.out, progress=Say(),
                          fit_settings={"epochs": args.epochs, "window": args.window})
@@ -80,7 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{e['episode']:7d}  {e['kind']:7s}  {e['return']:6.2f}  {e['env_steps']:9d}  "
               f"{e['seconds']:7.2f}")
     for it in result.log["iterations"]:
-        print(f"iteration {it['iteration']}: fit {it['fit_seconds']:.1f} s")
+        test = it.get("evaluation") or []
+        print(f"iteration {it['iteration']}: fit {it['fit_seconds']:.1f} s"
+              + (f"; test returns {', '.join(f'{r:.1f}' for r in test)} (fit on "
+                 f"{it['fit_env_steps']} environment steps)" if test else ""))
     kinds = np.array([e["kind"] for e in result.log["episodes"]])
     returns = np.array(result.returns)
     for kind in ("random", "planned"):

@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
                    "validates)")
     p.add_argument("--epochs", type=int, default=60)
     p.add_argument("--foreground-weight", type=float, default=0.0)
+    p.add_argument("--lambda-reward", type=float, default=1.0, help="weight of the reward "
+                   "head's error")
     p.add_argument("--latent-dim", type=int, default=6)
     p.add_argument("--encoder", default="conv")
     p.add_argument("--samples", type=int, default=1000)
@@ -82,11 +84,13 @@ def main(argv: list[str] | None = None) -> int:
                                                       encoder_kind=args.encoder,
                                                       decoder_kind=args.encoder))
     est = LatentSINDy(model=model, seed=args.seed,
-                      loss=LossWeights(foreground_weight=args.foreground_weight))
+                      loss=LossWeights(foreground_weight=args.foreground_weight,
+                                       lambda_reward=args.lambda_reward))
     t0 = time.perf_counter()
     est.fit(data, epochs=args.epochs, window=4, batch_size=32)
     print(f"{args.task} {args.size}x{args.size}, foreground weight {args.foreground_weight}, "
-          f"latent {args.latent_dim}: fit {time.perf_counter() - t0:.0f} s, "
+          f"reward weight {args.lambda_reward}, latent {args.latent_dim}: fit "
+          f"{time.perf_counter() - t0:.0f} s, "
           f"{int(np.count_nonzero(est.coefficients()))} active terms")
 
     z = est.encode(data.images.reshape(-1, *data.images.shape[2:]))
