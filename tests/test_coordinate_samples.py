@@ -71,8 +71,9 @@ def test_the_terms_would_differ_without_what_the_front_leaves_out():
     # what the front leaves out: 0.05 of noise on 32 of the 36 pixel directions, about
     # 0.05² · 32 / 36 a pixel of each frame and derivative
     for key, part in (("recon", 0), ("pred_x", 2)):
-        gap = float(full[key] - alone[key])
-        assert gap == pytest.approx(float(left[:, part].mean()) / 36, rel=1e-4)
+        gap = float(full[key] - alone[key])  # (a float32 difference of two losses: its
+        # rounding differs between machines by a few parts in 1e4)
+        assert gap == pytest.approx(float(left[:, part].mean()) / 36, rel=1e-3)
         assert 0.5 * 0.05**2 < gap < 1.5 * 0.05**2
 
 
