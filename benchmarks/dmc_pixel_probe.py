@@ -52,7 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lambda-reward", type=float, default=1.0, help="weight of the reward "
                    "head's error")
     p.add_argument("--latent-dim", type=int, default=6)
-    p.add_argument("--encoder", default="conv")
+    p.add_argument("--encoder", default="conv", help="conv, keypoints, moments, ...")
+    p.add_argument("--decoder", default=None, help="default: the encoder's kind where it is "
+                   "a decoder's too, else sprite")
     p.add_argument("--samples", type=int, default=1000)
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     p.add_argument("--evaluations", type=int, default=2)
@@ -79,10 +81,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"collected {data.n} random episodes in {time.perf_counter() - t0:.0f} s")
         if args.data is not None:
             write_sequences(args.data, data)
+    decoder = args.decoder or (args.encoder if args.encoder in ("fc", "conv", "mlp")
+                               else "sprite")
     model = ModelConfig(dynamics=SindyConfig(order=2, include_sine=True), reward_head=64,
                         observation=AutoencoderConfig(latent_dim=args.latent_dim,
                                                       encoder_kind=args.encoder,
-                                                      decoder_kind=args.encoder))
+                                                      decoder_kind=decoder))
     est = LatentSINDy(model=model, seed=args.seed,
                       loss=LossWeights(foreground_weight=args.foreground_weight,
                                        lambda_reward=args.lambda_reward))

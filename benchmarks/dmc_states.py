@@ -12,8 +12,14 @@ from starts of the task's own distribution that no fit saw. Prints each seed's r
 ratio of the trimmed fit's mean return to the plain one's, the equations of the first seed,
 and the published scores at 100k environment steps for reference.
 
+With ``--velocity difference`` the model sees the positions' change over the last control
+step instead of the velocities (what two stacked frames show), with ``--previous-action``
+the action held over it too, and with ``--position-noise`` a camera's error in the
+positions: what a pixel latent of two frames can be at best (RESULTS.md).
+
     python benchmarks/dmc_states.py                               # cartpole-swingup, 5 seeds
     python benchmarks/dmc_states.py --episodes 20 --seeds 0 1 --evaluations 2
+    python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action
 """
 
 from __future__ import annotations
@@ -43,14 +49,70 @@ def features(state: np.ndarray, periods: tuple) -> np.ndarray:
     return np.asarray(out)
 
 
-def feature_names(names: tuple, periods: tuple) -> list[str]:
+def feature_names(names: tuple, periods: tuple, velocity: str = "state",
+                  previous_action: int = 0) -> list[str]:
     out: list[str] = []
-    for name, period in zip(names, periods, strict=True):
+    half = len(names) // 2
+    for i, (name, period) in enumerate(zip(names, periods, strict=True)):
+        if velocity == "difference" and i >= half:
+            name = f"Δ{names[i - half]} / step"
         out += [name] if period is None else [f"cos {name}", f"sin {name}"]
-    return out
+    return out + [f"previous u{j}" for j in range(previous_action)]
 
 
-def collect(env, episodes: int, steps: int, repeat: int, seed: int, periods: tuple):
+class Observer:
+    """What the model sees of the physics state (positions q, then velocities q̇, as many) at
+    each control step: :func:`features` of it; with ``velocity="difference"`` the velocities
+    replaced by the change of q since the previous control step over its duration ``dt``
+    (periodic coordinates wrapped): what two stacked frames show, the velocity averaged over
+    the step; with ``previous_action`` the action held over that step appended (the
+    difference depends on it, so without it the features are not a state); with ``noise``
+    (a standard deviation per position) Gaussian error added to the positions read, as a
+    camera's. :meth:`reset` at each start (a start's difference is 0, as a stack of one
+    frame twice)."""
+
+    def __init__(self, periods: tuple, dt: float, nu: int, velocity: str = "state",
+                 previous_action: bool = False, noise: tuple[float, ...] = (),
+                 seed: int = 0) -> None:
+        if velocity not in ("state", "difference"):
+            raise ValueError(f"velocity {velocity!r}: use state or difference")
+        if len(periods) % 2:
+            raise ValueError("a difference latent needs as many velocities as positions")
+        if noise and len(noise) != len(periods) // 2:
+            raise ValueError(f"noise {noise}: give one standard deviation per position "
+                             f"({len(periods) // 2})")
+        self.periods, self.dt, self.nu = periods, dt, nu
+        self.velocity, self.previous_action = velocity, previous_action
+        self.noise, self.rng = np.asarray(noise, np.float64), np.random.default_rng(seed)
+        self._last = None
+
+    def reset(self, state: np.ndarray) -> np.ndarray:
+        self._last = None
+        return self(state, np.zeros(self.nu))
+
+    def __call__(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
+        s = np.array(state, np.float64)
+        if self.noise.size:  # a camera's error in the positions it reads
+            s[:self.noise.size] += self.rng.normal(0.0, self.noise)
+        if self._last is None:
+            self._last = s.copy()
+        if self.velocity == "difference":
+            half = len(s) // 2
+            d = s[:half] - self._last[:half]
+            for i, period in enumerate(self.periods[:half]):
+                if period is not None:
+                    d[i] = (d[i] + period / 2) % period - period / 2
+            last = s.copy()
+            s[half:] = d / self.dt
+        else:
+            last = s
+        self._last = last
+        f = features(s, self.periods)
+        return np.concatenate([f, np.asarray(action, np.float64).reshape(-1)]
+                              ) if self.previous_action else f
+
+
+def collect(env, episodes: int, steps: int, repeat: int, seed: int, observer: Observer):
     """Random actions: features (E, T+1, nf), actions (E, T, nu), rewards (E, T)."""
     rng = np.random.default_rng(seed)
     spec = env.action_spec()
@@ -58,11 +120,11 @@ def collect(env, episodes: int, steps: int, repeat: int, seed: int, periods: tup
     env.task.random.seed(seed)
     for _ in range(episodes):
         env.reset()
-        s, us, rs = [features(env.physics.get_state(), periods)], [], []
+        s, us, rs = [observer.reset(env.physics.get_state())], [], []
         for _ in range(steps):
             u = rng.uniform(spec.minimum, spec.maximum, spec.shape)
             r = sum(float(env.step(u).reward or 0.0) for _ in range(repeat))
-            s.append(features(env.physics.get_state(), periods))
+            s.append(observer(env.physics.get_state(), u))
             us.append(u)
             rs.append(r)
         S.append(s)
@@ -91,7 +153,7 @@ def fit_reward(Z: torch.Tensor, U: torch.Tensor, R: torch.Tensor, width: int, up
 
 
 def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, seed: int,
-         periods: tuple) -> list[float]:
+         observer: Observer) -> list[float]:
     """Returns of ``episodes`` MPPI episodes against the reward head, without noise."""
     from latent_sindy.control.costs import RewardCost
     from latent_sindy.control.mppi import MPPI, latent_step
@@ -106,11 +168,12 @@ def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, see
         mppi = MPPI(latent_step(model), RewardCost(head), mppi_cfg, low, high,
                     seed=seed * 1000 + e)
         total = 0.0
+        f = observer.reset(env.physics.get_state())
         for _ in range(steps):
-            z = torch.tensor(features(env.physics.get_state(), periods), dtype=torch.float32)
-            u, _ = mppi.command(z)
+            u, _ = mppi.command(torch.tensor(f, dtype=torch.float32))
             u = u.numpy().astype(np.float64)
             total += sum(float(env.step(u).reward or 0.0) for _ in range(repeat))
+            f = observer(env.physics.get_state(), u)
         returns.append(total)
     return returns
 
@@ -130,6 +193,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     p.add_argument("--reward-width", type=int, default=64)
     p.add_argument("--reward-updates", type=int, default=3000)
+    p.add_argument("--velocity", choices=("state", "difference"), default="state",
+                   help="the velocities the model sees: the physics state's, or the "
+                   "positions' change over the last control step (as two stacked frames)")
+    p.add_argument("--previous-action", action="store_true", help="append the action held "
+                   "over the last control step to what the model sees")
+    p.add_argument("--position-noise", type=float, nargs="+", default=(), metavar="SD",
+                   help="Gaussian error added to each position the model sees (one standard "
+                   "deviation per position, in the state's units: metres, radians)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
 
@@ -144,7 +215,10 @@ def main(argv: list[str] | None = None) -> int:
     repeat, steps = cfg.action_repeat, 1000 // cfg.action_repeat
     env = load(cfg)
     names, periods = physics_names(env.physics)
-    fnames = feature_names(names, periods)
+    nu = env.action_spec().shape[0]
+    observer = Observer(periods, env.control_timestep() * repeat, nu, args.velocity,
+                        args.previous_action, tuple(args.position_noise))
+    fnames = feature_names(names, periods, args.velocity, nu if args.previous_action else 0)
     mppi_cfg = MPPIConfig(samples=args.samples, horizon=args.horizon, sigma=args.sigma,
                           lambda_=args.lambda_, shift="repeat")
     print(f"{args.task} from its physics state, repeat {repeat}: {args.episodes} random "
@@ -156,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     means = {"plain": [], "trimmed": []}
     for seed in args.seeds:
         t0 = time.perf_counter()
-        S, U, R = collect(env, args.episodes, steps, repeat, seed, periods)
+        S, U, R = collect(env, args.episodes, steps, repeat, seed, observer)
         # float64 for the regression: cos² + sin² = 1 makes the library's columns dependent,
         # and float32's rounding of that identity would be fitted by huge cancelling terms
         Z = torch.tensor(S[:, :-1].reshape(-1, S.shape[2]), dtype=torch.float64)
@@ -177,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
             fit_s = time.perf_counter() - t1
             t1 = time.perf_counter()
             returns = plan(env, model, head, mppi_cfg, args.evaluations, steps, repeat, seed,
-                           periods)
+                           observer)
             plan_s = time.perf_counter() - t1
             means[kind].append(float(np.mean(returns)))
             print(f"seed {seed} {kind:7s}: returns {', '.join(f'{r:.1f}' for r in returns)} "
