@@ -15,11 +15,16 @@ from it is the turn of what hangs from it. The latent: the mode's x, (cos φ, si
 changes of both over the last control step per second, and the action held over it
 (without it, a change between two frames is not a state: ``dmc_states.py --velocity
 difference``). Rows where the object is out of view (the mode's peak below half its
-median, or in the outer eighth of the image's width) are left out of the fits.
+median, or in the outer eighth of the image's width) are left out of the fits. With
+``--smooth`` the training episodes' positions (x, φ) are smoothed over that many frames
+before the fits (the changes taken again from them; frames near one out of view left out
+too): the error of a camera spoils a one-step fit (``dmc_states.py --position-noise``); the
+planner still reads the raw frames.
 Prints the share of those rows, the probe of φ against the physics angle (only to measure),
 each seed's planned returns beside random actions' from the same starts, and the mean.
 
     python benchmarks/dmc_pixel_moments.py                                   # 5 seeds
+    python benchmarks/dmc_pixel_moments.py --smooth 5                        # smoothed fit
     python benchmarks/dmc_pixel_moments.py --seeds 0 --episodes 10 --evaluations 2
 """
 
@@ -106,6 +111,21 @@ def latent(moments: ColourMoments, obs: torch.Tensor, previous: torch.Tensor, dt
     return torch.cat([z, previous.double()], -1), peak
 
 
+def smoothed_latent(z: torch.Tensor, window: int, dt: float) -> torch.Tensor:
+    """An episode's latents z (T+1, 6) with the positions (x, φ) smoothed over ``window``
+    frames (``dmc_states.smoothed``) and the changes taken again from the smoothed ones."""
+    from dmc_states import smoothed
+
+    phi = np.unwrap(np.arctan2(z[:, 2].numpy(), z[:, 1].numpy()))
+    q = smoothed(np.stack([z[:, 0].numpy(), phi], -1), window)
+    change = np.diff(q, axis=0, prepend=q[:1]) / dt
+    out = z.clone()
+    out[:, 0], out[:, 1], out[:, 2] = (torch.from_numpy(q[:, 0]), torch.from_numpy(np.cos(q[:, 1])),
+                                       torch.from_numpy(np.sin(q[:, 1])))
+    out[:, 3], out[:, 4] = torch.from_numpy(change[:, 0]), torch.from_numpy(change[:, 1])
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -115,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--order", type=int, default=3, help="SINDy's polynomial order")
     p.add_argument("--min-share", type=float, default=0.01, help="STLSQ's threshold")
     p.add_argument("--trim", type=float, default=0.3, help="share of rows left out")
+    p.add_argument("--smooth", type=int, default=0, metavar="WINDOW", help="smooth the "
+                   "training episodes' positions over this many frames (odd) before the fits")
     p.add_argument("--samples", type=int, default=1000)
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     args = p.parse_args(argv)
@@ -150,6 +172,10 @@ def main(argv: list[str] | None = None) -> int:
                           for e in range(data.n)), strict=True)
         Z, peak = torch.stack(zs), torch.stack(peaks)
         seen = (peak > 0.5 * peak.median()) & (Z[..., 0].abs() < 0.75)
+        if args.smooth > 1:  # the fit's latents only; a frame near one out of view is out
+            Z = torch.stack([smoothed_latent(z, args.smooth, dt) for z in Z])
+            seen = -F.max_pool1d(-seen[:, None].double(), args.smooth, 1,
+                                 args.smooth // 2)[:, 0] > 0.5
         rows = (seen[:, :-1] & seen[:, 1:]).reshape(-1)
         angle = np.arctan2(Z[..., 2].numpy(), Z[..., 1].numpy()) + math.pi / 2
         err = np.angle(np.exp(1j * (angle - data.states[..., 1])))[seen.numpy()]

@@ -86,14 +86,23 @@ class Observer:
         self.noise, self.rng = np.asarray(noise, np.float64), np.random.default_rng(seed)
         self._last = None
 
-    def reset(self, state: np.ndarray) -> np.ndarray:
-        self._last = None
-        return self(state, np.zeros(self.nu))
+    def read(self, states: np.ndarray) -> np.ndarray:
+        """States (..., ns) as read: the positions with the camera's error, if any."""
+        s = np.array(states, np.float64)
+        if self.noise.size:
+            s[..., :self.noise.size] += self.rng.normal(0.0, self.noise,
+                                                        s[..., :self.noise.size].shape)
+        return s
 
-    def __call__(self, state: np.ndarray, action: np.ndarray) -> np.ndarray:
-        s = np.array(state, np.float64)
-        if self.noise.size:  # a camera's error in the positions it reads
-            s[:self.noise.size] += self.rng.normal(0.0, self.noise)
+    def reset(self, state: np.ndarray, read: bool = True) -> np.ndarray:
+        self._last = None
+        return self(state, np.zeros(self.nu), read)
+
+    def __call__(self, state: np.ndarray, action: np.ndarray, read: bool = True
+                 ) -> np.ndarray:
+        """The features of ``state`` reached by ``action``; ``read`` False: the state was
+        already read (:meth:`read`), so no error is added again."""
+        s = self.read(state) if read else np.array(state, np.float64)
         if self._last is None:
             self._last = s.copy()
         if self.velocity == "difference":
@@ -112,21 +121,52 @@ class Observer:
                               ) if self.previous_action else f
 
 
-def collect(env, episodes: int, steps: int, repeat: int, seed: int, observer: Observer):
-    """Random actions: features (E, T+1, nf), actions (E, T, nu), rewards (E, T)."""
+def smoothed(q: np.ndarray, window: int) -> np.ndarray:
+    """Each column of q (T, n) replaced by a local quadratic fitted over ``window`` (odd)
+    samples about each one (Savitzky–Golay; at the ends, the quadratic of the first or last
+    window)."""
+    if window < 3 or window % 2 == 0 or window > len(q):
+        raise ValueError(f"smoothing window {window}: use an odd number from 3 to {len(q)}")
+    t = np.arange(window) - window // 2
+    weights = np.linalg.pinv(np.vander(t, 3))[-1]  # the fit's value at the centre
+    out = np.array(q, np.float64)
+    for j in range(q.shape[1]):
+        out[window // 2:len(q) - window // 2, j] = np.convolve(q[:, j], weights[::-1], "valid")
+        for part, at in ((slice(0, window), slice(0, window // 2)),
+                         (slice(len(q) - window, len(q)), slice(len(q) - window // 2, len(q)))):
+            fit = np.polyfit(np.arange(window), q[part, j], 2)
+            out[at, j] = np.polyval(fit, np.arange(len(q))[at] - part.start)
+    return out
+
+
+def collect(env, episodes: int, steps: int, repeat: int, seed: int, observer: Observer,
+            smooth: int = 0):
+    """Random actions: features (E, T+1, nf), actions (E, T, nu), rewards (E, T). With the
+    observer's noise, each episode's positions read with it; ``smooth`` > 1: then smoothed
+    over that many control steps (:func:`smoothed`, periodic ones unwrapped), as a fit of
+    recorded episodes can, before the features are taken."""
     rng = np.random.default_rng(seed)
     spec = env.action_spec()
     S, U, R = [], [], []
     env.task.random.seed(seed)
     for _ in range(episodes):
         env.reset()
-        s, us, rs = [observer.reset(env.physics.get_state())], [], []
+        states, us, rs = [env.physics.get_state().copy()], [], []
         for _ in range(steps):
             u = rng.uniform(spec.minimum, spec.maximum, spec.shape)
-            r = sum(float(env.step(u).reward or 0.0) for _ in range(repeat))
-            s.append(observer(env.physics.get_state(), u))
+            rs.append(sum(float(env.step(u).reward or 0.0) for _ in range(repeat)))
+            states.append(env.physics.get_state().copy())
             us.append(u)
-            rs.append(r)
+        states = observer.read(np.asarray(states))
+        if smooth > 1:
+            half = len(observer.periods) // 2
+            q = states[:, :half].copy()
+            for i, period in enumerate(observer.periods[:half]):
+                if period is not None:
+                    q[:, i] = np.unwrap(q[:, i], period=period)
+            states[:, :half] = smoothed(q, smooth)
+        s = [observer.reset(states[0], read=False)]
+        s += [observer(states[t + 1], us[t], read=False) for t in range(steps)]
         S.append(s)
         U.append(us)
         R.append(rs)
@@ -201,6 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--position-noise", type=float, nargs="+", default=(), metavar="SD",
                    help="Gaussian error added to each position the model sees (one standard "
                    "deviation per position, in the state's units: metres, radians)")
+    p.add_argument("--smooth", type=int, default=0, metavar="WINDOW",
+                   help="smooth the positions read over this many control steps (odd) "
+                   "before the fit's features are taken (the planner's stay unsmoothed)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
 
@@ -230,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     means = {"plain": [], "trimmed": []}
     for seed in args.seeds:
         t0 = time.perf_counter()
-        S, U, R = collect(env, args.episodes, steps, repeat, seed, observer)
+        S, U, R = collect(env, args.episodes, steps, repeat, seed, observer, args.smooth)
         # float64 for the regression: cos² + sin² = 1 makes the library's columns dependent,
         # and float32's rounding of that identity would be fitted by huge cancelling terms
         Z = torch.tensor(S[:, :-1].reshape(-1, S.shape[2]), dtype=torch.float64)
