@@ -76,8 +76,9 @@ class Observer:
                  seed: int = 0) -> None:
         if velocity not in ("state", "difference"):
             raise ValueError(f"velocity {velocity!r}: use state or difference")
-        if len(periods) % 2:
-            raise ValueError("a difference latent needs as many velocities as positions")
+        if (velocity == "difference" or noise) and len(periods) % 2:
+            raise ValueError("a difference latent or a camera's error needs as many "
+                             "velocities as positions")
         if noise and len(noise) != len(periods) // 2:
             raise ValueError(f"noise {noise}: give one standard deviation per position "
                              f"({len(periods) // 2})")
@@ -103,19 +104,14 @@ class Observer:
         """The features of ``state`` reached by ``action``; ``read`` False: the state was
         already read (:meth:`read`), so no error is added again."""
         s = self.read(state) if read else np.array(state, np.float64)
-        if self._last is None:
-            self._last = s.copy()
+        q = s[:len(s) // 2].copy()
         if self.velocity == "difference":
-            half = len(s) // 2
-            d = s[:half] - self._last[:half]
-            for i, period in enumerate(self.periods[:half]):
+            d = q - (q if self._last is None else self._last)
+            for i, period in enumerate(self.periods[:len(q)]):
                 if period is not None:
                     d[i] = (d[i] + period / 2) % period - period / 2
-            last = s.copy()
-            s[half:] = d / self.dt
-        else:
-            last = s
-        self._last = last
+            s[len(q):] = d / self.dt
+        self._last = q
         f = features(s, self.periods)
         return np.concatenate([f, np.asarray(action, np.float64).reshape(-1)]
                               ) if self.previous_action else f
