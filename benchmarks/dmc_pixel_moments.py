@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).parent))
-from dmc_states import PUBLISHED, fit_reward
+from dmc_states import PUBLISHED, fit_reward, smoothed
 
 
 class ColourMoments:
@@ -104,18 +104,23 @@ def latent(moments: ColourMoments, obs: torch.Tensor, previous: torch.Tensor, dt
     x = obs.float() / 255
     now, peak = moments(x[:, 3:])
     before, _ = moments(x[:, :3])
+    return pose_latent(now, before, previous, dt), peak
+
+
+def pose_latent(now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor, dt: float
+                ) -> torch.Tensor:
+    """(B, 6) latent from the poses (B, 4) of :class:`ColourMoments` of the current and the
+    earlier frame and the actions held between them (B, 1)."""
     turn = torch.atan2(before[:, 2] * now[:, 3] - before[:, 3] * now[:, 2],
                        before[:, 2] * now[:, 2] + before[:, 3] * now[:, 3])
     z = torch.stack([now[:, 0], now[:, 2], now[:, 3], (now[:, 0] - before[:, 0]) / dt,
                      turn / dt], -1)
-    return torch.cat([z, previous.double()], -1), peak
+    return torch.cat([z, previous.double()], -1)
 
 
 def smoothed_latent(z: torch.Tensor, window: int, dt: float) -> torch.Tensor:
     """An episode's latents z (T+1, 6) with the positions (x, φ) smoothed over ``window``
     frames (``dmc_states.smoothed``) and the changes taken again from the smoothed ones."""
-    from dmc_states import smoothed
-
     phi = np.unwrap(np.arctan2(z[:, 2].numpy(), z[:, 1].numpy()))
     q = smoothed(np.stack([z[:, 0].numpy(), phi], -1), window)
     change = np.diff(q, axis=0, prepend=q[:1]) / dt
@@ -168,8 +173,12 @@ def main(argv: list[str] | None = None) -> int:
                                           / 255)
         actions = torch.from_numpy(data.actions).double()
         previous = torch.cat([torch.zeros_like(actions[:, :1]), actions], 1)
-        zs, peaks = zip(*(latent(moments, images[e], previous[e], dt)
-                          for e in range(data.n)), strict=True)
+        zs, peaks = [], []
+        for e in range(data.n):  # each frame read once: a frame's "before" is the last "now"
+            now, p_e = moments(images[e, :, 3:].float() / 255)
+            first, _ = moments(images[e, :1, :3].float() / 255)
+            zs.append(pose_latent(now, torch.cat([first, now[:-1]]), previous[e], dt))
+            peaks.append(p_e)
         Z, peak = torch.stack(zs), torch.stack(peaks)
         seen = (peak > 0.5 * peak.median()) & (Z[..., 0].abs() < 0.75)
         if args.smooth > 1:  # the fit's latents only; a frame near one out of view is out
