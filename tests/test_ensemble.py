@@ -206,6 +206,33 @@ def test_bad_settings_raise_user_error(kwargs):
         EnsembleSTLSQ(**kwargs)
 
 
+def test_windows_over_invalid_states_are_left_out():
+    """States marked invalid (here NaN, as a reading that failed) drop exactly the windows
+    that hold them; the others are the unmasked problem's rows, and still telescope."""
+    system = lorenz_control(seed=2, n_traj=2, steps=60)
+    X, U = _trajectories(system, 2, 60)
+    valid = torch.ones(X.shape[:2], dtype=torch.bool)
+    valid[0, 10] = valid[1, 30:33] = valid[1, 60] = False
+    broken = X.clone()
+    broken[~valid] = float("nan")
+    window = 4
+    theta, target = window_regression_data(system.library, broken, U, window, valid=valid)
+    full_theta, full_target = window_regression_data(system.library, X, U, window)
+    keep = [b * (61 - window) + k for b in range(2) for k in range(61 - window)
+            if bool(valid[b, k:k + window + 1].all())]
+    assert len(keep) == 2 * (61 - window) - 5 - 7 - 1
+    assert torch.allclose(theta, full_theta[keep], rtol=1e-12, atol=1e-12)
+    assert torch.equal(target, full_target[keep])
+    true = system.true_coefficients()
+    assert torch.allclose(theta @ true, target, rtol=0, atol=1e-9)
+    fit = fit_trajectory_data(system.library, broken, U, window, STLSQ(), valid=valid)
+    assert torch.equal(fit.mask_, true != 0)
+    with pytest.raises(UserError, match="valid must be a bool"):
+        window_regression_data(system.library, X, U, window, valid=valid[:, :-1])
+    with pytest.raises(UserError, match="no window of 4 steps"):
+        window_regression_data(system.library, X, U, window, valid=torch.zeros_like(valid))
+
+
 def test_bad_data_raise_user_error(noisy_rows):
     theta, target = noisy_rows
     with pytest.raises(UserError, match="library_drop=15"):

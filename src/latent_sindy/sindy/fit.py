@@ -91,9 +91,19 @@ def fit_state_data(
     return (STLSQ() if optimizer is None else optimizer).fit(theta, target, mask)
 
 
+def checked_valid(valid: torch.Tensor, X: torch.Tensor) -> torch.Tensor:
+    """``valid`` as a (B, T+1) bool CPU tensor for trajectories X (B, T+1, nz), or an error."""
+    valid = torch.as_tensor(valid).detach().to("cpu")
+    if valid.dtype != torch.bool or valid.shape != X.shape[:2]:
+        raise UserError(f"valid must be a bool array of shape (B, T+1) = {tuple(X.shape[:2])}, "
+                        f"one flag per state; got {valid.dtype} {tuple(valid.shape)}")
+    return valid
+
+
 @torch.no_grad()
 def window_regression_data(
-    library: SindyLibrary, X: torch.Tensor, U: torch.Tensor, window: int = 1
+    library: SindyLibrary, X: torch.Tensor, U: torch.Tensor, window: int = 1,
+    valid: torch.Tensor | None = None, targets: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The windowed linear problem of trajectories, float64 on the CPU.
 
@@ -101,10 +111,16 @@ def window_regression_data(
         library: the candidate library.
         X: (B, T+1, nz) states of B trajectories; U: (B, T, nu) the inputs between them.
         window: steps per window, 1 <= window <= T.
+        valid: optional (B, T+1) bool, the states read well (False: a frame where the
+            reading failed, e.g. the object out of the picture; its values, even NaN, are
+            not used): only windows whose every state is valid are rows.
+        targets: optional (B, T+1, nz), what each window's change is taken of (default X);
+            a model whose step is fitted to something else than the next state (an angle
+            turned) gives its running sum here.
 
     Returns:
-        Θ_w (R, p) and target (R, nz), R = B·(T+1−window), one row per window start k:
-        ``Σ_{j<window} Θ(x_{k+j}, u_{k+j})`` and ``x_{k+window} − x_k``.
+        Θ_w (R, p) and target (R, nz), R = B·(T+1−window) (fewer with ``valid``), one row per
+        window start k: ``Σ_{j<window} Θ(x_{k+j}, u_{k+j})`` and ``x_{k+window} − x_k``.
     """
     nz, nu = library.n_state, library.n_control
     if (
@@ -125,16 +141,30 @@ def window_regression_data(
             "of a trajectory"
         )
     B, p = X.shape[0], library.n_terms
+    if valid is not None:
+        valid = checked_valid(valid, X)
+        X = torch.where(valid[..., None].to(X.device), X, torch.zeros((), dtype=X.dtype,
+                                                                      device=X.device))
     theta, _ = library_regression_data(
         library, X[:, :-1].reshape(-1, nz), U.reshape(-1, nu), X[:, 1:].reshape(-1, nz)
     )
     theta = theta.reshape(B, steps, p)  # (B, T, p)
-    X64 = X.detach().to("cpu", torch.float64)
+    if targets is not None and targets.shape != X.shape:
+        raise UserError(f"targets must have the states' shape {tuple(X.shape)}, got "
+                        f"{tuple(targets.shape)}")
+    X64 = (X if targets is None else targets).detach().to("cpu", torch.float64)
     if window > 1:  # window sums as differences of running sums
         run = torch.cat([theta.new_zeros(B, 1, p), theta.cumsum(dim=1)], dim=1)  # (B, T+1, p)
         theta = run[:, window:] - run[:, :-window]
     target = X64[:, window:] - X64[:, :-window]  # (B, T+1−window, nz)
-    return theta.reshape(-1, p), target.reshape(-1, nz)
+    theta, target = theta.reshape(-1, p), target.reshape(-1, nz)
+    if valid is None:
+        return theta, target
+    whole = valid.unfold(1, window + 1, 1).all(-1).reshape(-1)  # every state of the window
+    if not bool(whole.any()):
+        raise UserError(f"no window of {window} steps has every state valid: give longer "
+                        "valid stretches or a shorter window")
+    return theta[whole], target[whole]
 
 
 #: Steps a window of :func:`fit_trajectory_data` sums by default (fewer where the
@@ -149,6 +179,8 @@ def fit_trajectory_data(
     window: int | None = None,
     optimizer: Sparsifier | None = None,
     mask: torch.Tensor | None = None,
+    valid: torch.Tensor | None = None,
+    targets: torch.Tensor | None = None,
 ) -> Sparsifier:
     """Sparse regression of trajectories in the windowed form (:func:`window_regression_data`).
 
@@ -158,10 +190,18 @@ def fit_trajectory_data(
     trajectories are shorter) and ``EnsembleSTLSQ(seed=0)`` (bagged STLSQ); on noise-free
     data they find what STLSQ on the transitions finds. ``window=1`` with
     ``optimizer=STLSQ()`` is :func:`fit_state_data` on the trajectories' transitions.
+    ``valid`` (B, T+1) bool keeps the windows whose states were all read well; ``targets``:
+    see :func:`window_regression_data`.
+
+    States read with an error (a camera's) are what the windowed form is for: a one-step fit
+    regresses the next change on a state that shares a frame's error with it, and fits that
+    error's correlation as dynamics; over a window the shared errors are the two ends' only.
+    With events a smooth library cannot write (end stops, contacts), wrap the sparsifier in
+    ``Trimmed`` and keep windows short (RESULTS.md measures both on a cart-pole).
     """
     from latent_sindy.sindy.ensemble import EnsembleSTLSQ
 
     if window is None:
         window = max(1, min(DEFAULT_WINDOW, X.shape[1] - 1))
-    theta, target = window_regression_data(library, X, U, window)
+    theta, target = window_regression_data(library, X, U, window, valid, targets)
     return (EnsembleSTLSQ(seed=0) if optimizer is None else optimizer).fit(theta, target, mask)

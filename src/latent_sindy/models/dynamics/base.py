@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from latent_sindy.sindy.optimizers import STLSQ
 
 __all__ = ["LatentDynamics", "Row", "SparseDynamics", "check_init_scale", "format_equations",
-           "project_circle", "turn_circle"]
+           "project_circle", "turn_circle", "turned_target"]
 
 #: One coefficient of a model's equations: (state, term, value), e.g. ("z3", "z0 u2", 0.05).
 Row = tuple[str, str, float]
@@ -46,6 +46,17 @@ def turn_circle(z: torch.Tensor, z_next: torch.Tensor, index: torch.Tensor) -> t
     cos, sin = torch.cos(omega), torch.sin(omega)
     za, zb = z[..., a], z[..., b]
     pair = torch.stack([za * cos - zb * sin, zb * cos + za * sin], -1)
+    return z_next.index_copy(-1, index, pair)
+
+
+def turned_target(z: torch.Tensor, z_next: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """What a ``turn`` model's step is fitted to: ``z_next`` with z_a replaced by z_a + ω, ω
+    the angle from z's pair ``index`` = (a, b) to z_next's, and z_b by z_b (the inverse of
+    :func:`turn_circle` before the projection). Out of place."""
+    a, b = index[0], index[1]
+    omega = torch.atan2(z[..., a] * z_next[..., b] - z[..., b] * z_next[..., a],
+                        z[..., a] * z_next[..., a] + z[..., b] * z_next[..., b])
+    pair = torch.stack([z[..., a] + omega, z[..., b]], -1)
     return z_next.index_copy(-1, index, pair)
 
 

@@ -31,12 +31,13 @@ from latent_sindy.models.dynamics.base import (
     SparseDynamics,
     check_init_scale,
     format_equations,
+    turned_target,
 )
+from latent_sindy.models.dynamics.compiled import CompiledSindy
 from latent_sindy.sindy import (
     VALID_ORDERS,
     CandidateLibrary,
     LibrarySpec,
-    LibrarySubset,
     SindyLibrary,
     Sine,
     has_preset,
@@ -180,14 +181,31 @@ class SindyDynamics(SparseDynamics):
         pair and z_b's none.
         """
         if self.turn:
-            a, b = self.circle
-            omega = torch.atan2(Z[:, a] * Znext[:, b] - Z[:, b] * Znext[:, a],
-                                Z[:, a] * Znext[:, a] + Z[:, b] * Znext[:, b])
-            Znext = Znext.clone()
-            Znext[:, a], Znext[:, b] = Z[:, a] + omega, Z[:, b]
+            Znext = turned_target(Z, Znext, self._circle_index.to(Z.device))
         opt = sindy_fit.fit_state_data(
             self.library, Z, U, Znext, optimizer, mask=self.mask if restrict_to_mask else None
         )
+        return self.set_coefficients(opt.coef_, opt.mask_)
+
+    @torch.no_grad()
+    def fit_trajectory_data(self, X: torch.Tensor, U: torch.Tensor, window: int | None = None,
+                            optimizer: Any = None, valid: torch.Tensor | None = None
+                            ) -> SindyDynamics:
+        """Fit Ψ and M to whole trajectories in the windowed form, for latents read with an
+        error (a camera's); returns ``self``. :func:`latent_sindy.sindy.fit_trajectory_data`
+        with its defaults: X (B, T+1, nz), U (B, T, nu), ``valid`` (B, T+1) the states read
+        well; each step's target as in :meth:`fit_state_data` (with ``turn``, the angle)."""
+        targets = None
+        if self.turn:
+            step = turned_target(X[:, :-1], X[:, 1:], self._circle_index.to(X.device))
+            step = step - X[:, :-1]
+            if valid is not None:  # (a step to or from a state read badly is in no window)
+                valid = sindy_fit.checked_valid(valid, X)
+                both = valid[:, :-1] & valid[:, 1:]
+                step = torch.where(both[..., None].to(X.device), step, 0.0)
+            targets = torch.cat([torch.zeros_like(X[:, :1]), step.cumsum(1)], 1)
+        opt = sindy_fit.fit_trajectory_data(self.library, X, U, window, optimizer, valid=valid,
+                                            targets=targets)
         return self.set_coefficients(opt.coef_, opt.mask_)
 
     def n_candidates(self) -> int:
@@ -259,30 +277,6 @@ class SindyDynamics(SparseDynamics):
 
     def extra_repr(self) -> str:
         return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
-
-
-class CompiledSindy(LatentDynamics):
-    """Fast, frozen SINDy step over the terms active in any state (for control).
-
-    ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
-    C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer; the model's circle, if any, is kept.
-    """
-
-    kind = "sindy-sparse"
-    coef: torch.Tensor  # (|S|, nz)
-
-    def __init__(self, model: SindyDynamics) -> None:
-        super().__init__(model.nz, model.nu, model.circle, model.turn)
-        terms = model.active_terms()
-        self.library: LibrarySubset = model.library.subset(terms)
-        self.register_buffer("coef", model.coefficients().detach()[terms].clone())
-
-    @property
-    def names(self) -> list[str]:
-        return self.library.names
-
-    def _step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        return z + self.library(z, u) @ self.coef  # (K, nz)
 
 
 SparseSindyDynamics = CompiledSindy  # old name
