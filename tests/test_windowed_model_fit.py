@@ -91,3 +91,24 @@ def test_the_window_recovers_the_swing_that_a_cameras_error_hides_from_one_step(
                 abs(_coefficient(model, 2, "z1") / (-H * GRAVITY) - 1),
                 abs(_coefficient(model, 2, "u0") / (H * GAIN) - 1))
         assert errors[5] < 0.1 and errors[5] < errors[1] / 3, (seed, errors)
+
+
+def test_terms_tied_by_the_circle_are_pruned_and_the_fit_keeps_one_of_each():
+    """cos² + sin² = 1: at order 3 the regression spreads each effect over z, z0² z and
+    z1² z (15 terms for 5); pruning the terms with z1² first leaves the 5 exact ones."""
+    X, U = _swinging(3)
+    counts = {}
+    for prune in (False, True):
+        model = SindyConfig(order=3, include_sine=False).build(
+            3, 1, circle=(0, 1), turn=True).double()
+        pruned = model.prune_circle_ties() if prune else 0
+        if prune:
+            names = model.names
+            assert pruned == 2 * sum("z1^" in n for n in names)  # z2's and ω's columns
+            assert not any("z1^" in names[i] for i in model.mask.any(1).nonzero().flatten())
+        model.fit_trajectory_data(X, U, 5, STLSQ(min_share=1e-3), restrict_to_mask=prune)
+        counts[prune] = model.n_active()
+    assert counts[True] == 5 < counts[False]
+    assert _coefficient(model, 2, "z1") == pytest.approx(-H * GRAVITY, rel=1e-6)
+    with pytest.raises(UserError, match="needs a model built with a circle"):
+        SindyConfig(order=3).build(3, 1).prune_circle_ties()

@@ -27,12 +27,13 @@ import torch
 from torch import nn
 
 from latent_sindy.errors import UserError
+from latent_sindy.sindy.fit import checked_valid
 
 if TYPE_CHECKING:
     from latent_sindy.sindy.optimizers import STLSQ
 
 __all__ = ["LatentDynamics", "Row", "SparseDynamics", "check_init_scale", "format_equations",
-           "project_circle", "turn_circle", "turned_target"]
+           "project_circle", "turn_circle", "turned_running_sum", "turned_target"]
 
 #: One coefficient of a model's equations: (state, term, value), e.g. ("z3", "z0 u2", 0.05).
 Row = tuple[str, str, float]
@@ -58,6 +59,20 @@ def turned_target(z: torch.Tensor, z_next: torch.Tensor, index: torch.Tensor) ->
                         z[..., a] * z_next[..., a] + z[..., b] * z_next[..., b])
     pair = torch.stack([z[..., a] + omega, z[..., b]], -1)
     return z_next.index_copy(-1, index, pair)
+
+
+def turned_running_sum(X: torch.Tensor, index: torch.Tensor, valid: torch.Tensor | None = None
+                       ) -> torch.Tensor:
+    """Trajectories X (B, T+1, nz) as the running sum (from 0) of each step's
+    :func:`turned_target` change: a window's change of it is what a ``turn`` model's steps
+    over the window add up to. ``valid`` (B, T+1) bool: steps to or from a state read badly
+    add 0 (no window that is fitted holds them)."""
+    step = turned_target(X[:, :-1], X[:, 1:], index) - X[:, :-1]
+    if valid is not None:
+        valid = checked_valid(valid, X)
+        both = (valid[:, :-1] & valid[:, 1:])[..., None].to(X.device)
+        step = torch.where(both, step, torch.zeros((), dtype=X.dtype, device=X.device))
+    return torch.cat([torch.zeros_like(X[:, :1]), step.cumsum(1)], 1)
 
 
 def project_circle(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

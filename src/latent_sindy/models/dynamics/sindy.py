@@ -31,6 +31,7 @@ from latent_sindy.models.dynamics.base import (
     SparseDynamics,
     check_init_scale,
     format_equations,
+    turned_running_sum,
     turned_target,
 )
 from latent_sindy.models.dynamics.compiled import CompiledSindy
@@ -189,24 +190,29 @@ class SindyDynamics(SparseDynamics):
 
     @torch.no_grad()
     def fit_trajectory_data(self, X: torch.Tensor, U: torch.Tensor, window: int | None = None,
-                            optimizer: Any = None, valid: torch.Tensor | None = None
-                            ) -> SindyDynamics:
+                            optimizer: Any = None, valid: torch.Tensor | None = None,
+                            restrict_to_mask: bool = False) -> SindyDynamics:
         """Fit Ψ and M to whole trajectories in the windowed form, for latents read with an
         error (a camera's); returns ``self``. :func:`latent_sindy.sindy.fit_trajectory_data`
         with its defaults: X (B, T+1, nz), U (B, T, nu), ``valid`` (B, T+1) the states read
-        well; each step's target as in :meth:`fit_state_data` (with ``turn``, the angle)."""
-        targets = None
-        if self.turn:
-            step = turned_target(X[:, :-1], X[:, 1:], self._circle_index.to(X.device))
-            step = step - X[:, :-1]
-            if valid is not None:  # (a step to or from a state read badly is in no window)
-                valid = sindy_fit.checked_valid(valid, X)
-                both = valid[:, :-1] & valid[:, 1:]
-                step = torch.where(both[..., None].to(X.device), step, 0.0)
-            targets = torch.cat([torch.zeros_like(X[:, :1]), step.cumsum(1)], 1)
+        well; each step's target and ``restrict_to_mask`` as in :meth:`fit_state_data`."""
+        run = turned_running_sum(X, self._circle_index.to(X.device), valid) if self.turn else None
         opt = sindy_fit.fit_trajectory_data(self.library, X, U, window, optimizer, valid=valid,
-                                            targets=targets)
+            targets=run, mask=self.mask if restrict_to_mask else None)
         return self.set_coefficients(opt.coef_, opt.mask_)
+
+    @torch.no_grad()
+    def prune_circle_ties(self) -> int:
+        """With a circle (z_a, z_b): z_b² = 1 − z_a² there, so a term with the factor z_b² is
+        a sum of others, and a regression splits one effect among them (z3 and z1² z3 and
+        z2² z3 for z3). Prunes those terms (a fit with ``restrict_to_mask`` keeps them out);
+        returns how many coefficients it pruned."""
+        if self.circle is None:
+            raise UserError("prune_circle_ties needs a model built with a circle (a, b)")
+        tied = (self.library.table == self.circle[1]).sum(1).cpu() >= 2  # (p,)
+        newly = self.mask & tied[:, None].to(self.mask.device)
+        self.set_coefficients(self.psi.detach(), self.mask & ~newly)
+        return int(newly.sum())
 
     def n_candidates(self) -> int:
         """Coefficients that may be active: every term for every state (with ``turn``,
