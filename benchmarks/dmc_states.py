@@ -15,11 +15,16 @@ and the published scores at 100k environment steps for reference.
 With ``--velocity difference`` the model sees the positions' change over the last control
 step instead of the velocities (what two stacked frames show), with ``--previous-action``
 the action held over it too, and with ``--position-noise`` a camera's error in the
-positions: what a pixel latent of two frames can be at best (RESULTS.md).
+positions: what a pixel latent of two frames can be at best (RESULTS.md). With ``--window``
+the fit is the windowed one (each feature's change over that many control steps against
+the library summed over them, :func:`~latent_sindy.sindy.fit_trajectory_data`), which a
+camera's error spoils far less than the one-step fit.
 
     python benchmarks/dmc_states.py                               # cartpole-swingup, 5 seeds
     python benchmarks/dmc_states.py --episodes 20 --seeds 0 1 --evaluations 2
     python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action
+    python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action \
+        --position-noise 0 0.01 --window 5 --order 3
 """
 
 from __future__ import annotations
@@ -240,12 +245,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--smooth", type=int, default=0, metavar="WINDOW",
                    help="smooth the positions read over this many control steps (odd) "
                    "before the fit's features are taken (the planner's stay unsmoothed)")
+    p.add_argument("--window", type=int, default=1, metavar="STEPS",
+                   help="fit each state's change over this many control steps to the sum of "
+                   "the library over them (the windowed fit: a camera's error averages out)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
 
     from latent_sindy.control.mppi import MPPIConfig
     from latent_sindy.models import SindyConfig
-    from latent_sindy.sindy import STLSQ, Trimmed
+    from latent_sindy.sindy import STLSQ, Trimmed, fit_trajectory_data
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.env import physics_names
     from latent_sindy.worlds.dmc.suite import load
@@ -286,7 +294,13 @@ def main(argv: list[str] | None = None) -> int:
             model = SindyConfig(order=args.order, include_sine=False).build(Z.shape[1],
                                                                             Ut.shape[1])
             t1 = time.perf_counter()
-            model.fit_state_data(Z, Ut, Zn, optimizer=sparsifier)
+            if args.window > 1:
+                opt = fit_trajectory_data(model.library, torch.tensor(S, dtype=torch.float64),
+                                          torch.tensor(U, dtype=torch.float64), args.window,
+                                          sparsifier)
+                model.set_coefficients(opt.coef_, opt.mask_)
+            else:
+                model.fit_state_data(Z, Ut, Zn, optimizer=sparsifier)
             fit_s = time.perf_counter() - t1
             t1 = time.perf_counter()
             returns = plan(env, model, head, mppi_cfg, args.evaluations, steps, repeat, seed,

@@ -1,0 +1,177 @@
+"""The pose of one coloured body with a part hanging from it, read from frames by image
+moments (nothing learned): the cart-pole's cart and pole, a pendulum's pivot and rod.
+
+From training frames, the background (the per-pixel median) and the object's colour (the
+mean direction of the largest differences from it). A frame's weight map is the squared
+positive part of its difference along that colour (a shadow, darker, weighs nothing); its
+mode (the peak of the map blurred by σ, refined by mean shift in a σ window) is the body the
+rest hangs from, and the direction φ from the mode to the centroid of the weight farther than
+``inner`` from it is the turn of what hangs. A frame is ``seen`` where the peak reaches
+``min_peak`` of the training frames' median peak and the mode lies within ``edge`` of the
+centre (image coordinates, -1 to 1): out of view, the moments read nothing meaningful.
+
+The latent of two stacked frames (:meth:`ColourPoseReader.latent`): the mode's x, (cos φ,
+sin φ), the changes of both over the control step (per second), and the action held over
+that step, without which a change between two frames is not a state.
+
+    >>> reader = ColourPoseReader(64).fit(frames)       # frames (N, 3, 64, 64), uint8
+    >>> pose, seen = reader.read(frames[:10])           # (10, 4): x, y, cos φ, sin φ
+    >>> z, seen = reader.episode(images, actions, dt)   # one episode's (T+1, 5 + nu) latents
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from latent_sindy.errors import UserError
+
+__all__ = ["ColourPoseReader", "pose_latent"]
+
+
+def _as_unit(frames: torch.Tensor, where: str) -> torch.Tensor:
+    """Frames (B, 3, H, W) as float32 in [0, 1] (uint8 divided by 255)."""
+    x = torch.as_tensor(frames)
+    if x.ndim != 4 or x.shape[1] != 3:
+        raise UserError(f"{where}: expected RGB frames of shape (B, 3, H, W), got "
+                        f"{tuple(x.shape)}")
+    return x.float() / 255 if x.dtype == torch.uint8 else x.float()
+
+
+class ColourPoseReader:
+    """Reads (x, y, cos φ, sin φ) of a coloured body and what hangs from it.
+
+    Args:
+        size: the frames' side in pixels (square frames).
+        sigma: the blur and mean-shift window, in pixels of a 64×64 frame (scaled with size).
+        inner: the radius around the mode left out of the hanging part's centroid, in
+            pixels of a 64×64 frame.
+        edge: a frame is seen only where the mode's |x| is below this (image coordinates).
+        min_peak: ... and its peak at least this share of the training frames' median peak.
+    """
+
+    background: torch.Tensor  # (3, H, W)
+    colour: torch.Tensor  # (3,) unit
+    peak_median: float
+
+    def __init__(self, size: int, sigma: float = 2.0, inner: float = 4.0, edge: float = 0.75,
+                 min_peak: float = 0.5) -> None:
+        from latent_sindy.models.encoders import image_coordinates
+
+        if isinstance(size, bool) or not isinstance(size, int) or size < 8:
+            raise UserError(f"ColourPoseReader size {size!r}: use the frames' side, >= 8 pixels")
+        for name, value in (("sigma", sigma), ("inner", inner), ("edge", edge),
+                            ("min_peak", min_peak)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise UserError(f"ColourPoseReader {name} {value!r}: use a positive number")
+        self.size, self.edge, self.min_peak = size, float(edge), float(min_peak)
+        self.xs, self.ys = image_coordinates(size, size)
+        self.pixel = float(self.xs[1] - self.xs[0])
+        self.sigma, self.inner = sigma * size / 64, inner * size / 64
+        self.reach = math.ceil(3 * self.sigma)
+        k = torch.arange(-self.reach, self.reach + 1, dtype=torch.float32)
+        g = torch.exp(-k**2 / (2 * self.sigma**2))
+        self.kernel = g / g.sum()
+
+    def fit(self, frames: torch.Tensor, chunk: int = 4096) -> ColourPoseReader:
+        """The background, the object's colour and the median peak from training frames
+        (N, 3, H, W) of the object in many places; returns ``self``."""
+        x = _as_unit(frames, "ColourPoseReader.fit")
+        if x.shape[2:] != (self.size, self.size):
+            raise UserError(f"ColourPoseReader.fit: frames of {tuple(x.shape[2:])} pixels for "
+                            f"a reader of size {self.size}")
+        if len(x) < 3:
+            raise UserError("ColourPoseReader.fit needs at least 3 frames to tell the "
+                            "background from the object")
+        self.background = x.median(0).values
+        d = x[::3] - self.background
+        n2 = d.square().sum(1)
+        top = n2 > torch.quantile(n2.flatten()[::17], 0.995)
+        if not bool(top.any()):
+            raise UserError("ColourPoseReader.fit: the frames do not differ from their "
+                            "median; give frames where the object moves")
+        colour = d.permute(0, 2, 3, 1)[top].mean(0)
+        self.colour = colour / colour.norm().clamp_min(1e-12)
+        peaks = torch.cat([self._pose(x[i:i + chunk])[1] for i in range(0, len(x), chunk)])
+        self.peak_median = float(peaks.median())
+        return self
+
+    def _distance2(self, mx: torch.Tensor, my: torch.Tensor) -> torch.Tensor:
+        """(B, H, W) squared distance of each pixel from the points (mx, my) (B,)."""
+        return ((self.xs[None, None] - mx[:, None, None]) ** 2
+                + (self.ys[None, :, None] - my[:, None, None]) ** 2)
+
+    def _pose(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        xs, ys, k, n = self.xs, self.ys, self.kernel, self.reach
+        w = torch.relu(((x - self.background) * self.colour[:, None, None]).sum(1)) ** 2
+        b = F.conv2d(F.conv2d(w[:, None], k.view(1, 1, 1, -1), padding=(0, n)),
+                     k.view(1, 1, -1, 1), padding=(n, 0))[:, 0]
+        peak, at = b.flatten(1).max(1)
+        mx, my = xs[at % w.shape[2]], ys[at // w.shape[2]]
+        for _ in range(5):
+            wg = w * torch.exp(-self._distance2(mx, my) / (2 * (self.sigma * self.pixel) ** 2))
+            m = wg.sum((1, 2)).clamp_min(1e-12)
+            mx, my = (wg.sum(1) * xs).sum(1) / m, (wg.sum(2) * ys).sum(1) / m
+        wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
+        m = wo.sum((1, 2)).clamp_min(1e-12)
+        dx = ((wo.sum(1) * xs).sum(1) / m - mx).double()
+        dy = ((wo.sum(2) * ys).sum(1) / m - my).double()
+        # the unit vector in float64: rounded in float32, cos² + sin² = 1 would hold only to
+        # 1e-7, and a regression fits that rounding with huge cancelling coefficients
+        r = torch.hypot(dx, dy).clamp_min(1e-12)
+        return torch.stack([mx.double(), my.double(), dx / r, dy / r], -1), peak
+
+    def read(self, frames: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Poses (B, 4) float64: x, y (image coordinates, y down), cos φ, sin φ (φ from the
+        image's x axis towards y); and (B,) bool, whether each frame saw the object."""
+        if not hasattr(self, "background"):
+            raise UserError("ColourPoseReader.read before fit: fit it on training frames")
+        x = _as_unit(frames, "ColourPoseReader.read")
+        if x.shape[2:] != self.background.shape[1:]:
+            raise UserError(f"ColourPoseReader.read: frames of {tuple(x.shape[2:])} pixels "
+                            f"for a reader fitted on {tuple(self.background.shape[1:])}")
+        pose, peak = self._pose(x)
+        return pose, (peak > self.min_peak * self.peak_median) & (pose[:, 0].abs() < self.edge)
+
+    def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 5 + nu) latents of two stacked frames obs (B, 6, H, W) (earlier frame first)
+        and the actions held between them, previous (B, nu); and (B,) whether the current
+        frame saw the object."""
+        obs = torch.as_tensor(obs)
+        if obs.ndim != 4 or obs.shape[1] != 6:
+            raise UserError(f"ColourPoseReader.latent: expected two stacked RGB frames "
+                            f"(B, 6, H, W), got {tuple(obs.shape)}")
+        now, seen = self.read(obs[:, 3:])
+        before, _ = self.read(obs[:, :3])
+        return pose_latent(now, before, previous, dt), seen
+
+    def episode(self, images: torch.Tensor, actions: torch.Tensor, dt: float
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One episode's latents (T+1, 5 + nu) from its stacked frames images (T+1, 6, H, W)
+        and actions (T, nu), each frame read once (a frame's earlier one is the last step's;
+        the first step's earlier frame is its own stack's, with no action before it)."""
+        images, actions = torch.as_tensor(images), torch.as_tensor(actions)
+        if images.ndim != 4 or images.shape[1] != 6 or actions.ndim != 2 or (
+                len(actions) != len(images) - 1):
+            raise UserError(f"ColourPoseReader.episode: expected stacked frames (T+1, 6, H, "
+                            f"W) and actions (T, nu), got {tuple(images.shape)} and "
+                            f"{tuple(actions.shape)}")
+        now, seen = self.read(images[:, 3:])
+        first, _ = self.read(images[:1, :3])
+        previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
+        return pose_latent(now, torch.cat([first, now[:-1]]), previous, dt), seen
+
+
+def pose_latent(now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor, dt: float
+                ) -> torch.Tensor:
+    """(B, 5 + nu) latents from the poses (B, 4) of :meth:`ColourPoseReader.read` of the
+    current and the earlier frame and the actions held between them (B, nu): x, cos φ, sin φ,
+    the change of x and the turn of φ per second, the actions."""
+    turn = torch.atan2(before[:, 2] * now[:, 3] - before[:, 3] * now[:, 2],
+                       before[:, 2] * now[:, 2] + before[:, 3] * now[:, 3])
+    z = torch.stack([now[:, 0], now[:, 2], now[:, 3], (now[:, 0] - before[:, 0]) / dt,
+                     turn / dt], -1)
+    return torch.cat([z, torch.as_tensor(previous).double().reshape(len(z), -1)], -1)
