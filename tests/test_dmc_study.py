@@ -17,9 +17,28 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def test_the_scales_and_the_benchmark_setting():
     from latent_sindy.worlds.dmc.study import SCALES
 
-    assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark"}
-    b = SCALES["benchmark"]
-    assert (b.seed_episodes + b.iterations) * b.episode_steps * 8 == 100_000  # repeat 8
+    assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
+                                            "read-demo", "read-benchmark"}
+    for name in ("benchmark", "read-benchmark"):
+        b = SCALES[name]
+        episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
+        assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
+
+
+def test_the_read_latents_study_end_to_end(tmp_path, capsys):
+    """The cart-pole's pose read from the frames, three dynamics on it, through the CLI:
+    SINDy's equations in the report, each fit from scratch (no warm start to continue)."""
+    pytest.importorskip("dm_control")
+    out = tmp_path / "read"
+    assert main(["reproduce", "--world", "dmc", "--scale", "read-tiny", "--out", str(out)]) == 0
+    assert "seed 0 linear: iteration 1, return" in capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["results"]["runs"]) == {"sindy/seed0", "linear/seed0", "mlp/seed0"}
+    its = json.loads((out / "seed0" / "sindy" / "log.json").read_text())["iterations"]
+    assert its[0]["updates"] is None and its[0]["active_terms"] > 0
+    assert "z0[t+1] = z0" in (out / "equations_sindy_seed0.txt").read_text()
+    mlp = json.loads((out / "seed0" / "mlp" / "log.json").read_text())["iterations"]
+    assert mlp[0]["equations"] is None and len(mlp[0]["evaluation"]) == 1
 
 
 def test_world_config_is_for_a_world_with_a_study_of_its_own(tmp_path, capsys):

@@ -2,7 +2,8 @@
 toward goal images, the world interface and the one closed loop every world runs through
 (policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`), and the
 model-based loop that plans against a learned reward (:mod:`.model_based`, warm-started
-refits :mod:`.warm_start`, several models side by side :mod:`.model_based_compare`).
+refits :mod:`.warm_start`, several models side by side :mod:`.model_based_compare`; a
+latent read from the frames rather than learned, :mod:`.read_latent`).
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
 >>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
@@ -25,6 +26,12 @@ from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult,
 from latent_sindy.control.model_based_compare import compare_models
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
+from latent_sindy.control.read_latent import (
+    LatentReader,
+    ReadLatent,
+    ReadLatentConfig,
+    ReadLatentPlanner,
+)
 from latent_sindy.control.sindy_step import SindyKernelStep, SparseSindyStep
 from latent_sindy.control.world import Task, World
 
@@ -36,6 +43,7 @@ __all__ = [
     "ImagePlanner",
     "ImagePolicy",
     "LatentCost",
+    "LatentReader",
     "MPPIConfig",
     "MPPIInfo",
     "ModelBasedConfig",
@@ -43,6 +51,9 @@ __all__ = [
     "Observation",
     "Policy",
     "PoseCost",
+    "ReadLatent",
+    "ReadLatentConfig",
+    "ReadLatentPlanner",
     "RewardCost",
     "SindyKernelStep",
     "SparseSindyStep",

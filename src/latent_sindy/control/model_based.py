@@ -189,8 +189,10 @@ class _Exploring:
 
     def act(self, observation: Observation) -> np.ndarray:
         u = self.planner.act(observation.image)
-        noisy = u + self.std * self.rng.standard_normal(len(u))
-        return np.clip(noisy, self.low, self.high).astype(np.float32)
+        noisy = np.clip(u + self.std * self.rng.standard_normal(len(u)), self.low, self.high)
+        if callable(getattr(self.planner, "note_action", None)):
+            self.planner.note_action(noisy)  # (a planner that reads the last action)
+        return noisy.astype(np.float32)
 
 
 def _labels(first: int, n: int, every: int) -> np.ndarray:

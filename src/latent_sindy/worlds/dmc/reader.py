@@ -15,6 +15,7 @@ sin φ), the changes of both over the control step (per second), and the action 
 that step, without which a change between two frames is not a state.
 
     >>> reader = ColourPoseReader(64).fit(frames)       # frames (N, 3, 64, 64), uint8
+    >>> reader.fit_episodes(images)                     # or episodes (E, T+1, 6, 64, 64)
     >>> pose, seen = reader.read(frames[:10])           # (10, 4): x, y, cos φ, sin φ
     >>> z, seen = reader.episode(images, actions, dt)   # one episode's (T+1, 5 + nu) latents
 """
@@ -55,6 +56,8 @@ class ColourPoseReader:
     background: torch.Tensor  # (3, H, W)
     colour: torch.Tensor  # (3,) unit
     peak_median: float
+    #: The latent coordinates of (cos φ, sin φ) (:meth:`latent`), kept on the unit circle.
+    circle = (1, 2)
 
     def __init__(self, size: int, sigma: float = 2.0, inner: float = 4.0, edge: float = 0.75,
                  min_peak: float = 0.5) -> None:
@@ -97,6 +100,15 @@ class ColourPoseReader:
         peaks = torch.cat([self._pose(x[i:i + chunk])[1] for i in range(0, len(x), chunk)])
         self.peak_median = float(peaks.median())
         return self
+
+    def fit_episodes(self, images: torch.Tensor) -> ColourPoseReader:
+        """:meth:`fit` on episodes of two stacked frames (E, T+1, 6, H, W): their current
+        frames; returns ``self``."""
+        images = torch.as_tensor(images)
+        if images.ndim != 5 or images.shape[2] != 6:
+            raise UserError(f"ColourPoseReader.fit_episodes: expected episodes of two stacked "
+                            f"RGB frames (E, T+1, 6, H, W), got {tuple(images.shape)}")
+        return self.fit(images[:, :, 3:].reshape(-1, 3, *images.shape[3:]))
 
     def _distance2(self, mx: torch.Tensor, my: torch.Tensor) -> torch.Tensor:
         """(B, H, W) squared distance of each pixel from the points (mx, my) (B,)."""

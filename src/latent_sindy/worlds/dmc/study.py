@@ -77,6 +77,15 @@ class DmcScale:
     RESULTS.md)."""
     eval_episodes: int = 2
     """Test episodes after each fit, without exploration noise, kept out of the data."""
+    episodes_per_iteration: int = 1
+    """Planned episodes between two fits."""
+    latent: str = "learned"
+    """"learned": an autoencoder's latent, trained; "read": the cart-pole's pose read from the
+    frames by image moments (:class:`~latent_sindy.worlds.dmc.reader.ColourPoseReader`),
+    nothing learned but the dynamics and the reward head, each fit from scratch (SINDy in
+    the windowed form over ``window`` steps, order ``order``, STLSQ's ``min_share``)."""
+    order: int = 3
+    min_share: float = 0.03
 
 
 #: How the larger scales' fits batch and prune, for --help.
@@ -106,6 +115,23 @@ SCALES: dict[str, DmcScale] = {
         "100 updates a refit, MPPI K 1000 H 12; seeds 0..4; days on a CPU, for a GPU" + _FITS,
         (0, 1, 2, 3, 4), 64, 2, 5, 95, 125, 100, 100, 4, 8, "conv", 1000, 12,
         eval_episodes=5),
+    "read-tiny": DmcScale(
+        "the read latent for tests, about a minute: 32x32, 2 frames, 3 seed episodes and 1 "
+        "planned one of 20 actions, MPPI K 16 H 3; seed 0",
+        (0,), 32, 2, 3, 1, 20, 1, 0, 5, 6, "none", 16, 3, eval_episodes=1, latent="read"),
+    "read-demo": DmcScale(
+        "the pose read by image moments, one seed: 64x64, 2 frames, 30 seed episodes, then 3 "
+        "fits each followed by 10 planned episodes of 125 actions (60k environment steps); "
+        "SINDy order 3 fitted over windows of 5 steps (STLSQ min_share 0.03, trimmed), "
+        "linear and MLP on the same latent; MPPI K 1000 H 12 λ 0.1; 4 test episodes a fit",
+        (0,), 64, 2, 30, 3, 125, 1, 0, 5, 6, "none", 1000, 12, eval_episodes=4,
+        episodes_per_iteration=10, latent="read"),
+    "read-benchmark": DmcScale(
+        "the pose read by image moments at the 100k-step benchmark: as read-demo with 7 fits "
+        "(30 random and 70 planned episodes, 100k environment steps), 5 test episodes a fit; "
+        "seeds 0..4; hours on a CPU",
+        (0, 1, 2, 3, 4), 64, 2, 30, 7, 125, 1, 0, 5, 6, "none", 1000, 12, eval_episodes=5,
+        episodes_per_iteration=10, latent="read"),
 }
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
@@ -198,6 +224,14 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
         f"{', '.join(MODELS)}; seeds {', '.join(map(str, s.seeds))}; device {on}")
 
     def maker(kind: str, seed: int) -> Callable[[int], Any]:
+        if s.latent == "read":
+            from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
+            from latent_sindy.worlds.dmc.reader import ColourPoseReader
+
+            fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
+                                    min_share=s.min_share, reward_width=s.reward_head)
+            return lambda iteration: ReadLatent(ColourPoseReader(world.config.size), fits,
+                                                seed=seed * 1000 + iteration)
         model = ModelConfig(dynamics=DYNAMICS_KINDS[kind](), reward_head=s.reward_head,
                             observation=AutoencoderConfig(latent_dim=s.latent_dim,
                                                           encoder_kind=s.encoder,
@@ -210,6 +244,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     for seed in s.seeds:
         cfg = ModelBasedConfig(
             seed_episodes=s.seed_episodes, iterations=s.iterations,
+            episodes_per_iteration=s.episodes_per_iteration,
             episode_steps=s.episode_steps, steps_per_action=world.config.action_repeat,
             warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
             prune_rate=s.prune_rate, prune_to=s.prune_to, eval_episodes=s.eval_episodes,

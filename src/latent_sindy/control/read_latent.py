@@ -1,0 +1,208 @@
+"""Planning on a latent that is read from the frames, not learned: a world's reader (image
+moments, a marker, a tracker) gives the latent, and only its dynamics and a reward head are
+fitted. The estimator the model-based loop (:func:`~latent_sindy.control.model_based`) takes
+like any other, so SINDy, linear and MLP dynamics on the same read latent are compared on
+the same data and planner.
+
+A reader (:class:`LatentReader`) is fitted on training episodes and then reads an episode's
+latents (with a flag per frame: was the object seen), or one observation's from it and the
+action held since the last one (a latent of two stacked frames needs it: their change
+depends on that action). Frames not seen are left out of every fit.
+
+SINDy is fitted in the windowed form (:meth:`SindyDynamics.fit_trajectory_data`: a reader's
+error enters a window's two ends only) with trimmed STLSQ (end stops, contacts); linear
+dynamics by least squares on the seen transitions; the MLP by Adam on them. The latents are
+standardised (a reader's (cos, sin) pair, its ``circle``, kept as it is) before any fit.
+
+    def make(iteration):
+        return ReadLatent(ColourPoseReader(64), ReadLatentConfig(dynamics="sindy"), seed=iteration)
+    result = model_based(world, make, ModelBasedConfig(..., warm_updates=0), out="runs/read")
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
+
+import numpy as np
+import torch
+
+from latent_sindy.control.costs import RewardCost
+from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
+from latent_sindy.models.reward_head import RewardHead
+from latent_sindy.sindy import STLSQ, Trimmed
+
+__all__ = ["LatentReader", "ReadLatent", "ReadLatentConfig", "ReadLatentPlanner"]
+
+
+class LatentReader(Protocol):
+    """Reads latents from observations; ``circle``: the latent coordinates of an angle's
+    (cos, sin) pair, or None."""
+
+    circle: tuple[int, int] | None
+
+    def fit_episodes(self, images: torch.Tensor) -> LatentReader:
+        """Fit on training episodes' observations (E, T+1, C, H, W); returns ``self``."""
+
+    def episode(self, images: torch.Tensor, actions: torch.Tensor, dt: float
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One episode's latents (T+1, nz) float64 and (T+1,) bool seen."""
+
+    def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latents (B, nz) of observations (B, C, H, W), the actions held since the last
+        ones (B, nu); and (B,) bool seen."""
+
+
+@dataclass(frozen=True)
+class ReadLatentConfig:
+    """The fits on a read latent."""
+
+    dynamics: Literal["sindy", "linear", "mlp"] = "sindy"
+    order: int = 3
+    """SINDy's polynomial order."""
+    window: int = 5
+    """SINDy's windowed fit: steps a window sums (1: the one-step fit)."""
+    min_share: float = 0.01
+    """STLSQ's threshold (a term's least share of a change's RMS)."""
+    trim: float = 0.3
+    """Share of SINDy's windows left out as the worst explained (end stops, contacts)."""
+    reward_width: int = 64
+    updates: int = 3000
+    """Adam updates of the reward head and of the MLP (batches of 256 rows)."""
+    mlp_width: int = 128
+
+    def __post_init__(self) -> None:
+        if self.dynamics not in ("sindy", "linear", "mlp"):
+            raise UserError(f"dynamics {self.dynamics!r}: use sindy, linear or mlp")
+        for name in ("order", "window", "reward_width", "updates", "mlp_width"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise UserError(f"ReadLatentConfig {name}={value!r}: use an integer >= 1")
+
+
+class ReadLatent:
+    """Dynamics and a reward head fitted on a reader's latents; see the module docstring."""
+
+    def __init__(self, reader: LatentReader, config: ReadLatentConfig | None = None,
+                 seed: int = 0) -> None:
+        for method in ("fit_episodes", "episode", "latent"):
+            if not callable(getattr(reader, method, None)):
+                raise UserError(f"ReadLatent needs a reader with {method}(); "
+                                f"{type(reader).__name__} has none")
+        self.reader, self.config, self.seed = reader, config or ReadLatentConfig(), seed
+
+    def fit(self, data: SequenceData, **_: Any) -> ReadLatent:
+        """Fit the reader, the dynamics and the reward head on ``data`` (stacked-frame
+        episodes with actions and rewards); returns ``self``."""
+        if data.actions is None or data.rewards is None:
+            raise UserError("ReadLatent.fit needs episodes with actions and rewards")
+        cfg, gen = self.config, torch.Generator().manual_seed(self.seed)
+        torch.manual_seed(self.seed)
+        images = torch.from_numpy(np.asarray(data.images))
+        actions = torch.from_numpy(np.asarray(data.actions, np.float64))
+        # (changes per second where the data give dt, else per step: the fits standardise)
+        self.dt = float(data.dt) if data.dt is not None else 1.0
+        self.reader.fit_episodes(images)
+        read = [self.reader.episode(images[e], actions[e], self.dt) for e in range(data.n)]
+        Z, seen = torch.stack([z for z, _ in read]), torch.stack([s for _, s in read])
+        if int(seen.sum()) < 2:
+            raise UserError("ReadLatent.fit: the reader saw the object in fewer than two "
+                            "frames; check the reader on these frames")
+        circle = getattr(self.reader, "circle", None)
+        self.mean, self.sd = Z[seen].mean(0), Z[seen].std(0).clamp_min(1e-12)
+        if circle is not None:
+            self.mean[list(circle)], self.sd[list(circle)] = 0.0, 1.0
+        Zs = (Z - self.mean) / self.sd
+        rows = (seen[:, :-1] & seen[:, 1:]).reshape(-1)
+        nz, nu = Z.shape[-1], actions.shape[-1]
+        z0 = Zs[:, :-1].reshape(-1, nz)[rows].float()
+        z1, u = Zs[:, 1:].reshape(-1, nz)[rows].float(), actions.reshape(-1, nu)[rows].float()
+        if cfg.dynamics == "sindy":
+            self.model = SindyConfig(order=cfg.order, include_sine=False).build(
+                nz, nu, circle=circle)  # (the regression itself runs in float64)
+            self.model.fit_trajectory_data(Zs, actions, cfg.window, Trimmed(
+                STLSQ(min_share=cfg.min_share), share=cfg.trim), valid=seen)
+        elif cfg.dynamics == "linear":
+            self.model = LinearConfig().build(nz, nu, circle=circle)
+            self.model.fit_least_squares(z0, u, z1)
+        else:
+            self.model = MlpConfig(hidden=cfg.mlp_width).build(nz, nu, circle=circle)
+            _adam(self.model, lambda i: (self.model(z0[i], u[i]) - z1[i]).pow(2).mean(),
+                  len(z0), cfg.updates, gen)
+        self.model.requires_grad_(False)
+        r = torch.from_numpy(np.asarray(data.rewards, np.float32)).reshape(-1)[rows]
+        self.head = RewardHead(nz, nu, cfg.reward_width)
+        _adam(self.head, lambda i: (self.head(z0[i], u[i]) - r[i]).pow(2).mean(), len(z0),
+              cfg.updates, gen)
+        self.head.requires_grad_(False)
+        self.action_low = np.asarray(data.action_low, np.float64)
+        self.action_high = np.asarray(data.action_high, np.float64)
+        self.seen_share_ = float(seen.double().mean())
+        return self
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "model"):
+            raise UserError("ReadLatent: fit it first")
+
+    def planner(self, mppi: MPPIConfig | None = None, seed: int = 0,
+                objective: str = "reward") -> ReadLatentPlanner:
+        """MPPI on the read latent against the reward head: ``act(image)`` -> (nu,)."""
+        self._check_fitted()
+        if objective != "reward":
+            raise UserError(f"ReadLatent plans against its reward head; objective "
+                            f"{objective!r} is not one it has")
+        return ReadLatentPlanner(self, mppi or MPPIConfig(), seed)
+
+    def equations(self) -> list[str]:
+        """The dynamics' equations on the standardised latent (an MLP has none)."""
+        self._check_fitted()
+        if self.config.dynamics == "mlp":
+            raise NotImplementedError("an MLP's dynamics have no equations")
+        return list(self.model.equations())
+
+    def coefficients(self) -> np.ndarray:
+        """The SINDy coefficients (p, nz) (zeros where pruned)."""
+        self._check_fitted()
+        if self.config.dynamics != "sindy":
+            raise NotImplementedError("coefficients are a SINDy model's")
+        return self.model.coefficients().detach().numpy().copy()
+
+
+class ReadLatentPlanner:
+    """MPPI on a :class:`ReadLatent`'s latent; it keeps the last action for the next
+    reading (:meth:`note_action` tells it the one carried out, if noise changed it)."""
+
+    def __init__(self, est: ReadLatent, mppi: MPPIConfig, seed: int) -> None:
+        self.est, self.cfg, self.seed = est, mppi, seed
+        self.reset()
+
+    def reset(self, goal: Any = None, seed: int | None = None) -> None:
+        self.mppi = MPPI(latent_step(self.est.model), RewardCost(self.est.head), self.cfg,
+                         self.est.action_low.tolist(), self.est.action_high.tolist(),
+                         seed=self.seed if seed is None else seed)
+        self.previous = np.zeros(len(self.est.action_low))
+
+    def note_action(self, action: np.ndarray) -> None:
+        self.previous = np.asarray(action, np.float64).reshape(-1)
+
+    def act(self, image: np.ndarray, goal_image: Any = None) -> np.ndarray:
+        z, _ = self.est.reader.latent(torch.from_numpy(np.asarray(image))[None],
+                                      torch.from_numpy(self.previous)[None], self.est.dt)
+        zs = ((z[0] - self.est.mean) / self.est.sd).float()
+        u = self.mppi.command(zs)[0].detach().numpy().astype(np.float64)
+        self.previous = u
+        return u
+
+
+def _adam(module: torch.nn.Module, loss, n: int, updates: int, gen: torch.Generator) -> None:
+    """``updates`` Adam steps (lr 3e-3) on ``loss(rows)`` of batches of 256 of n rows."""
+    opt = torch.optim.Adam(module.parameters(), lr=3e-3)
+    for _ in range(updates):
+        value = loss(torch.randint(0, n, (min(256, n),), generator=gen))
+        opt.zero_grad()
+        value.backward()
+        opt.step()

@@ -1,0 +1,147 @@
+"""Dynamics and a reward head fitted on a latent that a reader gives (ReadLatent), on a toy
+system whose "frames" carry its position: the fits, the out-of-view frames, the planner's
+previous action, and SINDy, linear and MLP side by side."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.control.mppi import MPPIConfig
+from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+
+DT, STIFF, DAMP, GAIN, GOAL, EDGE = 0.1, 4.0, 0.5, 2.0, 0.5, 1.2
+
+
+class PositionReader:
+    """Reads (x, its change per second, the previous action) from two stacked one-pixel
+    frames (x_{t-1}, x_t), each pixel (x + 2) / 4; a frame beyond |x| = EDGE is not seen."""
+
+    circle = None
+
+    def __init__(self) -> None:
+        self.fitted = False
+
+    def fit_episodes(self, images):
+        self.fitted = True
+        return self
+
+    def latent(self, obs, previous, dt):
+        before, now = 4 * obs[:, 0, 0, 0].double() - 2, 4 * obs[:, 1, 0, 0].double() - 2
+        z = torch.stack([now, (now - before) / dt], -1)
+        return torch.cat([z, previous.double()], -1), now.abs() < EDGE
+
+    def episode(self, images, actions, dt):
+        previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
+        return self.latent(images, previous, dt)
+
+
+def _pixel(x: float) -> float:
+    return (x + 2) / 4
+
+
+def _step(x, v, u):
+    v = v + DT * (-STIFF * x - DAMP * v + GAIN * u)
+    return x + DT * v, v
+
+
+def _episodes(n: int, steps: int, seed: int) -> SequenceData:
+    rng = np.random.default_rng(seed)
+    images = np.zeros((n, steps + 1, 2, 1, 1), np.float32)
+    actions = rng.uniform(-1, 1, (n, steps, 1))
+    rewards = np.zeros((n, steps), np.float32)
+    for e in range(n):
+        x, v = rng.uniform(-0.5, 0.5), 0.0
+        images[e, 0] = _pixel(x)
+        for t in range(steps):
+            before = x
+            x, v = _step(x, v, actions[e, t, 0])
+            images[e, t + 1, 0], images[e, t + 1, 1] = _pixel(before), _pixel(x)
+            rewards[e, t] = -(x - GOAL) ** 2
+    return SequenceData(images, actions.astype(np.float32), action_low=[-1.0],
+                        action_high=[1.0], rewards=rewards, dt=DT)
+
+
+@pytest.fixture(scope="module")
+def data():
+    return _episodes(12, 60, 0)
+
+
+def test_sindy_finds_the_few_terms_of_the_toy_system(data):
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=300), seed=0).fit(data)
+    assert est.reader.fitted
+    lines = est.equations()
+    assert len(lines) == 3
+    # x, its change and the previous action: a linear system, each change a few terms
+    assert 3 <= int(np.count_nonzero(est.coefficients())) <= 12, lines
+    assert est.coefficients().shape[1] == 3
+
+
+def test_frames_out_of_view_are_left_out(data):
+    images = data.images.copy()
+    images[0, 10:15, 1] = 1.0  # a reading gone wrong (x = 2), and not seen
+    broken = SequenceData(images, data.actions, action_low=[-1.0], action_high=[1.0],
+                          rewards=data.rewards, dt=DT)
+    clean = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(data)
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(broken)
+    assert est.seen_share_ < 1.0
+    assert np.isfinite(est.coefficients()).all()
+    assert np.allclose(est.coefficients(), clean.coefficients(), atol=0.05)
+
+
+@pytest.mark.parametrize("dynamics", ["sindy", "linear", "mlp"])
+def test_each_dynamics_plans_toward_the_reward_better_than_random_actions(data, dynamics):
+    est = ReadLatent(PositionReader(), ReadLatentConfig(dynamics=dynamics, updates=600),
+                     seed=0).fit(data)
+    planner = est.planner(MPPIConfig(samples=100, horizon=8, sigma=0.5, lambda_=0.1), seed=1)
+    rng = np.random.default_rng(3)
+    totals = {}
+    for kind in ("planned", "random"):
+        x, v, before, total = 0.0, 0.0, 0.0, 0.0
+        planner.reset(None, seed=2)
+        for _ in range(30):
+            obs = np.array([_pixel(before), _pixel(x)], np.float32).reshape(2, 1, 1)
+            u = planner.act(obs) if kind == "planned" else rng.uniform(-1, 1, 1)
+            assert u.shape == (1,) and -1 <= u[0] <= 1
+            before = x
+            x, v = _step(x, v, float(u[0]))
+            total += -(x - GOAL) ** 2
+        totals[kind] = total
+    assert totals["planned"] > 0.5 * totals["random"], totals  # (returns are negative)
+    if dynamics == "mlp":
+        with pytest.raises(NotImplementedError):
+            est.coefficients()
+
+
+def test_the_planner_reads_the_action_carried_out():
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(
+        _episodes(4, 30, 1))
+    planner = est.planner(MPPIConfig(samples=50, horizon=5))
+    obs = np.full((2, 1, 1), 0.5, np.float32)
+    u = planner.act(obs)
+    assert np.array_equal(planner.previous, u)
+    planner.note_action(np.array([0.25]))
+    assert planner.previous.tolist() == [0.25]
+    planner.reset()
+    assert planner.previous.tolist() == [0.0]
+
+
+def test_bad_input_raises_user_errors(data):
+    with pytest.raises(UserError, match="dynamics 'koopman'"):
+        ReadLatentConfig(dynamics="koopman")
+    with pytest.raises(UserError, match="window=0"):
+        ReadLatentConfig(window=0)
+    with pytest.raises(UserError, match="reader with fit_episodes"):
+        ReadLatent(object())
+    with pytest.raises(UserError, match="fit it first"):
+        ReadLatent(PositionReader()).planner()
+    no_rewards = SequenceData(data.images, data.actions, action_low=[-1.0], action_high=[1.0],
+                              dt=DT)
+    with pytest.raises(UserError, match="rewards"):
+        ReadLatent(PositionReader()).fit(no_rewards)
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10)).fit(data)
+    with pytest.raises(UserError, match="objective 'goal'"):
+        est.planner(objective="goal")
