@@ -21,6 +21,7 @@ class PositionReader:
     frames (x_{t-1}, x_t), each pixel (x + 2) / 4; a frame beyond |x| = EDGE is not seen."""
 
     circle = None
+    names = ("x", "ẋ", "previous u")
 
     def __init__(self) -> None:
         self.fitted = False
@@ -74,7 +75,7 @@ def test_sindy_finds_the_few_terms_of_the_toy_system(data):
     est = ReadLatent(PositionReader(), ReadLatentConfig(updates=300), seed=0).fit(data)
     assert est.reader.fitted
     lines = est.equations()
-    assert len(lines) == 3
+    assert len(lines) == 4 and lines[0].startswith("latent: z0 = x, z1 = ẋ, z2 = previous u")
     # x, its change and the previous action: a linear system, each change a few terms
     assert 3 <= int(np.count_nonzero(est.coefficients())) <= 12, lines
     assert est.coefficients().shape[1] == 3

@@ -159,11 +159,16 @@ class ReadLatent:
         return ReadLatentPlanner(self, mppi or MPPIConfig(), seed)
 
     def equations(self) -> list[str]:
-        """The dynamics' equations on the standardised latent (an MLP has none)."""
+        """The dynamics' equations on the standardised latent (an MLP has none), after a
+        line naming the latent's coordinates where the reader names them (``names``)."""
         self._check_fitted()
         if self.config.dynamics == "mlp":
             raise NotImplementedError("an MLP's dynamics have no equations")
-        return list(self.model.equations())
+        names = getattr(self.reader, "names", None)
+        legend = [] if not names else ["latent: " + ", ".join(
+            f"z{i} = {n}" for i, n in enumerate(names)) + " (each standardised over the "
+            "training frames" + (", but the circle's pair" if self.model.circle else "") + ")"]
+        return legend + list(self.model.equations())
 
     def coefficients(self) -> np.ndarray:
         """The SINDy coefficients (p, nz) (zeros where pruned)."""

@@ -58,6 +58,8 @@ class ColourPoseReader:
     peak_median: float
     #: The latent coordinates of (cos φ, sin φ) (:meth:`latent`), kept on the unit circle.
     circle = (1, 2)
+    #: The latent's coordinates (one action; :meth:`latent` appends as many as it is given).
+    names = ("x", "cos φ", "sin φ", "ẋ", "φ̇", "previous u0")
 
     def __init__(self, size: int, sigma: float = 2.0, inner: float = 4.0, edge: float = 0.75,
                  min_peak: float = 0.5) -> None:
