@@ -253,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from latent_sindy.control.mppi import MPPIConfig
     from latent_sindy.models import SindyConfig
-    from latent_sindy.sindy import STLSQ, Trimmed, fit_trajectory_data
+    from latent_sindy.sindy import STLSQ, Trimmed
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.env import physics_names
     from latent_sindy.worlds.dmc.suite import load
@@ -295,10 +295,9 @@ def main(argv: list[str] | None = None) -> int:
                                                                             Ut.shape[1])
             t1 = time.perf_counter()
             if args.window > 1:
-                opt = fit_trajectory_data(model.library, torch.tensor(S, dtype=torch.float64),
+                model.fit_trajectory_data(torch.tensor(S, dtype=torch.float64),
                                           torch.tensor(U, dtype=torch.float64), args.window,
                                           sparsifier)
-                model.set_coefficients(opt.coef_, opt.mask_)
             else:
                 model.fit_state_data(Z, Ut, Zn, optimizer=sparsifier)
             fit_s = time.perf_counter() - t1
