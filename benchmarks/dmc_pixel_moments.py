@@ -79,11 +79,16 @@ def main(argv: list[str] | None = None) -> int:
                    "with sin² φ (cos² + sin² = 1 makes them sums of others)")
     p.add_argument("--samples", type=int, default=1000)
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
+    p.add_argument("--sigma", type=float, default=0.3, help="MPPI's noise variance")
+    p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
+                   "(0, 1] (1, the default: each reading as it is), or auto: chosen on the "
+                   "training episodes as the library's ReadLatent does (filter_gain)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
 
     from latent_sindy.control.costs import RewardCost
     from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
+    from latent_sindy.control.read_latent import filter_gain, filter_step
     from latent_sindy.models import SindyConfig
     from latent_sindy.sindy import STLSQ, Trimmed
     from latent_sindy.worlds.dmc.config import DmcConfig
@@ -92,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
 
     world = DmcWorld(DmcConfig(task="cartpole-swingup", size=args.size, frames=2))
     steps, size = 1000 // world.config.action_repeat, world.config.size
-    mppi_cfg = MPPIConfig(samples=args.samples, horizon=12, sigma=0.3, lambda_=args.lambda_,
-                          shift="repeat")
+    mppi_cfg = MPPIConfig(samples=args.samples, horizon=12, sigma=args.sigma,
+                          lambda_=args.lambda_, shift="repeat")
     print(f"cartpole-swingup from {size}x{size} pixels (two frames, repeat 8): "
           f"{args.episodes} random episodes ({args.episodes * 1000} environment steps) a "
           f"seed; latent: x, cos φ, sin φ, ẋ, φ̇ (frame differences), previous u; SINDy "
@@ -130,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
         model.fit_trajectory_data(Zs, actions, args.window, Trimmed(
             STLSQ(min_share=args.min_share), share=args.trim), valid=seen,
             restrict_to_mask=args.prune_ties)
+        with torch.no_grad():
+            gain = float(args.gain) if args.gain != "auto" else filter_gain(
+                model, Zs.float(), actions.float(), seen, (1, 2))[0]
         fit_s = time.perf_counter() - t0
         env, rng = world.make_env(), np.random.default_rng(seed)
         result = {}
@@ -139,12 +147,19 @@ def main(argv: list[str] | None = None) -> int:
                 obs, _ = env.reset(seed=10_000 + 100 * seed + e)
                 mppi = MPPI(latent_step(model), RewardCost(head), mppi_cfg, [-1.0], [1.0],
                             seed=seed * 1000 + e)
-                u, total = np.zeros(1), 0.0
+                u, total, zf = np.zeros(1), 0.0, None
                 for _ in range(steps):
                     if kind == "planned":
-                        z, _ = reader.latent(torch.from_numpy(obs)[None],
-                                             torch.from_numpy(u)[None], dt)
-                        u = mppi.command(((z[0] - mean) / sd).float())[0].numpy()
+                        z, seen_now = reader.latent(torch.from_numpy(obs)[None],
+                                                    torch.from_numpy(u)[None], dt)
+                        zs = ((z[0] - mean) / sd).float()
+                        if zf is not None:  # the library planner's filter
+                            with torch.no_grad():
+                                pred = model(zf[None], torch.from_numpy(u).float()[None])[0]
+                            zs = filter_step(pred, zs, seen_now[0], gain, (1, 2))
+                        if zf is not None or bool(seen_now[0]):
+                            zf = zs
+                        u = mppi.command(zs)[0].numpy()
                         u = u.astype(np.float64)
                     else:
                         u = rng.uniform(-1.0, 1.0, 1)
@@ -156,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         means.append(float(np.mean(result["planned"])))
         print(f"seed {seed}: planned {', '.join(f'{r:.1f}' for r in result['planned'])} "
               f"(mean {means[-1]:.1f}), random actions {np.mean(result['random']):.1f}; "
-              f"{model.n_active()} active terms; {rows.double().mean():.2f} of the rows in "
+              f"{model.n_active()} active terms; filter gain {gain}; "
+              f"{rows.double().mean():.2f} of the rows in "
               f"view; angle error in view median {np.degrees(np.median(np.abs(err))):.1f}°, "
               f"90th percentile {np.degrees(np.percentile(np.abs(err), 90)):.1f}°; reward "
               f"error {share:.3f} of its variance; data and fits {fit_s:.0f} s, "

@@ -194,10 +194,13 @@ def fit_reward(Z: torch.Tensor, U: torch.Tensor, R: torch.Tensor, width: int, up
 
 
 def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, seed: int,
-         observer: Observer) -> list[float]:
-    """Returns of ``episodes`` MPPI episodes against the reward head, without noise."""
+         observer: Observer, gain: float = 1.0, circle: tuple[int, int] | None = None
+         ) -> list[float]:
+    """Returns of ``episodes`` MPPI episodes against the reward head, without noise; each
+    step's features filtered with ``gain`` as the library's read-latent planner does."""
     from latent_sindy.control.costs import RewardCost
     from latent_sindy.control.mppi import MPPI, latent_step
+    from latent_sindy.control.read_latent import filter_step
 
     spec = env.action_spec()
     low = np.broadcast_to(spec.minimum, spec.shape).tolist()
@@ -214,7 +217,12 @@ def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, see
             u, _ = mppi.command(torch.tensor(f, dtype=torch.float32))
             u = u.numpy().astype(np.float64)
             total += sum(float(env.step(u).reward or 0.0) for _ in range(repeat))
-            f = observer(env.physics.get_state(), u)
+            read = observer(env.physics.get_state(), u)
+            with torch.no_grad():  # the library planner's filter (gain 1: the reading)
+                pred = model(torch.tensor(f[None], dtype=torch.float32),
+                             torch.tensor(u[None], dtype=torch.float32))[0]
+                f = filter_step(pred, torch.tensor(read, dtype=torch.float32),
+                                torch.tensor(True), gain, circle).double().numpy()
         returns.append(total)
     return returns
 
@@ -248,10 +256,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--window", type=int, default=1, metavar="STEPS",
                    help="fit each state's change over this many control steps to the sum of "
                    "the library over them (the windowed fit: a camera's error averages out)")
+    p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
+                   "(0, 1] (1, the default: each reading as it is), or auto: chosen on the "
+                   "training episodes as the library's ReadLatent does (filter_gain)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
 
     from latent_sindy.control.mppi import MPPIConfig
+    from latent_sindy.control.read_latent import filter_gain
     from latent_sindy.models import SindyConfig
     from latent_sindy.sindy import STLSQ, Trimmed
     from latent_sindy.worlds.dmc.config import DmcConfig
@@ -266,6 +278,8 @@ def main(argv: list[str] | None = None) -> int:
     observer = Observer(periods, env.control_timestep() * repeat, nu, args.velocity,
                         args.previous_action, tuple(args.position_noise))
     fnames = feature_names(names, periods, args.velocity, nu if args.previous_action else 0)
+    pairs = [i for i, n in enumerate(fnames) if n.startswith("cos ")]
+    circle = (pairs[0], pairs[0] + 1) if len(pairs) == 1 else None  # (one angle's pair)
     mppi_cfg = MPPIConfig(samples=args.samples, horizon=args.horizon, sigma=args.sigma,
                           lambda_=args.lambda_, shift="repeat")
     print(f"{args.task} from its physics state, repeat {repeat}: {args.episodes} random "
@@ -300,14 +314,20 @@ def main(argv: list[str] | None = None) -> int:
                                           sparsifier)
             else:
                 model.fit_state_data(Z, Ut, Zn, optimizer=sparsifier)
+            with torch.no_grad():
+                gain = float(args.gain) if args.gain != "auto" else filter_gain(
+                    model.float(), torch.tensor(S, dtype=torch.float32),
+                    torch.tensor(U, dtype=torch.float32),
+                    torch.ones(S.shape[:2], dtype=torch.bool), circle)[0]
             fit_s = time.perf_counter() - t1
             t1 = time.perf_counter()
             returns = plan(env, model, head, mppi_cfg, args.evaluations, steps, repeat, seed,
-                           observer)
+                           observer, gain, circle)
             plan_s = time.perf_counter() - t1
             means[kind].append(float(np.mean(returns)))
             print(f"seed {seed} {kind:7s}: returns {', '.join(f'{r:.1f}' for r in returns)} "
-                  f"(mean {np.mean(returns):.1f}); {model.n_active()} active terms; fit "
+                  f"(mean {np.mean(returns):.1f}); {model.n_active()} active terms; filter "
+                  f"gain {gain}; fit "
                   f"{fit_s:.1f} s, planning {plan_s / args.evaluations:.1f} s an episode; "
                   f"data and reward head {collect_s:.1f} s (reward error {share:.4f} of its "
                   f"variance)", flush=True)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
+from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig, filtered
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 
@@ -49,19 +49,27 @@ def _step(x, v, u):
     return x + DT * v, v
 
 
-def _episodes(n: int, steps: int, seed: int) -> SequenceData:
+def _episodes(n: int, steps: int, seed: int, noise: float = 0.0,
+              truth: list | None = None) -> SequenceData:
+    """Random-action episodes; ``noise``: each frame's x read with that Gaussian error
+    (one draw a frame, as a camera's); ``truth`` gets each episode's true (x, v) (T+1, 2)."""
     rng = np.random.default_rng(seed)
     images = np.zeros((n, steps + 1, 2, 1, 1), np.float32)
     actions = rng.uniform(-1, 1, (n, steps, 1))
     rewards = np.zeros((n, steps), np.float32)
     for e in range(n):
         x, v = rng.uniform(-0.5, 0.5), 0.0
-        images[e, 0] = _pixel(x)
+        seen = x + noise * rng.standard_normal()
+        images[e, 0], states = _pixel(seen), [(x, v)]
         for t in range(steps):
-            before = x
+            before = seen
             x, v = _step(x, v, actions[e, t, 0])
-            images[e, t + 1, 0], images[e, t + 1, 1] = _pixel(before), _pixel(x)
+            seen = x + noise * rng.standard_normal()
+            images[e, t + 1, 0], images[e, t + 1, 1] = _pixel(before), _pixel(seen)
             rewards[e, t] = -(x - GOAL) ** 2
+            states.append((x, v))
+        if truth is not None:
+            truth.append(np.asarray(states))
     return SequenceData(images, actions.astype(np.float32), action_low=[-1.0],
                         action_high=[1.0], rewards=rewards, dt=DT)
 
@@ -128,6 +136,43 @@ def test_the_planner_reads_the_action_carried_out():
     assert planner.previous.tolist() == [0.25]
     planner.reset()
     assert planner.previous.tolist() == [0.0]
+
+
+def test_the_filter_follows_exact_readings_and_averages_noisy_ones():
+    exact = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(
+        _episodes(8, 60, 2))
+    assert exact.gain_ == 1.0  # a reading without error: no gain filters better
+    truth: list = []
+    noisy = _episodes(16, 60, 3, noise=0.02, truth=truth)
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(noisy)
+    assert est.gain_ < 1.0, est.gain_errors_
+    assert est.gain_errors_[est.gain_] < est.gain_errors_[1.0]
+    # the filtered latent is nearer the true state than the reading, in x and more so in ẋ
+    images, actions = torch.from_numpy(noisy.images), torch.from_numpy(noisy.actions).double()
+    read = torch.stack([PositionReader().episode(images[e], actions[e], DT)[0]
+                        for e in range(noisy.n)])
+    seen = torch.ones(read.shape[:2], dtype=torch.bool)
+    zs = ((read - est.mean) / est.sd).float()
+    with torch.no_grad():
+        f = filtered(est.model, zs, actions.float(), seen, est.gain_) * est.sd.float() + (
+            est.mean.float())
+    true = torch.from_numpy(np.stack(truth))[:, 5:]  # (after the filter's first steps)
+    true_v = (true[:, 1:, 0] - true[:, :-1, 0]) / DT  # (a frame difference's velocity)
+    err_read_v = (read[:, 6:, 1] - true_v).square().mean()
+    err_f_v = (f[:, 6:, 1].double() - true_v).square().mean()
+    assert err_f_v < 0.5 * err_read_v, (float(err_f_v), float(err_read_v))
+    assert (f[:, 5:, 0].double() - true[..., 0]).square().mean() < (
+        read[:, 5:, 0] - true[..., 0]).square().mean()
+    # out of view, the filter takes the reading, and goes on from it
+    seen[:, 10:13] = False
+    with torch.no_grad():
+        f = filtered(est.model, zs, actions.float(), seen, 0.5)
+        ahead = est.model(zs[:, 12], actions[:, 12].float())
+    assert torch.equal(f[:, 10:13], zs[:, 10:13])
+    assert torch.allclose(f[:, 13], ahead + 0.5 * (zs[:, 13] - ahead))
+    assert not torch.allclose(f[:, 9], zs[:, 9])
+    with pytest.raises(UserError, match="gain=0"):
+        ReadLatentConfig(gain=0)
 
 
 def test_bad_input_raises_user_errors(data):

@@ -14,6 +14,16 @@ error enters a window's two ends only) with trimmed STLSQ (end stops, contacts);
 dynamics by least squares on the seen transitions; the MLP by Adam on them. The latents are
 standardised (a reader's (cos, sin) pair, its ``circle``, kept as it is) before any fit.
 
+The planner filters what it reads: its latent is the model's prediction from the last one
+moved by ``gain`` of the way to the reading (the reading alone where no latent came before,
+the prediction is not finite, or the frame did not see the object: a model's prediction
+carried on out of view planned worse than the raw reading on the cart-pole, RESULTS.md).
+A reader's error, which a frame difference doubles in the velocities, is then averaged
+over steps by the model. The gain is chosen on the training episodes
+(:func:`filter_gain`): of :data:`GAINS`, the one whose filtered latents best predict, through
+the model, the readings two steps on (an error of the reading at that step is independent
+of the filtered latent, so the smallest error is the most accurate latent).
+
     def make(iteration):
         return ReadLatent(ColourPoseReader(64), ReadLatentConfig(dynamics="sindy"), seed=iteration)
     result = model_based(world, make, ModelBasedConfig(..., warm_updates=0), out="runs/read")
@@ -21,6 +31,7 @@ standardised (a reader's (cos, sin) pair, its ``circle``, kept as it is) before 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
@@ -35,7 +46,11 @@ from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.reward_head import RewardHead
 from latent_sindy.sindy import STLSQ, Trimmed
 
-__all__ = ["LatentReader", "ReadLatent", "ReadLatentConfig", "ReadLatentPlanner"]
+__all__ = ["GAINS", "LatentReader", "ReadLatent", "ReadLatentConfig", "ReadLatentPlanner",
+           "filter_gain", "filter_step", "filtered"]
+
+#: The filter gains :func:`filter_gain` chooses from (1: the reading alone).
+GAINS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 
 
 class LatentReader(Protocol):
@@ -75,10 +90,17 @@ class ReadLatentConfig:
     updates: int = 3000
     """Adam updates of the reward head and of the MLP (batches of 256 rows)."""
     mlp_width: int = 128
+    gain: float | None = None
+    """The planner's filter gain (module docstring): 1 plans from each reading as it is;
+    None chooses it from :data:`GAINS` on the training episodes (:func:`filter_gain`)."""
 
     def __post_init__(self) -> None:
         if self.dynamics not in ("sindy", "linear", "mlp"):
             raise UserError(f"dynamics {self.dynamics!r}: use sindy, linear or mlp")
+        if self.gain is not None and not (isinstance(self.gain, int | float)
+                                          and 0.0 < self.gain <= 1.0):
+            raise UserError(f"ReadLatentConfig gain={self.gain!r}: use a number in (0, 1], "
+                            "or None to choose it from the training episodes")
         for name in ("order", "window", "reward_width", "updates", "mlp_width"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -140,6 +162,9 @@ class ReadLatent:
         _adam(self.head, lambda i: (self.head(z0[i], u[i]) - r[i]).pow(2).mean(), len(z0),
               cfg.updates, gen)
         self.head.requires_grad_(False)
+        with torch.no_grad():
+            self.gain_, self.gain_errors_ = (cfg.gain, {}) if cfg.gain is not None else (
+                filter_gain(self.model, Zs.float(), actions.float(), seen, circle))
         self.action_low = np.asarray(data.action_low, np.float64)
         self.action_high = np.asarray(data.action_high, np.float64)
         self.seen_share_ = float(seen.double().mean())
@@ -191,17 +216,76 @@ class ReadLatentPlanner:
                          self.est.action_low.tolist(), self.est.action_high.tolist(),
                          seed=self.seed if seed is None else seed)
         self.previous = np.zeros(len(self.est.action_low))
+        self.latent: torch.Tensor | None = None  # the last filtered latent (standardised)
 
     def note_action(self, action: np.ndarray) -> None:
         self.previous = np.asarray(action, np.float64).reshape(-1)
 
     def act(self, image: np.ndarray, goal_image: Any = None) -> np.ndarray:
-        z, _ = self.est.reader.latent(torch.from_numpy(np.asarray(image))[None],
+        z, seen = self.est.reader.latent(torch.from_numpy(np.asarray(image))[None],
                                       torch.from_numpy(self.previous)[None], self.est.dt)
         zs = ((z[0] - self.est.mean) / self.est.sd).float()
+        if self.latent is not None:
+            with torch.no_grad():
+                zs = filter_step(self.est.model(self.latent[None], torch.from_numpy(
+                    self.previous).float()[None])[0], zs, seen[0], self.est.gain_,
+                    getattr(self.est.reader, "circle", None))
+        if self.latent is not None or bool(seen[0]):  # (filtered from the first seen frame)
+            self.latent = zs
         u = self.mppi.command(zs)[0].detach().numpy().astype(np.float64)
         self.previous = u
         return u
+
+
+def filter_step(pred: torch.Tensor, read: torch.Tensor, seen: torch.Tensor, gain: float,
+           circle: tuple[int, int] | None) -> torch.Tensor:
+    """The filter's step (..., nz): ``gain`` of the way from the prediction to the reading
+    where ``seen`` (...,) and the prediction is finite, the reading elsewhere; a circle's
+    pair back on the unit circle."""
+    use = seen[..., None] & torch.isfinite(pred).all(-1, keepdim=True)
+    out = torch.where(use, pred + gain * (read - pred), read)
+    if circle is not None:
+        pair = out[..., list(circle)]
+        out[..., list(circle)] = pair / pair.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return out
+
+
+def filtered(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor, seen: torch.Tensor,
+             gain: float, circle: tuple[int, int] | None = None) -> torch.Tensor:
+    """Filtered latents (E, T+1, nz) of episodes' readings Z (E, T+1, nz), actions U (E, T,
+    nu) and seen flags (E, T+1): each step ``gain`` of the way from the model's prediction
+    to the reading (the planner's filter, module docstring); readings as they are until an
+    episode's first seen frame."""
+    est, out = Z[:, 0], [Z[:, 0]]
+    known = seen[:, 0].clone()
+    for t in range(U.shape[1]):
+        est = torch.where(known[:, None], filter_step(model(est, U[:, t]), Z[:, t + 1],
+                                                 seen[:, t + 1], gain, circle), Z[:, t + 1])
+        known |= seen[:, t + 1]
+        out.append(est)
+    return torch.stack(out, 1)
+
+
+def filter_gain(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor, seen: torch.Tensor,
+                circle: tuple[int, int] | None = None, gains: tuple[float, ...] = GAINS
+                ) -> tuple[float, dict[float, float]]:
+    """The gain of ``gains`` whose filtered latents (:func:`filtered`) predict the readings
+    two steps on best (mean squared error over seen frames; of gains within 0.1 % of the
+    least error, the largest); and each gain's error."""
+    if U.shape[1] < 2:
+        raise UserError("filter_gain needs episodes of at least two steps")
+    errors = {}
+    for gain in gains:
+        est = filtered(model, Z, U, seen, gain, circle)[:, :-2]
+        ahead = model(model(est.flatten(0, 1), U[:, :-1].flatten(0, 1)),
+                      U[:, 1:].flatten(0, 1)).view_as(est)
+        err = (ahead - Z[:, 2:]).square().sum(-1)
+        ok = seen[:, 2:] & torch.isfinite(err)
+        errors[float(gain)] = float(err[ok].mean()) if bool(ok.any()) else math.inf
+    # the largest gain within 0.1 % of the least error (and float32's rounding of the
+    # latents' scale): the reading as it is unless filtering helps
+    close = min(errors.values()) * 1.001 + 1e-6 * float(Z[seen].square().sum(-1).mean())
+    return max(g for g, e in errors.items() if e <= close), errors
 
 
 def _adam(module: torch.nn.Module, loss, n: int, updates: int, gen: torch.Generator) -> None:
