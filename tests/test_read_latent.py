@@ -24,10 +24,10 @@ class PositionReader:
     names = ("x", "ẋ", "previous u")
 
     def __init__(self) -> None:
-        self.fitted = False
+        self.fitted, self.fitted_on = False, 0
 
     def fit_episodes(self, images):
-        self.fitted = True
+        self.fitted, self.fitted_on = True, len(images)
         return self
 
     def latent(self, obs, previous, dt):
@@ -87,6 +87,17 @@ def test_sindy_finds_the_few_terms_of_the_toy_system(data):
     # x, its change and the previous action: a linear system, each change a few terms
     assert 3 <= int(np.count_nonzero(est.coefficients())) <= 12, lines
     assert est.coefficients().shape[1] == 3
+
+
+def test_the_reader_is_fitted_on_the_first_episodes_only_when_told(data):
+    # (a loop's planned episodes hold the object in one place: a median background fitted
+    # on them would hold the object too)
+    assert ReadLatent(PositionReader(), ReadLatentConfig(updates=10)).fit(
+        data).reader.fitted_on == data.n
+    assert ReadLatent(PositionReader(), ReadLatentConfig(updates=10, reader_episodes=3)).fit(
+        data).reader.fitted_on == 3
+    with pytest.raises(UserError, match="reader_episodes=0"):
+        ReadLatentConfig(reader_episodes=0)
 
 
 def test_frames_out_of_view_are_left_out(data):

@@ -90,6 +90,11 @@ class ReadLatentConfig:
     updates: int = 3000
     """Adam updates of the reward head and of the MLP (batches of 256 rows)."""
     mlp_width: int = 128
+    reader_episodes: int | None = None
+    """The reader is fitted on the data's first this many episodes (None: all). A model-based
+    loop's first episodes are its random ones; a reader fitted by the frames' statistics (a
+    median background) would, on planned episodes that hold the object in one place, take
+    the object for background there."""
     gain: float | None = None
     """The planner's filter gain (module docstring): 1 plans from each reading as it is;
     None chooses it from :data:`GAINS` on the training episodes (:func:`filter_gain`)."""
@@ -101,7 +106,8 @@ class ReadLatentConfig:
                                           and 0.0 < self.gain <= 1.0):
             raise UserError(f"ReadLatentConfig gain={self.gain!r}: use a number in (0, 1], "
                             "or None to choose it from the training episodes")
-        for name in ("order", "window", "reward_width", "updates", "mlp_width"):
+        for name in ("order", "window", "reward_width", "updates", "mlp_width") + (
+                () if self.reader_episodes is None else ("reader_episodes",)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise UserError(f"ReadLatentConfig {name}={value!r}: use an integer >= 1")
@@ -129,7 +135,7 @@ class ReadLatent:
         actions = torch.from_numpy(np.asarray(data.actions, np.float64))
         # (changes per second where the data give dt, else per step: the fits standardise)
         self.dt = float(data.dt) if data.dt is not None else 1.0
-        self.reader.fit_episodes(images)
+        self.reader.fit_episodes(images[:cfg.reader_episodes])
         read = [self.reader.episode(images[e], actions[e], self.dt) for e in range(data.n)]
         Z, seen = torch.stack([z for z, _ in read]), torch.stack([s for _, s in read])
         if int(seen.sum()) < 2:

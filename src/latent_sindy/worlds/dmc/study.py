@@ -229,7 +229,8 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
             from latent_sindy.worlds.dmc.reader import ColourPoseReader
 
             fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
-                                    min_share=s.min_share, reward_width=s.reward_head)
+                                    min_share=s.min_share, reward_width=s.reward_head,
+                                    reader_episodes=s.seed_episodes)  # (the random ones)
             return lambda iteration: ReadLatent(ColourPoseReader(world.config.size), fits,
                                                 seed=seed * 1000 + iteration)
         model = ModelConfig(dynamics=DYNAMICS_KINDS[kind](), reward_head=s.reward_head,
