@@ -80,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--samples", type=int, default=1000)
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     p.add_argument("--sigma", type=float, default=0.3, help="MPPI's noise variance")
+    p.add_argument("--iterations", type=int, default=1, help="MPPI updates a command")
+    p.add_argument("--edge", type=float, default=0.75, help="the reader sees the cart only "
+                   "where its |x| (image coordinates, -1 to 1) is below this")
     p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
                    "(0, 1] (1, the default: each reading as it is), or auto: chosen on the "
                    "training episodes as the library's ReadLatent does (filter_gain)")
@@ -98,19 +101,21 @@ def main(argv: list[str] | None = None) -> int:
     world = DmcWorld(DmcConfig(task="cartpole-swingup", size=args.size, frames=2))
     steps, size = 1000 // world.config.action_repeat, world.config.size
     mppi_cfg = MPPIConfig(samples=args.samples, horizon=12, sigma=args.sigma,
-                          lambda_=args.lambda_, shift="repeat")
+                          lambda_=args.lambda_, shift="repeat", iterations=args.iterations)
     print(f"cartpole-swingup from {size}x{size} pixels (two frames, repeat 8): "
           f"{args.episodes} random episodes ({args.episodes * 1000} environment steps) a "
           f"seed; latent: x, cos φ, sin φ, ẋ, φ̇ (frame differences), previous u; SINDy "
           f"order {args.order}, trimmed share {args.trim}; MPPI K {args.samples} H 12 "
-          f"λ {args.lambda_}")
+          f"Σ {args.sigma} λ {args.lambda_}, {args.iterations} update(s) a command; reader "
+          f"edge {args.edge}, filter gain {args.gain}")
     means = []
     for seed in args.seeds:
         t0 = time.perf_counter()
         data = world.collect(args.episodes, steps, seed=seed)
         dt = float(data.dt)
         images = torch.from_numpy(data.images)  # (E, T+1, 6, S, S)
-        reader = ColourPoseReader(size).fit(images[:, :, 3:].reshape(-1, 3, size, size))
+        reader = ColourPoseReader(size, edge=args.edge).fit(
+            images[:, :, 3:].reshape(-1, 3, size, size))
         actions = torch.from_numpy(data.actions).double()
         read = [reader.episode(images[e], actions[e], dt) for e in range(data.n)]
         Z, seen = torch.stack([z for z, _ in read]), torch.stack([v for _, v in read])

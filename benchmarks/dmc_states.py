@@ -240,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--horizon", type=int, default=12)
     p.add_argument("--sigma", type=float, default=0.3)
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
+    p.add_argument("--iterations", type=int, default=1, help="MPPI updates a command")
     p.add_argument("--reward-width", type=int, default=64)
     p.add_argument("--reward-updates", type=int, default=3000)
     p.add_argument("--velocity", choices=("state", "difference"), default="state",
@@ -281,12 +282,12 @@ def main(argv: list[str] | None = None) -> int:
     pairs = [i for i, n in enumerate(fnames) if n.startswith("cos ")]
     circle = (pairs[0], pairs[0] + 1) if len(pairs) == 1 else None  # (one angle's pair)
     mppi_cfg = MPPIConfig(samples=args.samples, horizon=args.horizon, sigma=args.sigma,
-                          lambda_=args.lambda_, shift="repeat")
+                          lambda_=args.lambda_, shift="repeat", iterations=args.iterations)
     print(f"{args.task} from its physics state, repeat {repeat}: {args.episodes} random "
           f"episodes ({args.episodes * steps * repeat} environment steps) a seed; SINDy order "
           f"{args.order}, min_share {args.min_share}, trimmed share {args.trim}; MPPI K "
-          f"{args.samples} H {args.horizon} Σ {args.sigma} λ {args.lambda_}; "
-          f"{args.evaluations} planned episodes a seed, no exploration noise")
+          f"{args.samples} H {args.horizon} Σ {args.sigma} λ {args.lambda_}, {args.iterations} "
+          f"update(s) a command; {args.evaluations} planned episodes a seed, no exploration noise")
     print("state: " + ", ".join(f"z{i} = {n}" for i, n in enumerate(fnames)))
     means = {"plain": [], "trimmed": []}
     for seed in args.seeds:

@@ -68,6 +68,23 @@ def test_the_cart_and_the_pole_are_read_within_a_pixel_and_a_few_degrees(size, f
                           atol=1e-12)
 
 
+def test_the_body_box_reads_the_angle_nearer_than_the_mode(fitted):
+    # (the mode is pulled towards the pole, and so turns the angle read from it)
+    frames = torch.stack([_draw(x, p) for x, p in zip(*_poses(120, 0), strict=True)])
+    xs, phis = _poses(40, 1)
+    test = torch.stack([_draw(x, p) for x, p in zip(xs, phis, strict=True)])
+    errors = {}
+    for body in (None, (4.0, 2.0)):
+        pose, _ = ColourPoseReader(64, body=body).fit(frames).read(test)
+        angle = torch.atan2(pose[:, 3], pose[:, 2])
+        errors[body] = torch.rad2deg((angle - torch.tensor(phis, dtype=torch.float64)
+                                      + math.pi) % (2 * math.pi) - math.pi).abs()
+    assert float(errors[(4.0, 2.0)].median()) < 0.8 * float(errors[None].median()), errors
+    assert float(errors[(4.0, 2.0)].max()) < 0.8 * float(errors[None].max()), errors
+    with pytest.raises(UserError, match="body"):
+        ColourPoseReader(64, body=(4.0,))
+
+
 def test_a_frame_without_the_cart_in_view_is_not_seen(fitted):
     frames = torch.stack([_draw(0.2, 1.0), _draw(0.9, 1.0), _draw(3.0, 1.0)])
     _, seen = fitted.read(frames)

@@ -71,6 +71,22 @@ def test_drives_integrator_to_goal_and_cost_falls() -> None:
     assert len(far) >= 4 and all(b < a for a, b in itertools.pairwise(far))
 
 
+def test_more_updates_a_command_reach_the_goal_sooner() -> None:
+    goal = torch.tensor([2.0, -1.5])  # small noise: one update a command moves slowly
+    dist = {}
+    for iterations in (1, 4):
+        mppi = mppi_of(integrator, goal, **config(K=32, sigma=0.01, iterations=iterations))
+        z, total = torch.zeros(2), 0.0
+        for _ in range(10):
+            u, _ = mppi.command(z)
+            z = integrator(z[None], u[None])[0]
+            total += float((z - goal).norm())
+        dist[iterations] = total
+    assert dist[4] < 0.8 * dist[1], dist
+    with pytest.raises(UserError, match="iterations 0"):
+        MPPIConfig(iterations=0)
+
+
 def test_drives_double_integrator_to_rest_at_goal() -> None:
     dt = 0.2
 

@@ -70,9 +70,12 @@ class MPPIConfig:
     shift: Literal["init", "repeat"] = "init"
     """Warm start: after each command the nominal sequence moves one step forward; its new
     last step is u_init ("init") or a repeat of the previous last step ("repeat")."""
+    iterations: int = 1
+    """Updates of the nominal sequence a command, each sampling K sequences around the last
+    update's (1: MPPI's one update; PlaNet's CEM refines over several)."""
 
     def __post_init__(self) -> None:
-        for name in ("samples", "horizon"):
+        for name in ("samples", "horizon", "iterations"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise UserError(f"MPPI {name} {v!r}: must be a positive integer")
@@ -260,29 +263,33 @@ class MPPI:
         """One MPPI update in the caller's autograd mode (``command`` runs it in inference
         mode): returns the first action, the discarded count, the min and mean cost."""
         K, H, nu = self.config.samples, self.config.horizon, self.nu
-        U = self._U  # (H, nu)
-        if noise is None:
-            eps = torch.randn(K, H, nu, generator=self._gen, dtype=self.dtype, device=self.device)
-            eps.mul_(self._std)  # (K, H, nu)
-        elif noise.shape != (K, H, nu):
+        if noise is not None and noise.shape != (K, H, nu):
             raise ValueError(f"noise must have shape (K, H, nu)={(K, H, nu)}, "
                              f"got {tuple(noise.shape)}")
-        else:
-            eps = noise.to(U)
-        actions = torch.clamp(U + eps, self.low, self.high)  # (K, H, nu)
-        eps = actions - U  # clamped perturbations (K, H, nu)
-        # λ Σ_t u_tᵀ Σ⁻¹ ε_t^k as one matrix-vector product: (K,)
-        total = eps.reshape(K, H * nu) @ (U * self._lam_sigma_inv).reshape(H * nu)
-        total = total + self._rollout_cost(z.to(U).reshape(1, -1), actions)
+        U_new = self._U  # (H, nu)
+        for _ in range(self.config.iterations):
+            U = U_new
+            if noise is None:
+                eps = torch.randn(K, H, nu, generator=self._gen, dtype=self.dtype,
+                                  device=self.device)
+                eps.mul_(self._std)  # (K, H, nu)
+            else:
+                eps = noise.to(U)
+            actions = torch.clamp(U + eps, self.low, self.high)  # (K, H, nu)
+            eps = actions - U  # clamped perturbations (K, H, nu)
+            # λ Σ_t u_tᵀ Σ⁻¹ ε_t^k as one matrix-vector product: (K,)
+            total = eps.reshape(K, H * nu) @ (U * self._lam_sigma_inv).reshape(H * nu)
+            total = total + self._rollout_cost(z.to(U).reshape(1, -1), actions)
 
-        # NaN and ±inf totals all become +inf, so their weight below is exp(-inf) = 0.
-        costs = torch.nan_to_num(total, nan=math.inf, posinf=math.inf, neginf=math.inf)  # (K,)
-        best = costs.min()
-        # β = min cost, clamped finite so that an all-discarded batch gives weights 0, not NaN.
-        w = torch.exp((best.clamp(max=self._big) - costs) * self._inv_lambda)  # (K,), max 1
-        w = w / w.sum().clamp_min(1.0)  # the sum is >= 1 unless every weight is 0
-        # A convex combination of in-box candidates; the clamp only absorbs rounding.
-        U_new = (U + (w @ eps.reshape(K, H * nu)).reshape(H, nu)).clamp(self._lo, self._hi)
+            # NaN and ±inf totals all become +inf, so their weight below is exp(-inf) = 0.
+            costs = torch.nan_to_num(total, nan=math.inf, posinf=math.inf, neginf=math.inf)
+            best = costs.min()
+            # β = min cost, clamped finite: an all-discarded batch gives weights 0, not NaN.
+            w = torch.exp((best.clamp(max=self._big) - costs) * self._inv_lambda)  # max 1
+            w = w / w.sum().clamp_min(1.0)  # the sum is >= 1 unless every weight is 0
+            # A convex combination of in-box candidates; the clamp only absorbs rounding.
+            U_new = (U + (w @ eps.reshape(K, H * nu)).reshape(H, nu)).clamp(self._lo,
+                                                                           self._hi)
         action = U_new[0]
         fill = U_new[-1:] if self._repeat_last else self.u_init.unsqueeze(0)
         self._U = torch.cat((U_new[1:], fill))  # warm start
