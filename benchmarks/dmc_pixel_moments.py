@@ -20,7 +20,11 @@ them; frames near one out of view left out too): the error of a camera spoils a 
 against the library summed over them, windows whose frames are all in view:
 ``SindyDynamics.fit_trajectory_data``), where a frame's error enters at a window's two ends
 only; ``--turn`` turns (cos φ, sin φ) by one equation's angle; ``--prune-ties`` leaves out
-the terms with sin² φ.
+the terms with sin² φ. ``--gain`` filters what the planner reads through the model as the
+library's read-latent planner does (``auto``: the gain chosen on the training episodes);
+``--edge`` moves the reader's seen limit; ``--iterations`` gives MPPI several updates a
+command. The reader finds the cart's centre in its box (``body``, the reader's default);
+rows recorded before it did were read from the colour's mode.
 Prints the share of those rows, the probe of φ against the physics angle (only to measure),
 each seed's planned returns beside random actions' from the same starts, and the mean.
 

@@ -18,7 +18,10 @@ the action held over it too, and with ``--position-noise`` a camera's error in t
 positions: what a pixel latent of two frames can be at best (RESULTS.md). With ``--window``
 the fit is the windowed one (each feature's change over that many control steps against
 the library summed over them, :func:`~latent_sindy.sindy.fit_trajectory_data`), which a
-camera's error spoils far less than the one-step fit.
+camera's error spoils far less than the one-step fit. ``--gain`` filters what the planner
+reads as the library's read-latent planner does (``auto``: the gain chosen on the training
+episodes, :func:`~latent_sindy.control.read_latent.filter_gain`); ``--iterations`` gives
+MPPI several updates a command.
 
     python benchmarks/dmc_states.py                               # cartpole-swingup, 5 seeds
     python benchmarks/dmc_states.py --episodes 20 --seeds 0 1 --evaluations 2
