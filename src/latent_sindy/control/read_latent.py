@@ -229,7 +229,7 @@ class ReadLatentPlanner:
 
     def act(self, image: np.ndarray, goal_image: Any = None) -> np.ndarray:
         z, seen = self.est.reader.latent(torch.from_numpy(np.asarray(image))[None],
-                                      torch.from_numpy(self.previous)[None], self.est.dt)
+                                         torch.from_numpy(self.previous)[None], self.est.dt)
         zs = ((z[0] - self.est.mean) / self.est.sd).float()
         if self.latent is not None:
             with torch.no_grad():
@@ -244,7 +244,7 @@ class ReadLatentPlanner:
 
 
 def filter_step(pred: torch.Tensor, read: torch.Tensor, seen: torch.Tensor, gain: float,
-           circle: tuple[int, int] | None) -> torch.Tensor:
+                circle: tuple[int, int] | None) -> torch.Tensor:
     """The filter's step (..., nz): ``gain`` of the way from the prediction to the reading
     where ``seen`` (...,) and the prediction is finite, the reading elsewhere; a circle's
     pair back on the unit circle."""
@@ -265,8 +265,8 @@ def filtered(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor, seen: tor
     est, out = Z[:, 0], [Z[:, 0]]
     known = seen[:, 0].clone()
     for t in range(U.shape[1]):
-        est = torch.where(known[:, None], filter_step(model(est, U[:, t]), Z[:, t + 1],
-                                                 seen[:, t + 1], gain, circle), Z[:, t + 1])
+        step = filter_step(model(est, U[:, t]), Z[:, t + 1], seen[:, t + 1], gain, circle)
+        est = torch.where(known[:, None], step, Z[:, t + 1])
         known |= seen[:, t + 1]
         out.append(est)
     return torch.stack(out, 1)

@@ -8,7 +8,7 @@ mode (the peak of the map blurred by σ, refined by mean shift in a σ window) f
 the rest hangs from. The mode is pulled toward what hangs; with ``body`` (the body's half
 width and height) the body's centre is then the centroid of the weight in a box of that size
 about it, leaving out the strip along what hangs beyond the box, three times over (on the
-cart-pole at 64×64 this halved the error of x and cut the angle's by a third, RESULTS.md).
+cart-pole the angle so read is nearer the physics angle, and plans better: RESULTS.md).
 The direction φ from that centre to the centroid of the weight farther than ``inner`` from
 it is the turn of what hangs. A frame is ``seen`` where the peak reaches
 ``min_peak`` of the training frames' median peak and the mode lies within ``edge`` of the
@@ -78,7 +78,7 @@ class ColourPoseReader:
                             ("min_peak", min_peak)):
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise UserError(f"ColourPoseReader {name} {value!r}: use a positive number")
-        if body is not None and not (len(body) == 2 and all(
+        if body is not None and not (isinstance(body, tuple | list) and len(body) == 2 and all(
                 isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in body)):
             raise UserError(f"ColourPoseReader body {body!r}: give the body's half width and "
                             "half height (two positive numbers), or None")
