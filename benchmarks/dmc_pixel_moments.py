@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     p.add_argument("--sigma", type=float, default=0.3, help="MPPI's noise variance")
     p.add_argument("--iterations", type=int, default=1, help="MPPI updates a command")
+    p.add_argument("--mode-reader", action="store_true", help="read the cart at the colour's "
+                   "mode (the reader's body=None), as the rows recorded before its box did")
     p.add_argument("--edge", type=float, default=0.75, help="the reader sees the cart only "
                    "where its |x| (image coordinates, -1 to 1) is below this")
     p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
@@ -118,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         data = world.collect(args.episodes, steps, seed=seed)
         dt = float(data.dt)
         images = torch.from_numpy(data.images)  # (E, T+1, 6, S, S)
-        reader = ColourPoseReader(size, edge=args.edge).fit(
+        reader = ColourPoseReader(
+            size, edge=args.edge, body=None if args.mode_reader else (4.0, 2.0)).fit(
             images[:, :, 3:].reshape(-1, 3, size, size))
         actions = torch.from_numpy(data.actions).double()
         read = [reader.episode(images[e], actions[e], dt) for e in range(data.n)]
