@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
                         z, seen_now = reader.latent(torch.from_numpy(obs)[None],
                                                     torch.from_numpy(u)[None], dt)
                         zs = ((z[0] - mean) / sd).float()
-                        if zf is not None:  # the library planner's filter
+                        if zf is not None and gain < 1.0:  # the library planner's filter
                             with torch.no_grad():
                                 pred = model(zf[None], torch.from_numpy(u).float()[None])[0]
                             zs = filter_step(pred, zs, seen_now[0], gain, (1, 2))

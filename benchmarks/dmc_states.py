@@ -221,7 +221,10 @@ def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, see
             u = u.numpy().astype(np.float64)
             total += sum(float(env.step(u).reward or 0.0) for _ in range(repeat))
             read = observer(env.physics.get_state(), u)
-            with torch.no_grad():  # the library planner's filter (gain 1: the reading)
+            if gain >= 1.0:  # (the reading as it is)
+                f = read
+                continue
+            with torch.no_grad():  # the library planner's filter
                 pred = model(torch.tensor(f[None], dtype=torch.float32),
                              torch.tensor(u[None], dtype=torch.float32))[0]
                 f = filter_step(pred, torch.tensor(read, dtype=torch.float32),

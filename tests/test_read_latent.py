@@ -9,7 +9,12 @@ import pytest
 import torch
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig, filtered
+from latent_sindy.control.read_latent import (
+    ReadLatent,
+    ReadLatentConfig,
+    filter_step,
+    filtered,
+)
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 
@@ -180,6 +185,7 @@ def test_the_filter_follows_exact_readings_and_averages_noisy_ones():
         f = filtered(est.model, zs, actions.float(), seen, 0.5)
         ahead = est.model(zs[:, 12], actions[:, 12].float())
     assert torch.equal(f[:, 10:13], zs[:, 10:13])
+    assert torch.equal(filter_step(zs[:, 3] + 1.0, zs[:, 3], seen[:, 3], 1.0, None), zs[:, 3])
     assert torch.allclose(f[:, 13], ahead + 0.5 * (zs[:, 13] - ahead))
     assert not torch.allclose(f[:, 9], zs[:, 9])
     with pytest.raises(UserError, match="gain=0"):

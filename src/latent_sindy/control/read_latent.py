@@ -231,7 +231,7 @@ class ReadLatentPlanner:
         z, seen = self.est.reader.latent(torch.from_numpy(np.asarray(image))[None],
                                          torch.from_numpy(self.previous)[None], self.est.dt)
         zs = ((z[0] - self.est.mean) / self.est.sd).float()
-        if self.latent is not None:
+        if self.latent is not None and self.est.gain_ < 1.0:
             with torch.no_grad():
                 zs = filter_step(self.est.model(self.latent[None], torch.from_numpy(
                     self.previous).float()[None])[0], zs, seen[0], self.est.gain_,
@@ -247,7 +247,9 @@ def filter_step(pred: torch.Tensor, read: torch.Tensor, seen: torch.Tensor, gain
                 circle: tuple[int, int] | None) -> torch.Tensor:
     """The filter's step (..., nz): ``gain`` of the way from the prediction to the reading
     where ``seen`` (...,) and the prediction is finite, the reading elsewhere; a circle's
-    pair back on the unit circle."""
+    pair back on the unit circle. Gain 1 returns the reading as it is."""
+    if gain >= 1.0:
+        return read
     use = seen[..., None] & torch.isfinite(pred).all(-1, keepdim=True)
     out = torch.where(use, pred + gain * (read - pred), read)
     if circle is not None:
