@@ -23,8 +23,9 @@ only; ``--turn`` turns (cos φ, sin φ) by one equation's angle; ``--prune-ties`
 the terms with sin² φ. ``--gain`` filters what the planner reads through the model as the
 library's read-latent planner does (``auto``: the gain chosen on the training episodes);
 ``--edge`` moves the reader's seen limit; ``--iterations`` gives MPPI several updates a
-command. The reader finds the cart's centre in its box (``body``, the reader's default);
-rows recorded before it did were read from the colour's mode.
+command. The reader finds the cart's edges and the pole's pivot (the reader's default);
+``--box-reader`` reads as the rows recorded before it did (the centroid of the cart's box),
+``--mode-reader`` as the rows before those (the colour's mode).
 Prints the share of those rows, the probe of φ against the physics angle (only to measure),
 each seed's planned returns beside random actions' from the same starts, and the mean.
 
@@ -81,12 +82,25 @@ def main(argv: list[str] | None = None) -> int:
                    "angle its first equation gives, instead of updating each")
     p.add_argument("--prune-ties", action="store_true", help="leave out the library's terms "
                    "with sin² φ (cos² + sin² = 1 makes them sums of others)")
+    p.add_argument("--ensemble", type=int, default=0, metavar="MODELS", help="select SINDy's "
+                   "terms by bagging (EnsembleSTLSQ of this many bootstrap fits, a term kept "
+                   "where more than half kept it, then refitted on all rows); 0: one STLSQ")
+    p.add_argument("--support", type=float, default=0.0, metavar="WEIGHT", help="MPPI's "
+                   "reward less WEIGHT times how far a predicted latent lies outside the "
+                   "range of the training latents in view (standardised units): plans stay "
+                   "where the camera sees and the model has data; 0: none")
+    p.add_argument("--support-only", type=int, nargs="+", default=None, metavar="I",
+                   help="the support's penalty on these latent coordinates only (0: x)")
     p.add_argument("--samples", type=int, default=1000)
+    p.add_argument("--horizon", type=int, default=12, help="MPPI's horizon (steps)")
     p.add_argument("--lambda", dest="lambda_", type=float, default=0.1)
     p.add_argument("--sigma", type=float, default=0.3, help="MPPI's noise variance")
     p.add_argument("--iterations", type=int, default=1, help="MPPI updates a command")
     p.add_argument("--mode-reader", action="store_true", help="read the cart at the colour's "
                    "mode (the reader's body=None), as the rows recorded before its box did")
+    p.add_argument("--box-reader", action="store_true", help="read the cart at the centroid "
+                   "of its box and the pole from there (the reader's edges=False), as the rows "
+                   "recorded before the reader found the cart's edges did")
     p.add_argument("--edge", type=float, default=0.75, help="the reader sees the cart only "
                    "where its |x| (image coordinates, -1 to 1) is below this")
     p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
@@ -99,19 +113,19 @@ def main(argv: list[str] | None = None) -> int:
     from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
     from latent_sindy.control.read_latent import filter_gain, filter_step
     from latent_sindy.models import SindyConfig
-    from latent_sindy.sindy import STLSQ, Trimmed
+    from latent_sindy.sindy import STLSQ, EnsembleSTLSQ, Trimmed
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.reader import ColourPoseReader
     from latent_sindy.worlds.dmc.world import DmcWorld
 
     world = DmcWorld(DmcConfig(task="cartpole-swingup", size=args.size, frames=2))
     steps, size = 1000 // world.config.action_repeat, world.config.size
-    mppi_cfg = MPPIConfig(samples=args.samples, horizon=12, sigma=args.sigma,
+    mppi_cfg = MPPIConfig(samples=args.samples, horizon=args.horizon, sigma=args.sigma,
                           lambda_=args.lambda_, shift="repeat", iterations=args.iterations)
     print(f"cartpole-swingup from {size}x{size} pixels (two frames, repeat 8): "
           f"{args.episodes} random episodes ({args.episodes * 1000} environment steps) a "
           f"seed; latent: x, cos φ, sin φ, ẋ, φ̇ (frame differences), previous u; SINDy "
-          f"order {args.order}, trimmed share {args.trim}; MPPI K {args.samples} H 12 "
+          f"order {args.order}, trimmed share {args.trim}; MPPI K {args.samples} H {args.horizon} "
           f"Σ {args.sigma} λ {args.lambda_}, {args.iterations} update(s) a command; reader "
           f"edge {args.edge}, filter gain {args.gain}")
     means = []
@@ -121,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         dt = float(data.dt)
         images = torch.from_numpy(data.images)  # (E, T+1, 6, S, S)
         reader = ColourPoseReader(
-            size, edge=args.edge, body=None if args.mode_reader else (4.0, 2.0)).fit(
+            size, edge=args.edge, body=None if args.mode_reader else (4.0, 2.0),
+            edges=not args.box_reader).fit(
             images[:, :, 3:].reshape(-1, 3, size, size))
         actions = torch.from_numpy(data.actions).double()
         read = [reader.episode(images[e], actions[e], dt) for e in range(data.n)]
@@ -144,12 +159,25 @@ def main(argv: list[str] | None = None) -> int:
             6, 1, circle=(1, 2), turn=args.turn)
         if args.prune_ties:
             model.prune_circle_ties()
+        inner = STLSQ(min_share=args.min_share)
+        if args.ensemble:
+            inner = EnsembleSTLSQ(inner, n_models=args.ensemble, z_min=0.0, seed=seed)
         model.fit_trajectory_data(Zs, actions, args.window, Trimmed(
-            STLSQ(min_share=args.min_share), share=args.trim), valid=seen,
+            inner, share=args.trim), valid=seen,
             restrict_to_mask=args.prune_ties)
         with torch.no_grad():
             gain = float(args.gain) if args.gain != "auto" else filter_gain(
                 model, Zs.float(), actions.float(), seen, (1, 2))[0]
+        reward = head
+        if args.support > 0:
+            low, high = Zs[seen].min(0).values.float(), Zs[seen].max(0).values.float()
+            if args.support_only is not None:
+                free = [i for i in range(len(low)) if i not in args.support_only]
+                low[free], high[free] = -math.inf, math.inf
+
+            def reward(z, u, low=low, high=high, head=head):
+                out = (torch.relu(z - high) + torch.relu(low - z)).sum(-1)
+                return head(z, u) - args.support * out
         fit_s = time.perf_counter() - t0
         env, rng = world.make_env(), np.random.default_rng(seed)
         result = {}
@@ -157,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             returns = []
             for e in range(args.evaluations):
                 obs, _ = env.reset(seed=10_000 + 100 * seed + e)
-                mppi = MPPI(latent_step(model), RewardCost(head), mppi_cfg, [-1.0], [1.0],
+                mppi = MPPI(latent_step(model), RewardCost(reward), mppi_cfg, [-1.0], [1.0],
                             seed=seed * 1000 + e)
                 u, total, zf = np.zeros(1), 0.0, None
                 for _ in range(steps):

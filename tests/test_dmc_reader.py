@@ -14,17 +14,18 @@ from latent_sindy.worlds.dmc.reader import ColourPoseReader
 BACKGROUND, BODY = (0.30, 0.40, 0.55), (0.85, 0.35, 0.20)
 
 
-def _draw(x: float, phi: float, size: int = 64, pole: float = 0.45, cart=(0.16, 0.08),
-          y: float = 0.1, supersample: int = 4) -> torch.Tensor:
+def _draw(x: float, phi: float, size: int = 64, pole: float = 0.45, cart=(0.25, 0.125),
+          y: float = 0.1, supersample: int = 4, pivot: float = 1.0) -> torch.Tensor:
     """(3, size, size) float frame: a cart (a box centred at (x, y), image coordinates) and
-    a pole of length ``pole`` from its centre towards angle φ (from x towards y)."""
+    a pole of length ``pole`` from (pivot·x, y) towards angle φ (from x towards y): pivot < 1
+    as a camera sees a pole hinged behind the cart's face."""
     n = size * supersample
     c = (torch.arange(n, dtype=torch.float64) + 0.5) / n * 2 * size / (size - 1) - size / (
         size - 1)  # sub-pixel centres on the pixel-centre scale of image_coordinates
     gy, gx = torch.meshgrid(c, c, indexing="ij")
     in_cart = ((gx - x).abs() < cart[0] / 2) & ((gy - y).abs() < cart[1] / 2)
-    along = (gx - x) * math.cos(phi) + (gy - y) * math.sin(phi)
-    across = -(gx - x) * math.sin(phi) + (gy - y) * math.cos(phi)
+    along = (gx - pivot * x) * math.cos(phi) + (gy - y) * math.sin(phi)
+    across = -(gx - pivot * x) * math.sin(phi) + (gy - y) * math.cos(phi)
     in_pole = (along > 0) & (along < pole) & (across.abs() < 0.025)
     cover = (in_cart | in_pole).double().reshape(size, supersample, size, supersample)
     cover = cover.mean((1, 3))
@@ -41,11 +42,14 @@ def _poses(n: int, seed: int):
     return xs, phis
 
 
+def _training() -> torch.Tensor:
+    frames = torch.stack([_draw(x, p) for x, p in zip(*_poses(120, 0), strict=True)])
+    return (frames * 255).round().to(torch.uint8)
+
+
 @pytest.fixture(scope="module")
 def fitted():
-    xs, phis = _poses(120, 0)
-    frames = torch.stack([_draw(x, p) for x, p in zip(xs, phis, strict=True)])
-    return ColourPoseReader(64).fit((frames * 255).round().to(torch.uint8))
+    return ColourPoseReader(64).fit(_training())
 
 
 @pytest.mark.parametrize("size", [64, 128])
@@ -75,20 +79,50 @@ def test_the_body_box_reads_the_angle_nearer_than_the_mode(fitted):
     test = torch.stack([_draw(x, p) for x, p in zip(xs, phis, strict=True)])
     errors = {}
     for body in (None, (4.0, 2.0)):
-        pose, _ = ColourPoseReader(64, body=body).fit(frames).read(test)
-        angle = torch.atan2(pose[:, 3], pose[:, 2])
-        errors[body] = torch.rad2deg((angle - torch.tensor(phis, dtype=torch.float64)
-                                      + math.pi) % (2 * math.pi) - math.pi).abs()
+        pose, _ = ColourPoseReader(64, body=body, edges=False).fit(frames).read(test)
+        errors[body] = _angle_errors(pose, phis)
     assert float(errors[(4.0, 2.0)].median()) < 0.8 * float(errors[None].median()), errors
     assert float(errors[(4.0, 2.0)].max()) < 0.8 * float(errors[None].max()), errors
     with pytest.raises(UserError, match="body"):
         ColourPoseReader(64, body=(4.0,))
 
 
+def _angle_errors(pose: torch.Tensor, phis: list[float]) -> torch.Tensor:
+    angle = torch.atan2(pose[:, 3], pose[:, 2])
+    return torch.rad2deg((angle - torch.tensor(phis, dtype=torch.float64) + math.pi)
+                         % (2 * math.pi) - math.pi).abs()
+
+
+def test_the_edges_place_the_cart_within_a_tenth_of_a_pixel_and_find_a_pivot_behind_it():
+    # a pole hinged behind the cart's face moves 0.9 times as far across the image
+    xs0, phis0 = _poses(160, 2)
+    frames = torch.stack([_draw(x, p, pivot=0.9) for x, p in zip(xs0, phis0, strict=True)])
+    xs, phis = _poses(40, 3)
+    test = torch.stack([_draw(x, p, pivot=0.9) for x, p in zip(xs, phis, strict=True)])
+    pixel = 2 / 63
+    read = {}
+    for edges in (False, True):
+        reader = ColourPoseReader(64, edges=edges).fit(frames)
+        pose, seen = reader.read(test)
+        x_error = (pose[:, 0] - torch.tensor(xs, dtype=torch.float64)).abs()[seen] / pixel
+        read[edges] = x_error, _angle_errors(pose, phis)[seen], reader
+    x_error, angle_error, reader = read[True]
+    assert abs(reader.pivot[0] - 0.9) < 0.02 and abs(reader.pivot[1]) < 0.3 * pixel, \
+        reader.pivot
+    assert float(x_error.median()) < 0.1 and float(x_error.max()) < 0.4, x_error
+    assert float(x_error.median()) < 0.5 * float(read[False][0].median()), read
+    assert float(angle_error.median()) < 0.5 * float(read[False][1].median()), read
+    assert len(angle_error) >= 30  # a horizontal pole across the cart may hide its edges
+
+
 def test_a_frame_without_the_cart_in_view_is_not_seen(fitted):
-    frames = torch.stack([_draw(0.2, 1.0), _draw(0.9, 1.0), _draw(3.0, 1.0)])
+    # the last: the cart beyond the frame's edge, the pole reaching into it
+    frames = torch.stack([_draw(0.2, 1.0), _draw(0.85, 1.0), _draw(3.0, 1.0),
+                          _draw(1.15, math.pi + 0.3, pole=0.7)])
     _, seen = fitted.read(frames)
-    assert seen.tolist() == [True, False, False]
+    assert seen.tolist() == [True, False, False, False]
+    _, seen = ColourPoseReader(64, edge=1.0).fit(_training()).read(frames)
+    assert seen.tolist() == [True, True, False, False]
 
 
 def test_two_frames_give_the_turn_and_the_cart_speed_and_the_action():
@@ -125,3 +159,16 @@ def test_bad_frames_raise_user_errors(fitted):
         ColourPoseReader(4)
     with pytest.raises(UserError, match="two stacked"):
         fitted.latent(torch.zeros(1, 3, 64, 64), torch.zeros(1, 1), 0.1)
+
+
+def test_frames_that_hide_the_cart_in_the_background_fall_back_to_its_box():
+    # the cart in one place in most frames: the median background holds it, its edges do not
+    # show, and the reader reads the box's centroid rather than seeing almost nothing
+    xs, phis = _poses(40, 4)
+    frames = torch.stack([_draw(0.0, p) for p in phis] + [_draw(x, p) for x, p in zip(
+        xs[:10], phis[:10], strict=True)])
+    reader = ColourPoseReader(64).fit(frames)
+    assert not reader.found_edges
+    _, seen = reader.read(frames)
+    assert float(seen.double().mean()) > 0.5
+    assert ColourPoseReader(64).fit(_training()).found_edges

@@ -103,6 +103,25 @@ def test_the_reward_cost_makes_mppi_prefer_the_actions_that_earn_more():
         assert sign * float(action) > 0.8, (sign, action, info)
 
 
+def test_the_reward_cost_keeps_plans_inside_the_support_it_is_given():
+    """r̂(z, u) = z + u rewards climbing; a support up to 0.5 (weight 10) holds the plan's
+    first action near 0.5 where, without it, the plan climbs at full speed."""
+    cfg = MPPIConfig(samples=400, horizon=5, sigma=0.5, lambda_=0.1)
+    firsts = {}
+    for weight in (0.0, 10.0):
+        cost = RewardCost(lambda z, u: (z + u).sum(-1),
+                          (torch.tensor([-1.0]), torch.tensor([0.5])), weight)
+        mppi = MPPI(lambda z, u: z + u, cost, cfg, low=(-1.0,), high=(1.0,), seed=0)
+        for _ in range(5):
+            action, _ = mppi.command(torch.zeros(1))
+        firsts[weight] = float(action)
+    assert firsts[0.0] > 0.8 and 0.3 < firsts[10.0] < 0.7, firsts
+    for bad in ({"support": (torch.zeros(1), -torch.ones(1)), "weight": 1.0},
+                {"support": None, "weight": -1.0}):
+        with pytest.raises(UserError):
+            RewardCost(lambda z, u: z.sum(-1), **bad)
+
+
 def test_concatenate_keeps_labels_and_refuses_parts_that_differ():
     world = Rail()
     a, b = collect_random(world, 3, 2, seed=0), collect_random(world, 4, 2, seed=1)

@@ -105,6 +105,19 @@ def test_the_reader_is_fitted_on_the_first_episodes_only_when_told(data):
         ReadLatentConfig(reader_episodes=0)
 
 
+def test_the_planner_knows_the_range_of_the_latents_in_view(data):
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10), seed=0).fit(data)
+    low, high = est.support_
+    images = torch.from_numpy(data.images)
+    read = [est.reader.episode(images[e], torch.from_numpy(data.actions[e]).double(), DT)
+            for e in range(data.n)]
+    z = torch.cat([z[s] for z, s in read])
+    zs = ((z - est.mean) / est.sd).float()
+    assert torch.allclose(low, zs.min(0).values) and torch.allclose(high, zs.max(0).values)
+    cost = est.planner().mppi.cost
+    assert cost.weight == 10.0 and torch.equal(cost.high, high)
+
+
 def test_frames_out_of_view_are_left_out(data):
     images = data.images.copy()
     images[0, 10:15, 1] = 1.0  # a reading gone wrong (x = 2), and not seen
@@ -197,6 +210,8 @@ def test_bad_input_raises_user_errors(data):
         ReadLatentConfig(dynamics="koopman")
     with pytest.raises(UserError, match="window=0"):
         ReadLatentConfig(window=0)
+    with pytest.raises(UserError, match="support=-1"):
+        ReadLatentConfig(support=-1.0)
     with pytest.raises(UserError, match="reader with fit_episodes"):
         ReadLatent(object())
     with pytest.raises(UserError, match="fit it first"):

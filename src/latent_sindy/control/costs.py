@@ -127,16 +127,38 @@ class RewardCost:
     """Minus a predicted reward, ``cost(z, u) = −r̂(z, u)``: MPPI with it maximises the
     reward summed over the horizon, Σ_{t=0..H-1} r̂(z_t, u_t) (z_0 the encoded image).
 
+    With ``support`` (low, high), each (nz,), and ``weight`` w, the cost adds
+    ``w · Σ_i (relu(z_i − high_i) + relu(low_i − z_i))``: how far a predicted latent lies
+    outside the box where the model saw data (a model's predictions, and its reward head's,
+    mean little beyond it; where a camera's reader loses sight of the object, plans that
+    leave its view are plans from guesses).
+
     Args:
         reward: ``reward(z (..., nz), u (..., nu)) -> (...)``, e.g. a model's reward head.
+        support: the (low, high) corners of the box, or None (no penalty).
+        weight: reward per step given up for each unit a latent lies outside the box.
     """
 
     takes_actions = True
 
-    def __init__(self, reward: Callable[[Tensor, Tensor], Tensor]) -> None:
+    def __init__(self, reward: Callable[[Tensor, Tensor], Tensor],
+                 support: tuple[Tensor, Tensor] | None = None, weight: float = 0.0) -> None:
         if not callable(reward):
             raise UserError(f"RewardCost takes a callable reward(z, u), got {type(reward)}")
-        self.reward = reward
+        if not (isinstance(weight, int | float) and weight >= 0 and weight < float("inf")):
+            raise UserError(f"RewardCost weight={weight!r}: use a number >= 0")
+        self.reward, self.weight = reward, float(weight)
+        self.low = self.high = None
+        if support is not None:
+            low, high = (torch.as_tensor(v, dtype=torch.float32) for v in support)
+            if low.ndim != 1 or low.shape != high.shape or not bool((low <= high).all()):
+                raise UserError("RewardCost support: give (low, high), two (nz,) tensors "
+                                "with low <= high")
+            self.low, self.high = low, high
 
     def __call__(self, z: Tensor, u: Tensor) -> Tensor:
-        return -self.reward(z, u)  # (...)
+        cost = -self.reward(z, u)  # (...)
+        if self.low is not None and self.weight > 0:
+            low, high = self.low.to(z), self.high.to(z)
+            cost = cost + self.weight * (torch.relu(z - high) + torch.relu(low - z)).sum(-1)
+        return cost

@@ -22,7 +22,10 @@ A reader's error, which a frame difference doubles in the velocities, is then av
 over steps by the model. The gain is chosen on the training episodes
 (:func:`filter_gain`): of :data:`GAINS`, the one whose filtered latents best predict, through
 the model, the readings two steps on (an error of the reading at that step is independent
-of the filtered latent, so the smallest error is the most accurate latent).
+of the filtered latent, so the smallest error is the most accurate latent). It plans
+against the reward head less a penalty for predicted latents outside the range of the
+training latents in view (``support``): a plan that leaves the reader's view, or the
+model's data, is a plan from guesses.
 
     def make(iteration):
         return ReadLatent(ColourPoseReader(64), ReadLatentConfig(dynamics="sindy"), seed=iteration)
@@ -99,6 +102,12 @@ class ReadLatentConfig:
     """The planner's filter gain (module docstring): 1 plans from each reading as it is;
     None chooses it from :data:`GAINS` on the training episodes (:func:`filter_gain`)."""
 
+    support: float = 10.0
+    """The planner gives up this much reward a step for each standardised unit a predicted
+    latent lies outside the range of the training latents in view (``RewardCost``'s
+    support): plans stay where the reader sees and the model has data (0: no penalty;
+    RESULTS.md)."""
+
     def __post_init__(self) -> None:
         if self.dynamics not in ("sindy", "linear", "mlp"):
             raise UserError(f"dynamics {self.dynamics!r}: use sindy, linear or mlp")
@@ -106,6 +115,10 @@ class ReadLatentConfig:
                                           and 0.0 < self.gain <= 1.0):
             raise UserError(f"ReadLatentConfig gain={self.gain!r}: use a number in (0, 1], "
                             "or None to choose it from the training episodes")
+        if not (isinstance(self.support, int | float) and not isinstance(self.support, bool)
+                and 0.0 <= self.support < math.inf):
+            raise UserError(f"ReadLatentConfig support={self.support!r}: use a number >= 0 "
+                            "(0: no penalty)")
         for name in ("order", "window", "reward_width", "updates", "mlp_width") + (
                 () if self.reader_episodes is None else ("reader_episodes",)):
             value = getattr(self, name)
@@ -146,6 +159,7 @@ class ReadLatent:
         if circle is not None:
             self.mean[list(circle)], self.sd[list(circle)] = 0.0, 1.0
         Zs = (Z - self.mean) / self.sd
+        self.support_ = (Zs[seen].min(0).values.float(), Zs[seen].max(0).values.float())
         rows = (seen[:, :-1] & seen[:, 1:]).reshape(-1)
         nz, nu = Z.shape[-1], actions.shape[-1]
         z0 = Zs[:, :-1].reshape(-1, nz)[rows].float()
@@ -218,7 +232,8 @@ class ReadLatentPlanner:
         self.reset()
 
     def reset(self, goal: Any = None, seed: int | None = None) -> None:
-        self.mppi = MPPI(latent_step(self.est.model), RewardCost(self.est.head), self.cfg,
+        cost = RewardCost(self.est.head, self.est.support_, self.est.config.support)
+        self.mppi = MPPI(latent_step(self.est.model), cost, self.cfg,
                          self.est.action_low.tolist(), self.est.action_high.tolist(),
                          seed=self.seed if seed is None else seed)
         self.previous = np.zeros(len(self.est.action_low))

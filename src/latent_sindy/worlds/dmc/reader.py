@@ -7,12 +7,18 @@ positive part of its difference along that colour (a shadow, darker, weighs noth
 mode (the peak of the map blurred by σ, refined by mean shift in a σ window) finds the body
 the rest hangs from. The mode is pulled toward what hangs; with ``body`` (the body's half
 width and height) the body's centre is then the centroid of the weight in a box of that size
-about it, leaving out the strip along what hangs beyond the box, three times over (on the
-cart-pole the angle so read is nearer the physics angle, and plans better: RESULTS.md).
-The direction φ from that centre to the centroid of the weight farther than ``inner`` from
-it is the turn of what hangs. A frame is ``seen`` where the peak reaches
-``min_peak`` of the training frames' median peak and the mode lies within ``edge`` of the
-centre (image coordinates, -1 to 1): out of view, the moments read nothing meaningful.
+about it, leaving out the strip along what hangs beyond the box, three times over; with
+``edges`` (the default) it is then the midpoint of the body's edges, where the weight summed
+across the body falls to half (to a fraction of a pixel), and what hangs turns about a pivot
+fitted on the training frames: (k x, y + c) from the body's centre (x, y), so that the line
+of what hangs passes through it (k < 1 where the pivot lies behind the face the camera sees).
+On the cart-pole each step read the angle nearer the physics angle (RESULTS.md). The
+direction φ from that centre (or pivot) to the centroid of the weight farther than ``inner``
+from it (and outside the body's box, with ``edges``) is the turn of what hangs. A frame is
+``seen`` where the peak reaches ``min_peak`` of the training frames' median peak, the mode
+lies within ``edge`` of the centre (image coordinates, -1 to 1), and, with ``edges``, the
+body lies whole in the frame with the size and weight of the training frames' (a body cut
+by the frame's edge, or a frame of what hangs alone, reads nothing meaningful).
 
 The latent of two stacked frames (:meth:`ColourPoseReader.latent`): the mode's x, (cos φ,
 sin φ), the changes of both over the control step (per second), and the action held over
@@ -57,6 +63,10 @@ class ColourPoseReader:
         min_peak: ... and its peak at least this share of the training frames' median peak.
         body: the body's half width and half height, in pixels of a 64×64 frame (the
             cart-pole's cart: 4 × 2); None: the body's centre is the mode.
+        edges: with ``body``, the body's centre from its edges and the pivot fitted (see
+            above), where the training frames show the edges (in at least half of the
+            frames seen; ``found_edges`` says); False: the centroid of its box, the pivot
+            at it.
     """
 
     background: torch.Tensor  # (3, H, W)
@@ -68,8 +78,8 @@ class ColourPoseReader:
     names = ("x", "cos φ", "sin φ", "ẋ", "φ̇", "previous u0")
 
     def __init__(self, size: int, sigma: float = 2.0, inner: float = 4.0, edge: float = 0.75,
-                 min_peak: float = 0.5, body: tuple[float, float] | None = (4.0, 2.0)
-                 ) -> None:
+                 min_peak: float = 0.5, body: tuple[float, float] | None = (4.0, 2.0),
+                 edges: bool = True) -> None:
         from latent_sindy.models.encoders import image_coordinates
 
         if isinstance(size, bool) or not isinstance(size, int) or size < 8:
@@ -83,6 +93,7 @@ class ColourPoseReader:
             raise UserError(f"ColourPoseReader body {body!r}: give the body's half width and "
                             "half height (two positive numbers), or None")
         self.size, self.edge, self.min_peak = size, float(edge), float(min_peak)
+        self.edges = bool(edges)
         self.body = None if body is None else (body[0] * size / 64, body[1] * size / 64)
         self.xs, self.ys = image_coordinates(size, size)
         self.pixel = float(self.xs[1] - self.xs[0])
@@ -111,9 +122,57 @@ class ColourPoseReader:
                             "median; give frames where the object moves")
         colour = d.permute(0, 2, 3, 1)[top].mean(0)
         self.colour = colour / colour.norm().clamp_min(1e-12)
-        peaks = torch.cat([self._pose(x[i:i + chunk])[1] for i in range(0, len(x), chunk)])
+        self.pivot = (1.0, 0.0)
+        if hasattr(self, "extent"):
+            del self.extent
+        self.found_edges = self.body is not None and self.edges
+        if self.found_edges:
+            self._body(x[:chunk])  # the body's extent, from the first chunk's frames
+        parts = [self._pose(x[i:i + chunk]) for i in range(0, len(x), chunk)]
+        pose, peaks, inside = (torch.cat(v) for v in zip(*parts, strict=True))
         self.peak_median = float(peaks.median())
+        seen = (peaks > self.min_peak * self.peak_median) & (pose[:, 0].abs() < self.edge)
+        if self.found_edges and float(inside[seen].double().mean()) < 0.5:
+            # the training frames do not show the body's edges (a background that holds the
+            # body, say, where it barely moved): its box's centroid, as with edges=False
+            self.found_edges = False
+        if self.found_edges:
+            self.pivot = self._fit_pivot(x, chunk)
         return self
+
+    def _fit_pivot(self, x: torch.Tensor, chunk: int) -> tuple[float, float]:
+        """(k, c): the pivot of what hangs lies at (k x, y + c) from the body's centre (x, y)
+        (k ≠ 1 where the pivot lies deeper than the body's face the camera sees: its image
+        moves less about the image's centre), fitted so the line of what hangs passes through
+        it, over the training frames where what hangs is long and thin; (1, 0) without
+        enough of them."""
+        rows = []
+        for i in range(0, len(x), chunk):
+            w, mx, my, peak, inside = self._body(x[i:i + chunk])
+            wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
+            wo = wo * ~self._box(mx, my, 1.5 * self.size / 64)
+            m = wo.sum((1, 2)).clamp_min(1e-12)
+            qx, qy = (wo.sum(1) * self.xs).sum(1) / m, (wo.sum(2) * self.ys).sum(1) / m
+            ex = self.xs[None, None] - qx[:, None, None]
+            ey = self.ys[None, :, None] - qy[:, None, None]
+            sxx, syy = (wo * ex**2).sum((1, 2)) / m, (wo * ey**2).sum((1, 2)) / m
+            sxy = (wo * ex * ey).sum((1, 2)) / m
+            axis = 0.5 * torch.atan2(2 * sxy, sxx - syy)
+            spread = torch.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+            thin = (0.5 * (sxx + syy) + spread) > 20 * (0.5 * (sxx + syy) - spread)
+            keep = inside & thin & (peak > self.min_peak * self.peak_median) & (
+                mx.abs() < self.edge)
+            nx, ny = -torch.sin(axis), torch.cos(axis)
+            rows.append(torch.stack([nx * mx, ny, nx * qx + ny * qy - ny * my], -1)[keep])
+        a = torch.cat(rows).double()
+        if len(a) < 20:
+            return 1.0, 0.0
+        keep = torch.ones(len(a), dtype=torch.bool)
+        for _ in range(2):  # least squares, then again without the outliers
+            sol = torch.linalg.lstsq(a[keep, :2], a[keep, 2:]).solution[:, 0]
+            res = (a[:, :2] @ sol - a[:, 2]).abs()
+            keep = res <= 3 * 1.4826 * res[keep].median().clamp_min(1e-12)
+        return float(sol[0]), float(sol[1])
 
     def fit_episodes(self, images: torch.Tensor) -> ColourPoseReader:
         """:meth:`fit` on episodes of two stacked frames (E, T+1, 6, H, W): their current
@@ -129,9 +188,25 @@ class ColourPoseReader:
         return ((self.xs[None, None] - mx[:, None, None]) ** 2
                 + (self.ys[None, :, None] - my[:, None, None]) ** 2)
 
-    def _pose(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _pose(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Poses (B, 4), peaks (B,) and whether the body lies whole in the frame (B,)."""
+        w, mx, my, peak, inside = self._body(x)
+        px, py = mx, my
+        if self.found_edges:
+            px, py = self.pivot[0] * mx, my + self.pivot[1]
+        dx, dy = self._hanging(w, px, py)
+        dx, dy = dx.double(), dy.double()
+        # the unit vector in float64: rounded in float32, cos² + sin² = 1 would hold only to
+        # 1e-7, and a regression fits that rounding with huge cancelling coefficients
+        r = torch.hypot(dx, dy).clamp_min(1e-12)
+        return torch.stack([mx.double(), my.double(), dx / r, dy / r], -1), peak, inside
+
+    def _body(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The weight map (B, H, W), the body's centre (B,) twice, the peaks (B,) and
+        whether the body lies whole in the frame (B,)."""
         xs, ys, k, n = self.xs, self.ys, self.kernel, self.reach
-        w = torch.relu(((x - self.background) * self.colour[:, None, None]).sum(1)) ** 2
+        lin = torch.relu(((x - self.background) * self.colour[:, None, None]).sum(1))
+        w = lin ** 2
         b = F.conv2d(F.conv2d(w[:, None], k.view(1, 1, 1, -1), padding=(0, n)),
                      k.view(1, 1, -1, 1), padding=(n, 0))[:, 0]
         peak, at = b.flatten(1).max(1)
@@ -140,22 +215,51 @@ class ColourPoseReader:
             wg = w * torch.exp(-self._distance2(mx, my) / (2 * (self.sigma * self.pixel) ** 2))
             m = wg.sum((1, 2)).clamp_min(1e-12)
             mx, my = (wg.sum(1) * xs).sum(1) / m, (wg.sum(2) * ys).sum(1) / m
+        inside = torch.ones_like(peak, dtype=torch.bool)
         if self.body is not None:
             for _ in range(3):
                 mx, my = self._body_centre(w, mx, my)
-        dx, dy = self._hanging(w, mx, my)
-        dx, dy = dx.double(), dy.double()
-        # the unit vector in float64: rounded in float32, cos² + sin² = 1 would hold only to
-        # 1e-7, and a regression fits that rounding with huge cancelling coefficients
-        r = torch.hypot(dx, dy).clamp_min(1e-12)
-        return torch.stack([mx.double(), my.double(), dx / r, dy / r], -1), peak
+            if self.found_edges:
+                mx, my, inside = self._body_edges(lin, mx, my)
+        return w, mx, my, peak, inside
+
+    def _body_edges(self, lin: torch.Tensor, mx: torch.Tensor, my: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The body's centre as the midpoints of its edges (where the weight summed across
+        the body falls to half its value at the centre, to a fraction of a pixel); and
+        whether all four edges lie in the frame, as far apart and the body as heavy as in
+        the training frames (each within a quarter: a body cut by the frame's edge, or not
+        there, is not seen)."""
+        hx, hy = self.body
+        p = self.pixel
+        rows = ((self.ys[None] - my[:, None]).abs() <= hy * p).float()  # (B, H)
+        cx, wx, lx = _midpoint((lin * rows[:, :, None]).sum(1), self.xs, mx, hx / 2)
+        cols = ((self.xs[None] - cx[:, None]).abs() <= hx * p).float()  # (B, W)
+        cy, wy, ly = _midpoint((lin * cols[:, None, :]).sum(2), self.ys, my, hy / 2)
+        if not hasattr(self, "extent"):  # fitting: the body's width, height and weights
+            self.extent = tuple(float(v[wx > 0].median()) for v in (wx, wy, lx, ly))
+        seen = torch.ones_like(wx, dtype=torch.bool)
+        for v, typical in zip((wx, wy, lx, ly), self.extent, strict=True):
+            seen &= (v - typical).abs() < 0.25 * typical
+        return cx, cy, seen
 
     def _hanging(self, w: torch.Tensor, mx: torch.Tensor, my: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B,) offsets from (mx, my) of the centroid of the weight beyond ``inner``."""
+        """(B,) offsets from (mx, my) of the centroid of the weight beyond ``inner`` (with
+        the body's edges: and outside the body's box, a pixel and a half wider each way)."""
         wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
+        if self.found_edges:
+            wo = wo * ~self._box(mx, my, 1.5 * self.size / 64)
         m = wo.sum((1, 2)).clamp_min(1e-12)
         return (wo.sum(1) * self.xs).sum(1) / m - mx, (wo.sum(2) * self.ys).sum(1) / m - my
+
+    def _box(self, mx: torch.Tensor, my: torch.Tensor, margin: float) -> torch.Tensor:
+        """(B, H, W) whether each pixel lies in the body's box about (mx, my), ``margin``
+        pixels of a 64×64 frame wider each way."""
+        hx, hy = self.body
+        return (((self.xs[None, None] - mx[:, None, None]).abs() < (hx + margin) * self.pixel)
+                & ((self.ys[None, :, None] - my[:, None, None]).abs()
+                   < (hy + margin) * self.pixel))
 
     def _body_centre(self, w: torch.Tensor, mx: torch.Tensor, my: torch.Tensor
                      ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -187,8 +291,9 @@ class ColourPoseReader:
         if x.shape[2:] != self.background.shape[1:]:
             raise UserError(f"ColourPoseReader.read: frames of {tuple(x.shape[2:])} pixels "
                             f"for a reader fitted on {tuple(self.background.shape[1:])}")
-        pose, peak = self._pose(x)
-        return pose, (peak > self.min_peak * self.peak_median) & (pose[:, 0].abs() < self.edge)
+        pose, peak, inside = self._pose(x)
+        return pose, ((peak > self.min_peak * self.peak_median) & (pose[:, 0].abs() < self.edge)
+                      & inside)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -218,6 +323,33 @@ class ColourPoseReader:
         first, _ = self.read(images[:1, :3])
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         return pose_latent(now, torch.cat([first, now[:-1]]), previous, dt), seen
+
+
+def _midpoint(profile: torch.Tensor, at: torch.Tensor, start: torch.Tensor, half: float
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The midpoint (B,) between the two places where each profile (B, N) over the
+    coordinates ``at`` (N,) falls to half its median within ``half`` pixels of ``start``
+    (B,), each linearly interpolated between pixels; the distance between the two (B,), 0
+    where one of them lies outside; and that median (B,)."""
+    n, p = profile.shape[1], float(at[1] - at[0])
+    c = ((start - at[0]) / p).round().long().clamp(0, n - 1)
+    idx = torch.arange(n)
+    near = (idx[None] - c[:, None]).abs() <= max(1, round(half))
+    level = torch.where(near, profile, torch.nan).nanmedian(1).values / 2
+    below = profile <= level[:, None]
+    lo = torch.where(below & (idx < c[:, None]), idx, -1).max(1).values
+    hi = torch.where(below & (idx > c[:, None]), idx, n).min(1).values
+    inside = (lo >= 0) & (hi < n) & (level > 0)
+
+    def crossing(j: torch.Tensor, step: int) -> torch.Tensor:  # between j and j + step
+        j, k = j.clamp(0, n - 1), (j + step).clamp(0, n - 1)
+        a, b = profile.gather(1, j[:, None])[:, 0], profile.gather(1, k[:, None])[:, 0]
+        t = ((level - a) / torch.where((b - a).abs() > 1e-12, b - a, 1.0)).clamp(0, 1)
+        return at[j] + t * (at[k] - at[j])
+
+    a, b = crossing(lo, 1), crossing(hi, -1)
+    return (torch.where(inside, (a + b) / 2, start), torch.where(inside, b - a, 0.0),
+            2 * level)
 
 
 def pose_latent(now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor, dt: float
