@@ -168,16 +168,10 @@ def main(argv: list[str] | None = None) -> int:
         with torch.no_grad():
             gain = float(args.gain) if args.gain != "auto" else filter_gain(
                 model, Zs.float(), actions.float(), seen, (1, 2))[0]
-        reward = head
-        if args.support > 0:
-            low, high = Zs[seen].min(0).values.float(), Zs[seen].max(0).values.float()
-            if args.support_only is not None:
-                free = [i for i in range(len(low)) if i not in args.support_only]
-                low[free], high[free] = -math.inf, math.inf
-
-            def reward(z, u, low=low, high=high, head=head):
-                out = (torch.relu(z - high) + torch.relu(low - z)).sum(-1)
-                return head(z, u) - args.support * out
+        low, high = Zs[seen].min(0).values.float(), Zs[seen].max(0).values.float()
+        if args.support_only is not None:
+            free = [i for i in range(len(low)) if i not in args.support_only]
+            low[free], high[free] = -math.inf, math.inf
         fit_s = time.perf_counter() - t0
         env, rng = world.make_env(), np.random.default_rng(seed)
         result = {}
@@ -185,8 +179,8 @@ def main(argv: list[str] | None = None) -> int:
             returns = []
             for e in range(args.evaluations):
                 obs, _ = env.reset(seed=10_000 + 100 * seed + e)
-                mppi = MPPI(latent_step(model), RewardCost(reward), mppi_cfg, [-1.0], [1.0],
-                            seed=seed * 1000 + e)
+                mppi = MPPI(latent_step(model), RewardCost(head, (low, high), args.support),
+                            mppi_cfg, [-1.0], [1.0], seed=seed * 1000 + e)
                 u, total, zf = np.zeros(1), 0.0, None
                 for _ in range(steps):
                     if kind == "planned":

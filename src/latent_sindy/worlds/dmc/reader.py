@@ -122,9 +122,7 @@ class ColourPoseReader:
                             "median; give frames where the object moves")
         colour = d.permute(0, 2, 3, 1)[top].mean(0)
         self.colour = colour / colour.norm().clamp_min(1e-12)
-        self.pivot = (1.0, 0.0)
-        if hasattr(self, "extent"):
-            del self.extent
+        self.pivot, self.extent = (1.0, 0.0), None
         self.found_edges = self.body is not None and self.edges
         if self.found_edges:
             self._body(x[:chunk])  # the body's extent, from the first chunk's frames
@@ -149,8 +147,7 @@ class ColourPoseReader:
         rows = []
         for i in range(0, len(x), chunk):
             w, mx, my, peak, inside = self._body(x[i:i + chunk])
-            wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
-            wo = wo * ~self._box(mx, my, 1.5 * self.size / 64)
+            wo = self._hanging_weight(w, mx, my)
             m = wo.sum((1, 2)).clamp_min(1e-12)
             qx, qy = (wo.sum(1) * self.xs).sum(1) / m, (wo.sum(2) * self.ys).sum(1) / m
             ex = self.xs[None, None] - qx[:, None, None]
@@ -236,7 +233,7 @@ class ColourPoseReader:
         cx, wx, lx = _midpoint((lin * rows[:, :, None]).sum(1), self.xs, mx, hx / 2)
         cols = ((self.xs[None] - cx[:, None]).abs() <= hx * p).float()  # (B, W)
         cy, wy, ly = _midpoint((lin * cols[:, None, :]).sum(2), self.ys, my, hy / 2)
-        if not hasattr(self, "extent"):  # fitting: the body's width, height and weights
+        if self.extent is None:  # fitting: the body's width, height and weights
             self.extent = tuple(float(v[wx > 0].median()) for v in (wx, wy, lx, ly))
         seen = torch.ones_like(wx, dtype=torch.bool)
         for v, typical in zip((wx, wy, lx, ly), self.extent, strict=True):
@@ -245,18 +242,22 @@ class ColourPoseReader:
 
     def _hanging(self, w: torch.Tensor, mx: torch.Tensor, my: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B,) offsets from (mx, my) of the centroid of the weight beyond ``inner`` (with
-        the body's edges: and outside the body's box, a pixel and a half wider each way)."""
-        wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
-        if self.found_edges:
-            wo = wo * ~self._box(mx, my, 1.5 * self.size / 64)
+        """(B,) offsets from (mx, my) of the centroid of :meth:`_hanging_weight`."""
+        wo = self._hanging_weight(w, mx, my)
         m = wo.sum((1, 2)).clamp_min(1e-12)
         return (wo.sum(1) * self.xs).sum(1) / m - mx, (wo.sum(2) * self.ys).sum(1) / m - my
 
-    def _box(self, mx: torch.Tensor, my: torch.Tensor, margin: float) -> torch.Tensor:
-        """(B, H, W) whether each pixel lies in the body's box about (mx, my), ``margin``
-        pixels of a 64×64 frame wider each way."""
-        hx, hy = self.body
+    def _hanging_weight(self, w: torch.Tensor, mx: torch.Tensor, my: torch.Tensor
+                        ) -> torch.Tensor:
+        """(B, H, W) the weight of what hangs from (mx, my): beyond ``inner`` (with the
+        body's edges: and outside the body's box)."""
+        wo = w * (self._distance2(mx, my) > (self.inner * self.pixel) ** 2)
+        return wo * ~self._box(mx, my) if self.found_edges else wo
+
+    def _box(self, mx: torch.Tensor, my: torch.Tensor) -> torch.Tensor:
+        """(B, H, W) whether each pixel lies in the body's box about (mx, my), a pixel and
+        a half of a 64×64 frame wider each way."""
+        (hx, hy), margin = self.body, 1.5 * self.size / 64
         return (((self.xs[None, None] - mx[:, None, None]).abs() < (hx + margin) * self.pixel)
                 & ((self.ys[None, :, None] - my[:, None, None]).abs()
                    < (hy + margin) * self.pixel))
@@ -275,8 +276,7 @@ class ColourPoseReader:
         p, margin = self.pixel, 1.5 * self.size / 64
         strip = ((dx * ux + dy * uy) > math.hypot(hx, hy) * p) & (
             (dx * uy - dy * ux).abs() < margin * p)
-        box = ((dx.abs() < (hx + margin) * p) & (dy.abs() < (hy + margin) * p)) & ~strip
-        wb = w * box
+        wb = w * (self._box(mx, my) & ~strip)
         m = wb.sum((1, 2))
         cx = (wb.sum(1) * self.xs).sum(1) / m.clamp_min(1e-12)
         cy = (wb.sum(2) * self.ys).sum(1) / m.clamp_min(1e-12)
@@ -326,7 +326,7 @@ class ColourPoseReader:
 
 
 def _midpoint(profile: torch.Tensor, at: torch.Tensor, start: torch.Tensor, half: float
-              ) -> tuple[torch.Tensor, torch.Tensor]:
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The midpoint (B,) between the two places where each profile (B, N) over the
     coordinates ``at`` (N,) falls to half its median within ``half`` pixels of ``start``
     (B,), each linearly interpolated between pixels; the distance between the two (B,), 0
