@@ -64,6 +64,19 @@ def smoothed_latent(z: torch.Tensor, window: int, dt: float) -> torch.Tensor:
     return out
 
 
+def held_phase(trace: np.ndarray, repeat: int) -> str:
+    """One planned episode from its physics: (reward, |u|, x, angle) a command."""
+    r, u, x, angle = trace.T
+    up = np.cos(angle) > 0.95
+    if not up.any():
+        return f"return {r.sum():.1f}: the pole never stood"
+    first = int(np.argmax(up))
+    return (f"return {r.sum():.1f}: the pole first up at {first * repeat} environment steps "
+            f"(reward {r[:first].sum():.1f} before), then up {up[first:].mean():.0%} of the "
+            f"time, reward {r[first:].mean() / repeat:.3f} a step, cart |x| "
+            f"{np.abs(x[first:]).mean():.2f} m, |u| {u[first:].mean():.2f}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
@@ -103,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
                    "recorded before the reader found the cart's edges did")
     p.add_argument("--edge", type=float, default=0.75, help="the reader sees the cart only "
                    "where its |x| (image coordinates, -1 to 1) is below this")
+    p.add_argument("--trace", action="store_true", help="after each planned test episode, "
+                   "print from the physics state when the pole first stood (cos > 0.95), the "
+                   "reward a step after it, the cart's mean |x| and the mean |u| there")
     p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
                    "(0, 1] (1, the default: each reading as it is), or auto: chosen on the "
                    "training episodes as the library's ReadLatent does (filter_gain)")
@@ -181,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
                 obs, _ = env.reset(seed=10_000 + 100 * seed + e)
                 mppi = MPPI(latent_step(model), RewardCost(head, (low, high), args.support),
                             mppi_cfg, [-1.0], [1.0], seed=seed * 1000 + e)
-                u, total, zf = np.zeros(1), 0.0, None
+                u, total, zf, trace = np.zeros(1), 0.0, None, []
                 for _ in range(steps):
                     if kind == "planned":
                         z, seen_now = reader.latent(torch.from_numpy(obs)[None],
@@ -199,7 +215,10 @@ def main(argv: list[str] | None = None) -> int:
                         u = rng.uniform(-1.0, 1.0, 1)
                     obs, r, *_ = env.step(u.astype(np.float32))
                     total += r
+                    trace.append((r, abs(u[0]), *env.state()[:2]))
                 returns.append(total)
+                if args.trace and kind == "planned":
+                    print("    " + held_phase(np.array(trace), world.config.action_repeat))
             result[kind] = returns
         env.close()
         means.append(float(np.mean(result["planned"])))
