@@ -69,8 +69,10 @@ class DmcScale:
     prune_to: int = 48
     """Active SINDy terms below which the refits stop pruning by share."""
     lambda_: float = 0.1
-    """MPPI's temperature on the horizon's summed reward (0.1: from the state, 0.1 planned the
-    cartpole to 814 where 1 gave about 700; RESULTS.md)."""
+    """MPPI's temperature on the horizon's summed reward (0.1: from the state at H 12, 0.1
+    planned the cartpole to 814 where 1 gave about 700; the read scales plan over H 20 at 1,
+    where 0.1 made every command its one best sample, the held pole's control noise;
+    RESULTS.md)."""
     foreground_weight: float = 10.0
     """Extra weight of the moving pixels in the image terms (the cartpole's pole is a line of
     about one pixel at 32x32; with 10 the latent held more of the state and planned better,
@@ -122,21 +124,22 @@ SCALES: dict[str, DmcScale] = {
     "read-tiny": DmcScale(
         "the read latent for tests, about a minute: 32x32, 2 frames, 3 seed episodes and 1 "
         "planned one of 20 actions, MPPI K 16 H 3; seed 0",
-        (0,), 32, 2, 3, 1, 20, 1, 0, 5, 6, "none", 16, 3, eval_episodes=1, latent="read"),
+        (0,), 32, 2, 3, 1, 20, 1, 0, 5, 6, "none", 16, 3, eval_episodes=1, latent="read",
+        lambda_=1.0),
     "read-demo": DmcScale(
         "the pose read by image moments, one seed: 64x64, 2 frames, 30 seed episodes, then 3 "
         "fits each followed by 10 planned episodes of 125 actions (60k environment steps); "
         "SINDy order 3 fitted over windows of 5 steps (STLSQ min_share 0.03, trimmed), "
-        "linear and MLP on the same latent; MPPI K 1000 H 20 λ 0.1, kept to the latents "
+        "linear and MLP on the same latent; MPPI K 1000 H 20 λ 1, kept to the latents "
         "seen in training; 4 test episodes a fit",
         (0,), 64, 2, 30, 3, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=4,
-        episodes_per_iteration=10, latent="read"),
+        episodes_per_iteration=10, latent="read", lambda_=1.0),
     "read-benchmark": DmcScale(
         "the pose read by image moments at the 100k-step benchmark: as read-demo with 7 fits "
         "(30 random and 70 planned episodes, 100k environment steps), 5 test episodes a fit; "
         "seeds 0..4; hours on a CPU",
         (0, 1, 2, 3, 4), 64, 2, 30, 7, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=5,
-        episodes_per_iteration=10, latent="read"),
+        episodes_per_iteration=10, latent="read", lambda_=1.0),
 }
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
