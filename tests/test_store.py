@@ -35,8 +35,9 @@ def test_splits_and_training_statistics(trajectories):
     train = trajectories.split("train")
     assert train.n == 2 and np.all(train.split_ids == 0)
     # statistics come from the training split only
-    mean, _ = trajectories.pixel_stats()
-    assert mean == pytest.approx(train.images.astype(float).mean())
+    mean, std = trajectories.pixel_stats()
+    assert mean == pytest.approx(train.images.astype(float).mean(), rel=1e-12)
+    assert std == pytest.approx(train.images.astype(float).std(), rel=1e-12)
     trajectories.images[trajectories.split_ids == 1] = 0
     assert trajectories.pixel_stats()[0] == pytest.approx(mean)
     with pytest.raises(UserError, match="split 'dev'"):

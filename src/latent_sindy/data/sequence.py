@@ -319,12 +319,19 @@ class SequenceData:
         return h.hexdigest()
 
     def pixel_stats(self) -> tuple[float, float]:
-        """Scalar mean and std of the training split's pixels, in the images' own scale."""
-        train = self.images[self.split_ids == 0]
-        if train.size == 0:
+        """Scalar mean and std of the training split's pixels, in the images' own scale.
+
+        A sequence at a time in float64 (two passes: the mean, then the squared deviations),
+        so the memory is one sequence's, not the whole split's in float64 (1.8 GB at 72
+        sequences of 126 64x64 stacked frames)."""
+        train = np.flatnonzero(self.split_ids == 0)
+        n = train.size * int(np.prod(self.images.shape[1:]))
+        if n == 0:
             raise UserError(f"{self.source} has no training sequences to normalise with")
-        x = train.astype(np.float64)
-        return float(x.mean()), float(x.std())
+        mean = sum(float(np.asarray(self.images[i], np.float64).sum()) for i in train) / n
+        squares = sum(float(np.square(np.asarray(self.images[i], np.float64) - mean).sum())
+                      for i in train)
+        return float(mean), float(np.sqrt(squares / n))
 
     def pixel_scale(self) -> float:
         """255 for uint8 images, 1 for floating-point ones."""
