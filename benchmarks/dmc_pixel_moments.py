@@ -215,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
                         u = rng.uniform(-1.0, 1.0, 1)
                     obs, r, *_ = env.step(u.astype(np.float32))
                     total += r
-                    trace.append((r, abs(u[0]), *env.state()[:2]))
+                    if args.trace and kind == "planned":
+                        trace.append((r, abs(u[0]), *env.state()[:2]))
                 returns.append(total)
                 if args.trace and kind == "planned":
                     print("    " + held_phase(np.array(trace), world.config.action_repeat))

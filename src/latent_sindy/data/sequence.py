@@ -322,8 +322,7 @@ class SequenceData:
         """Scalar mean and std of the training split's pixels, in the images' own scale.
 
         A sequence at a time in float64 (two passes: the mean, then the squared deviations),
-        so the memory is one sequence's, not the whole split's in float64 (1.8 GB at 72
-        sequences of 126 64x64 stacked frames)."""
+        so the memory is one sequence's, not the whole split's in float64 (BENCHMARKS.md)."""
         train = np.flatnonzero(self.split_ids == 0)
         n = train.size * int(np.prod(self.images.shape[1:]))
         if n == 0:
