@@ -25,13 +25,13 @@ def test_the_scales_and_the_benchmark_setting():
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
 
 
-def test_the_read_latents_study_end_to_end(tmp_path, capsys):
+def test_the_read_latents_study_end_to_end(tmp_path, capfd):
     """The cart-pole's pose read from the frames, three dynamics on it, through the CLI:
     SINDy's equations in the report, each fit from scratch (no warm start to continue)."""
     pytest.importorskip("dm_control")
     out = tmp_path / "read"
     assert main(["reproduce", "--world", "dmc", "--scale", "read-tiny", "--out", str(out)]) == 0
-    assert "seed 0 linear: iteration 1, return" in capsys.readouterr().err
+    assert "seed 0 linear: iteration 1, return" in capfd.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["results"]["runs"]) == {"sindy/seed0", "linear/seed0", "mlp/seed0"}
     its = json.loads((out / "seed0" / "sindy" / "log.json").read_text())["iterations"]
@@ -50,19 +50,35 @@ def test_world_config_is_for_a_world_with_a_study_of_its_own(tmp_path, capsys):
     assert "nothing" in capsys.readouterr().err
 
 
+def runs_wall(summary):
+    return summary["results"]["runs"]["sindy/seed0"]["wall_s"]
+
+
 def _returns(out):
     summary = json.loads((out / "summary.json").read_text())
     return {k: v["returns"] for k, v in summary["results"]["runs"].items()}
 
 
-def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, capsys):
+def test_workers_is_a_setting_of_the_worlds_whose_study_takes_it():
+    from latent_sindy.errors import UserError
+    from latent_sindy.worlds.push.study.config import ReproduceConfig
+
+    assert ReproduceConfig(world="dmc", scale="tiny", workers=3).workers == 3
+    with pytest.raises(UserError, match="--workers is for the push study"):
+        ReproduceConfig(world="pendulum", scale="tiny", workers=3)
+
+
+def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, capfd):
+    """Two loops at a time in worker processes (the CLI's default), their numbers those of
+    loops run in this process; an interrupted study resumed to the same numbers."""
     pytest.importorskip("dm_control")
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.study import run_dmc_study
 
     whole = tmp_path / "whole"
     assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(whole)]) == 0
-    assert "seed 0 sindy: iteration 2" in capsys.readouterr().err  # progress
+    err = capfd.readouterr().err
+    assert "seed 0 sindy: iteration 2" in err and "2 loop(s) at a time" in err  # progress
     # every fit in the scale's batches of 8 windows; SINDy pruned by its warm refit
     its = json.loads((whole / "seed0" / "sindy" / "log.json").read_text())["iterations"]
     assert [it["batch_size"] for it in its] == [8, 8]
@@ -83,6 +99,12 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
     assert [t["env_steps"] for t in tests] == [2 * 8 * 8, 3 * 8 * 8]
     assert [t["mean"] for t in tests] == [it["evaluation"][0] for it in its]
     assert "Test episodes, without exploration noise" in table
+    # a loop's wall time counts its test episodes as well as its fits and collected ones
+    collected = sum(json.loads((whole / "seed0" / "sindy" / "log.json").read_text())
+                    ["episodes"][i]["seconds"] for i in range(4))
+    assert runs_wall(summary) == pytest.approx(
+        collected + sum(it["fit_seconds"] + it["eval_seconds"] for it in its), abs=1e-6)
+    assert f"mean over 1 seed(s): sindy {tests[-1]['mean']:.1f}, " in table  # the headline
 
     # interrupted while the linear model's loop runs: then run again to the end
     part = tmp_path / "part"
@@ -95,7 +117,7 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
         run_dmc_study(DmcConfig(), "tiny", part, None, "cpu", 1, stop)
     sindy_log = (part / "seed0" / "sindy" / "log.json").read_text()
     assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(part)]) == 0
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert "seed 0 sindy: 2 of 2 iterations done before, reused" in err
     assert "seed 0 linear: 1 of 2 iterations done before, reused" in err
     assert (part / "seed0" / "sindy" / "log.json").read_text() == sindy_log
@@ -104,7 +126,7 @@ def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, ca
     # another task into the same folder is refused; the task is the world's setting
     assert main(["reproduce", "--world", "dmc", "--scale", "tiny", "--out", str(part),
                  "--world-config", "task=pendulum-swingup"]) == 2
-    assert "other settings (world)" in capsys.readouterr().err
+    assert "other settings (world)" in capfd.readouterr().err
 
 
 def test_the_tiny_study_of_the_pendulum_swingup(tmp_path):

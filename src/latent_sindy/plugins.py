@@ -64,8 +64,11 @@ HOOKS: dict[str, str] = {
     "collect": "(sequences, steps, seed) -> SequenceData of random actions [collect_random]",
     "about": "a line on the world's own study, for --help [none]",
     "scales": "{scale: what it runs} of the world's own study [no study of its own]",
-    "reproduce": "(scale, out, seeds, device, say) -> the world's own study, a "
-                 "latent_sindy.world_study.WorldStudy [none]",
+    "reproduce": "(scale, out, seeds, device, threads, say, **study options) -> the world's "
+                 "own study, a latent_sindy.world_study.WorldStudy [none]",
+    "study_options": "names of `reproduce` settings its study takes besides the ones every "
+                     "study does, passed to the reproduce hook by name, e.g. ('workers',) "
+                     "[none: those settings are refused]",
     "data": "(**settings) -> SequenceData the world's study is made of [none]",
     "commands": "{'collect' | 'control' | 'reproduce': Command} the CLI's commands as this "
                 "world runs them, with settings of its own (a Command's settings type: its "

@@ -152,8 +152,9 @@ def write_world_study(world: Any, settings: Any, say: Say, t_start: float | None
     t_start = time.perf_counter() if t_start is None else t_start
     out = settings.out
     out.mkdir(parents=True, exist_ok=True)
+    options = {name: getattr(settings, name) for name in hook(world, "study_options") or ()}
     study = world.reproduce(settings.scale, out, settings.seeds, settings.device,
-                            settings.threads, say)
+                            settings.threads, say, **options)
     if not isinstance(study, WorldStudy):
         raise TypeError(f"the {settings.world} world's reproduce returned "
                         f"{type(study).__name__}, not a latent_sindy.world_study.WorldStudy")

@@ -32,14 +32,18 @@ class DmcPlugin(DmcWorld):
 
         return {name: s.about for name, s in SCALES.items()}
 
+    #: ``reproduce --workers N`` runs N of the study's (seed, model) loops at a time.
+    study_options = ("workers",)
+
     def reproduce(self, scale: str, out: Path, seeds: tuple[int, ...] | None = None,
                   device: str = "auto", threads: int = 1,
-                  say: Callable[[str], None] = print) -> Any:
+                  say: Callable[[str], None] = print, workers: int = 1) -> Any:
         """The model-based study of this world's task at ``scale`` in ``out`` (finished
-        loops reused): a :class:`~latent_sindy.world_study.WorldStudy` for the report."""
+        loops reused, ``workers`` loops at a time): a
+        :class:`~latent_sindy.world_study.WorldStudy` for the report."""
         from latent_sindy.worlds.dmc.study_report import reproduce_dmc
 
-        return reproduce_dmc(self.config, scale, out, seeds, device, threads, say)
+        return reproduce_dmc(self.config, scale, out, seeds, device, threads, say, workers)
 
 
 WORLD = DmcPlugin()

@@ -29,7 +29,7 @@ from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.dmc.config import DmcConfig
 
-__all__ = ["MODELS", "SCALES", "DmcScale", "run_dmc_study", "study_scale"]
+__all__ = ["MODELS", "SCALES", "DmcScale", "run_dmc_study", "run_loop", "study_scale"]
 
 Say = Callable[[str], None]
 
@@ -209,78 +209,108 @@ def _check_folder(out: Path, settings: dict[str, Any]) -> None:
 
 
 def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say) -> dict[str, Any]:
-    """Every (seed, model) loop of the scale in ``out`` (finished ones reused): the study's
+                  device: str, threads: int, say: Say, workers: int = 1) -> dict[str, Any]:
+    """Every (seed, model) loop of the scale in ``out`` (finished ones reused), ``workers``
+    loops at a time (1: one after another in this process; more: in worker processes that
+    end with this one, each loop's numbers the same as in this process): the study's
     settings and, per model and seed, the log of its loop and its wall time."""
-    import torch
-
-    from latent_sindy import LatentSINDy
-    from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
-    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
+    from latent_sindy.executors import ExecutorOptions, make_executor
+    from latent_sindy.progress import say_stderr
     from latent_sindy.training.config import resolve_device
-    from latent_sindy.worlds.dmc.world import DmcWorld
 
+    if workers < 1:
+        raise UserError(f"--workers {workers}: use 1 or more (loops run at once)")
     s = study_scale(scale, seeds)
-    world = DmcWorld(_world_config(config, s))
+    world = _world_config(config, s)
     on = resolve_device(device)
-    torch.set_num_threads(threads)
     loop = {k: v for k, v in dataclasses.asdict(s).items() if k not in ("about", "seeds")}
-    settings = {"scale": scale, "world": to_json(world.config), "loop": loop}
+    settings = {"scale": scale, "world": to_json(world), "loop": loop}
     _check_folder(out, settings)
-    say(f"dmc {world.config.task}, {scale} scale: {world.config.size}x{world.config.size}, "
-        f"{world.config.frames} frame(s), repeat {world.config.action_repeat}; models "
-        f"{', '.join(MODELS)}; seeds {', '.join(map(str, s.seeds))}; device {on}")
-
-    def maker(kind: str, seed: int) -> Callable[[int], Any]:
-        if s.latent == "read":
-            from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
-            from latent_sindy.worlds.dmc.reader import ColourPoseReader
-
-            fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
-                                    min_share=s.min_share, reward_width=s.reward_head,
-                                    reader_episodes=s.seed_episodes,  # (the random ones)
-                                    support=s.support)
-            return lambda iteration: ReadLatent(ColourPoseReader(world.config.size), fits,
-                                                seed=seed * 1000 + iteration)
-        model = ModelConfig(dynamics=DYNAMICS_KINDS[kind](), reward_head=s.reward_head,
-                            observation=AutoencoderConfig(latent_dim=s.latent_dim,
-                                                          encoder_kind=s.encoder,
-                                                          decoder_kind=s.encoder))
-        loss = LossWeights(foreground_weight=s.foreground_weight)
-        return lambda iteration: LatentSINDy(model=model, seed=seed * 1000 + iteration,
-                                             device=on, loss=loss)
-
+    jobs = [(seed, kind) for seed in s.seeds for kind in MODELS]
+    workers = min(workers, len(jobs))
+    say(f"dmc {world.task}, {scale} scale: {world.size}x{world.size}, {world.frames} "
+        f"frame(s), repeat {world.action_repeat}; models {', '.join(MODELS)}; seeds "
+        f"{', '.join(map(str, s.seeds))}; device {on}; {workers} loop(s) at a time")
     runs: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in MODELS}
-    for seed in s.seeds:
-        cfg = ModelBasedConfig(
-            seed_episodes=s.seed_episodes, iterations=s.iterations,
-            episodes_per_iteration=s.episodes_per_iteration,
-            episode_steps=s.episode_steps, steps_per_action=world.config.action_repeat,
-            warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
-            prune_rate=s.prune_rate, prune_to=s.prune_to, eval_episodes=s.eval_episodes,
-            mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3,
-                            lambda_=s.lambda_, shift="repeat"))
-        for kind in MODELS:  # one at a time: each model's wall time its own
-            t0 = time.perf_counter()
-            result = compare_models(world, {kind: maker(kind, seed)}, cfg,
-                                    out=out / f"seed{seed}",
-                                    progress=lambda name, seed=seed: _Say(
-                                        say, f"seed {seed} {name}"),
-                                    fit_settings={"epochs": s.epochs, "window": s.window}
-                                    )[kind]
-            runs[kind][seed] = {"log": result.log, "wall_s": _wall(result.log),
-                                "this_call_s": time.perf_counter() - t0}
-    return {"settings": settings, "seeds": list(s.seeds), "runs": runs,
+    ex = make_executor("local", ExecutorOptions(workers=workers))
+    # each job its own wall time; a worker process says its lines on its stderr
+    tell = say if ex.slots == 1 else say_stderr
+    order = reversed(jobs) if ex.slots == 1 else jobs  # (one worker runs the last first)
+    pending = {ex.submit(run_loop, world, s, seed, kind, out, str(on), threads, tell):
+               (seed, kind) for seed, kind in order}
+    try:
+        while pending:
+            for fut in ex.wait_one(pending):
+                seed, kind = pending.pop(fut)
+                runs[kind][seed] = fut.result()
+    except BaseException:  # a loop failed or we were stopped: no other loop starts, and
+        ex.shutdown(wait=False, cancel_futures=True)  # the workers end with this process
+        raise
+    ex.shutdown()
+    return {"settings": settings, "seeds": list(s.seeds),
+            "runs": {m: dict(sorted(runs[m].items())) for m in MODELS},
             "reference": {k: list(v) for k, v in REFERENCE.items()},
             "reference_task": REFERENCE_TASK, "reference_steps": REFERENCE_STEPS,
             "interval": "mean ± t(0.975, n-1)·sd/√n over seeds"}
 
 
+def run_loop(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Path,
+             device: str, threads: int, say: Say) -> dict[str, Any]:
+    """One (seed, model) loop of the study in ``out/seed<S>/<kind>`` (resumed where it
+    stopped): its log and wall time (:func:`_wall`) and this call's seconds."""
+    import torch
+
+    from latent_sindy import LatentSINDy
+    from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
+    from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
+    from latent_sindy.worlds.dmc.world import DmcWorld
+
+    t0 = time.perf_counter()
+    torch.set_num_threads(threads)
+    world = DmcWorld(world_config)
+    if s.latent == "read":
+        from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
+        from latent_sindy.worlds.dmc.reader import ColourPoseReader
+
+        fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
+                                min_share=s.min_share, reward_width=s.reward_head,
+                                reader_episodes=s.seed_episodes,  # (the random ones)
+                                support=s.support)
+
+        def maker(iteration: int) -> Any:
+            return ReadLatent(ColourPoseReader(world_config.size), fits,
+                              seed=seed * 1000 + iteration)
+    else:
+        model = ModelConfig(dynamics=DYNAMICS_KINDS[kind](), reward_head=s.reward_head,
+                            observation=AutoencoderConfig(latent_dim=s.latent_dim,
+                                                          encoder_kind=s.encoder,
+                                                          decoder_kind=s.encoder))
+        loss = LossWeights(foreground_weight=s.foreground_weight)
+
+        def maker(iteration: int) -> Any:
+            return LatentSINDy(model=model, seed=seed * 1000 + iteration, device=device,
+                               loss=loss)
+    cfg = ModelBasedConfig(
+        seed_episodes=s.seed_episodes, iterations=s.iterations,
+        episodes_per_iteration=s.episodes_per_iteration,
+        episode_steps=s.episode_steps, steps_per_action=world_config.action_repeat,
+        warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
+        prune_rate=s.prune_rate, prune_to=s.prune_to, eval_episodes=s.eval_episodes,
+        mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3,
+                        lambda_=s.lambda_, shift="repeat"))
+    result = compare_models(world, {kind: maker}, cfg, out=out / f"seed{seed}",
+                            progress=lambda name: _Say(say, f"seed {seed} {name}"),
+                            fit_settings={"epochs": s.epochs, "window": s.window})[kind]
+    return {"log": result.log, "wall_s": _wall(result.log),
+            "this_call_s": time.perf_counter() - t0}
+
+
 def _wall(log: dict[str, Any]) -> float:
     """A loop's time from its log (so a resumed loop counts its earlier calls): its
-    episodes' collection and planning, and its fits."""
+    episodes' collection and planning, its fits and its test episodes."""
     return (sum(e["seconds"] for e in log["episodes"])
-            + sum(it["fit_seconds"] for it in log["iterations"]))
+            + sum(it["fit_seconds"] + (it.get("eval_seconds") or 0.0)
+                  for it in log["iterations"]))
 
 
 def mean_interval(values: list[float]) -> tuple[float, float | None, float | None]:

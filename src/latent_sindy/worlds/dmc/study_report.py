@@ -73,6 +73,28 @@ def _tests(runs: dict[str, dict[int, dict[str, Any]]]) -> dict[str, list[dict[st
     return tests
 
 
+def _test_finding(tests: dict[str, list[dict[str, Any]]],
+                  numbers: dict[str, dict[str, Any]]) -> list[str]:
+    """One sentence on the last fit's test episodes per model (what published tables
+    report), with SINDy's active terms over seeds; none without test episodes."""
+    parts = []
+    for m in MODELS:
+        if not tests.get(m):
+            continue
+        r = tests[m][-1]
+        sd = "" if r["sd"] is None else f" (sd {r['sd']:.1f})"
+        terms = [v["active_terms"] for k, v in numbers.items()
+                 if k.startswith(f"{m}/") and v["active_terms"] is not None]
+        extra = (f", {min(terms)}–{max(terms)} active terms" if m == "sindy" and terms
+                 else "")
+        parts.append(f"{m} {r['mean']:.1f}{sd}{extra}")
+    if not parts:
+        return []
+    r0 = next(tests[m][-1] for m in MODELS if tests.get(m))
+    return [f"Test episodes of the last fit (no noise; the fit saw {r0['env_steps']:,} "
+            f"environment steps), mean over {r0['seeds']} seed(s): " + "; ".join(parts) + "."]
+
+
 def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[float]],
             show_reference: bool, path: Path,
             tests: dict[str, list[dict[str, Any]]] | None = None) -> Path:
@@ -109,9 +131,10 @@ def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[f
 
 
 def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say) -> WorldStudy:
-    """The study at ``scale`` in ``out`` (finished loops reused), as a WorldStudy."""
-    result = run_dmc_study(config, scale, out, seeds, device, threads, say)
+                  device: str, threads: int, say: Say, workers: int = 1) -> WorldStudy:
+    """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
+    time), as a WorldStudy."""
+    result = run_dmc_study(config, scale, out, seeds, device, threads, say, workers)
     runs, task = result["runs"], result["settings"]["world"]["task"]
     curves, tests = _curves(runs), _tests(runs)
     is_reference = task == result["reference_task"]
@@ -152,9 +175,12 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     best = max(MODELS, key=lambda m: last[m]["mean"])
     findings = [
         f"{task} from {result['settings']['world']['size']}-pixel images, {scale} scale: "
-        f"after {last[best]['env_steps']:,} environment steps the best mean return is "
-        f"{best}'s {last[best]['mean']:.1f} over {last[best]['seeds']} seed(s) (random seed "
+        f"after {last[best]['env_steps']:,} environment steps the best mean return of the "
+        f"collected episodes (exploration noise included) is {best}'s "
+        f"{last[best]['mean']:.1f} over {last[best]['seeds']} seed(s) (random seed "
         f"episodes: {curves[best][0]['mean']:.1f}).",
+        *_test_finding(tests, numbers)]
+    findings += [
         "Each model ran its own loop from the same seed episodes with the same planner and "
         "seeds; refits after the first are warm-started (the last model and optimiser, a "
         "fixed budget of updates in batches of a fixed size, the first fit's normaliser), "
@@ -168,8 +194,9 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     tables = [
         Table("Return against environment steps", ["model", "iteration", "env steps",
               "mean return (95% interval over seeds)", "seeds"], rows,
-              "Iteration 0: the seed episodes of random actions; then one planned episode an "
-              "iteration (with exploration noise). Interval: " + result["interval"] + "."),
+              "Iteration 0: the seed episodes of random actions; then each iteration's "
+              "planned episodes (with exploration noise). Interval: " + result["interval"]
+              + "."),
         Table("Test episodes, without exploration noise", ["model", "iteration",
               "env steps the fit saw", "mean test return (95% interval over seeds)", "seeds"],
               [[m, str(r["iteration"]), str(r["env_steps"]), _fmt(r["mean"], r["half_width"]),
@@ -179,9 +206,9 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
         Table("Last return and the published lines", ["model", "env steps",
               "return (mean ± sd over seeds)", "source"], final),
         Table("Costs and sparsity", ["model", "seed", "first fit s", "refit s (mean)",
-              "planned episode s (mean)", "wall s", "active terms per fit"], costs,
-              "Wall: the loop's episodes and fits as its log records them (resumed runs "
-              "included). Active terms: each fit's nonzero coefficients, first to last "
+              "planned episodes s (an iteration's, mean)", "wall s", "active terms per fit"], costs,
+              "Wall: the loop's episodes (test episodes included) and fits as its log "
+              "records them (resumed runs included). Active terms: each fit's nonzero coefficients, first to last "
               "(SINDy's after pruning: each warm refit prunes first; the linear model's A, B, "
               "c; none for the MLP).")]
     return WorldStudy(

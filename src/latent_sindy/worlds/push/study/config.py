@@ -66,7 +66,8 @@ def _scale_help() -> str:
     return f"The study's size. {push} {others}".strip()
 
 
-#: Settings only the push study reads: refused with a world of another study.
+#: Settings only the push study reads: refused with a world of another study, unless that
+#: world's ``study_options`` hook names them.
 PUSH_ONLY = {"data": "--data", "data_seed": "--data-seed", "decoder": "--decoder",
              "image_size": "--image-size", "workers": "--workers", "models": "--models",
              "sweep": "--sweep", "executor": "--executor", "ray_address": "--ray-address",
@@ -101,7 +102,8 @@ class ReproduceConfig:
     sharply, and the image models train about four times longer per epoch."""
     workers: int = 2
     """Processes for collection, training and control (1: everything in this process); with
-    --executor ray and no --ray-address, the CPUs of the Ray started here."""
+    --executor ray and no --ray-address, the CPUs of the Ray started here. --world dmc: its
+    (seed, model) loops run at a time."""
     threads: int = 1
     """torch CPU threads per process."""
     models: tuple[str, ...] = ()
@@ -173,8 +175,9 @@ class ReproduceConfig:
             raise UserError(f"--scale {self.scale}: the {self.world} world's scales are "
                             f"{', '.join(scales)}")
         default = ReproduceConfig.__dataclass_fields__
+        takes = hook(studies[self.world], "study_options") or ()
         given = [flag for name, flag in PUSH_ONLY.items()
-                 if getattr(self, name) != default[name].default]
+                 if name not in takes and getattr(self, name) != default[name].default]
         if given:
             raise UserError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for the "
                             f"push study; --world {self.world} runs its own study: drop "
