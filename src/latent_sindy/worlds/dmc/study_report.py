@@ -206,11 +206,12 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
         Table("Last return and the published lines", ["model", "env steps",
               "return (mean ± sd over seeds)", "source"], final),
         Table("Costs and sparsity", ["model", "seed", "first fit s", "refit s (mean)",
-              "planned episodes s (an iteration's, mean)", "wall s", "active terms per fit"], costs,
+              "planned episodes s (an iteration's, mean)", "wall s",
+              "active terms per fit"], costs,
               "Wall: the loop's episodes (test episodes included) and fits as its log "
-              "records them (resumed runs included). Active terms: each fit's nonzero coefficients, first to last "
-              "(SINDy's after pruning: each warm refit prunes first; the linear model's A, B, "
-              "c; none for the MLP).")]
+              "records them (resumed runs included). Active terms: each fit's nonzero "
+              "coefficients, first to last (SINDy's after pruning: each warm refit prunes "
+              "first; the linear model's A, B, c; none for the MLP).")]
     return WorldStudy(
         title=f"DeepMind Control from pixels: {task}, model-based, SINDy / linear / MLP",
         settings=result["settings"], seeds=result["seeds"],
