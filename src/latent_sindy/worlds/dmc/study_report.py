@@ -77,16 +77,13 @@ def _test_finding(tests: dict[str, list[dict[str, Any]]],
                   numbers: dict[str, dict[str, Any]]) -> list[str]:
     """One sentence on the last fit's test episodes per model (what published tables
     report), with SINDy's active terms over seeds; none without test episodes."""
+    terms = [v["active_terms"] for k, v in numbers.items()
+             if k.startswith("sindy/") and v["active_terms"] is not None]
     parts = []
-    for m in MODELS:
-        if not tests.get(m):
-            continue
+    for m in (m for m in MODELS if tests.get(m)):
         r = tests[m][-1]
         sd = "" if r["sd"] is None else f" (sd {r['sd']:.1f})"
-        terms = [v["active_terms"] for k, v in numbers.items()
-                 if k.startswith(f"{m}/") and v["active_terms"] is not None]
-        extra = (f", {min(terms)}–{max(terms)} active terms" if m == "sindy" and terms
-                 else "")
+        extra = f", {min(terms)}–{max(terms)} active terms" if m == "sindy" and terms else ""
         parts.append(f"{m} {r['mean']:.1f}{sd}{extra}")
     if not parts:
         return []
@@ -179,8 +176,7 @@ def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
         f"collected episodes (exploration noise included) is {best}'s "
         f"{last[best]['mean']:.1f} over {last[best]['seeds']} seed(s) (random seed "
         f"episodes: {curves[best][0]['mean']:.1f}).",
-        *_test_finding(tests, numbers)]
-    findings += [
+        *_test_finding(tests, numbers),
         "Each model ran its own loop from the same seed episodes with the same planner and "
         "seeds; refits after the first are warm-started (the last model and optimiser, a "
         "fixed budget of updates in batches of a fixed size, the first fit's normaliser), "
