@@ -69,7 +69,8 @@ def from_json(cls: type, data: Any, where: str) -> Any:
 def from_pairs(cls: type, pairs: Sequence[str], where: str) -> Any:
     """Settings dataclass ``cls`` from the ``KEY=VALUE`` pairs of a command line, the other
     fields at their defaults, checked as :func:`from_json` checks a file: each VALUE is read
-    as JSON where it parses as JSON (``32``, ``true``, ``[1, 2]``), else as a string.
+    as JSON where it parses as JSON (``32``, ``true``, ``[1, 2]``), else as a string. A KEY
+    given twice is refused.
 
         >>> from latent_sindy.training.config import TrainConfig
         >>> from_pairs(TrainConfig, ["epochs=7"], "--settings").epochs
@@ -80,6 +81,8 @@ def from_pairs(cls: type, pairs: Sequence[str], where: str) -> Any:
         key, sep, text = pair.partition("=")
         if not sep or not key.strip():
             raise UserError(f"{where}: {pair!r} is not KEY=VALUE (e.g. size=32)")
+        if key.strip() in given:
+            raise UserError(f"{where}: {key.strip()} is given twice; give each setting once")
         try:
             given[key.strip()] = json.loads(text)
         except json.JSONDecodeError:

@@ -28,8 +28,8 @@ from latent_sindy.errors import UserError
 
 GROUP = "latent_sindy.worlds"
 
-__all__ = ["GROUP", "HOOKS", "Command", "WorldPlugin", "get_world", "hook", "legacy_world",
-           "load_plugins", "world_names"]
+__all__ = ["CONFIG_GIVEN", "GROUP", "HOOKS", "Command", "WorldPlugin", "get_world", "hook",
+           "legacy_world", "load_plugins", "world_names"]
 
 
 class WorldPlugin(Protocol):
@@ -47,6 +47,14 @@ class WorldPlugin(Protocol):
     action_names: Sequence[str]
     config: Any
     """The world's settings (a frozen dataclass), where it has any."""
+
+
+#: The attribute the core sets on a world it rebuilt on a user's settings (``--world-config
+#: KEY=VALUE``): the names of the fields given, as a tuple. A world's study takes those
+#: fields over its scale's settings (a value equal to the field's default included) and
+#: keys its results on them; the installed world, built on no settings, has none (read it
+#: as ``getattr(world, CONFIG_GIVEN, ())``).
+CONFIG_GIVEN = "config_given"
 
 
 #: The optional hooks of a world plug-in, with what the core does with each; where a world

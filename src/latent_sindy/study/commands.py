@@ -17,7 +17,7 @@ from typing import Any
 
 from latent_sindy.configs import from_pairs
 from latent_sindy.errors import UserError
-from latent_sindy.plugins import get_world, hook
+from latent_sindy.plugins import CONFIG_GIVEN, get_world, hook
 
 __all__ = ["configured_world", "control_world"]
 
@@ -25,7 +25,10 @@ __all__ = ["configured_world", "control_world"]
 def configured_world(name: str, pairs: Sequence[str], flag: str = "--world-config") -> Any:
     """The world plug-in ``name``, rebuilt on the settings of the ``KEY=VALUE`` ``pairs``
     (fields of its config dataclass, the others at their defaults) where any are given: a
-    world is its class built on its settings. UserError for a world without settings."""
+    world is its class built on its settings. The rebuilt world's ``config_given`` names the
+    fields given (:data:`~latent_sindy.plugins.CONFIG_GIVEN`), so that its study takes
+    them over its scale's settings, even where a value equals the field's default.
+    UserError for a world without settings, or a KEY given twice."""
     from dataclasses import is_dataclass
 
     world = get_world(name)
@@ -33,7 +36,9 @@ def configured_world(name: str, pairs: Sequence[str], flag: str = "--world-confi
         return world
     if not is_dataclass(getattr(world, "config", None)):
         raise UserError(f"--world {name} has no settings for {flag}")
-    return type(world)(from_pairs(type(world.config), pairs, flag))
+    rebuilt = type(world)(from_pairs(type(world.config), pairs, flag))
+    setattr(rebuilt, CONFIG_GIVEN, tuple(p.partition("=")[0].strip() for p in pairs))
+    return rebuilt
 
 
 def control_world(run_dir: Path, run: Any, s: Any, out: Path, default: Any,

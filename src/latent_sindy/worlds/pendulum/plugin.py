@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from latent_sindy.data.sequence import SequenceData
 from latent_sindy.errors import UserError
+from latent_sindy.plugins import CONFIG_GIVEN
 from latent_sindy.worlds.pendulum.world import STATE_NAMES, UPRIGHT, PendulumWorld
 
 __all__ = ["STATE_NAMES", "UPRIGHT", "VIDEO", "WORLD", "PendulumPlugin", "PendulumVideo",
@@ -45,10 +46,13 @@ class PendulumPlugin(PendulumWorld):
                   device: str = "auto", threads: int = 1,
                   say: Callable[[str], None] = print) -> Any:
         """The swing-up study at ``scale`` in ``out``: a
-        :class:`~latent_sindy.world_study.WorldStudy` for the report."""
+        :class:`~latent_sindy.world_study.WorldStudy` for the report. The world's settings
+        given on the command line (``--world-config``: image_size, start, perturbation)
+        replace the scale's camera and the tasks' starts."""
         from latent_sindy.worlds.pendulum.reproduce import reproduce_pendulum
 
-        return reproduce_pendulum(scale, out, seeds, device, threads, say)
+        given = {k: getattr(self.config, k) for k in getattr(self, CONFIG_GIVEN, ())}
+        return reproduce_pendulum(scale, out, seeds, device, threads, say, given)
 
 
 @dataclass(frozen=True)

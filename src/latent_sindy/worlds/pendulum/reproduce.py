@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -181,8 +181,15 @@ def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
 
 
 # ----------------------------------------------------------------------------- the pendulum
-def pendulum_config(scale: str, seed: int, device: str):
-    """The :class:`~.study.StudyConfig` of a scale, for one seed."""
+#: The controlled pendulum's settings (``--world-config``) and the study's field each sets.
+WORLD_TO_STUDY = {"image_size": "image_size", "start": "start", "perturbation": "perturbation"}
+
+
+def pendulum_config(scale: str, seed: int, device: str,
+                    world: Mapping[str, Any] | None = None):
+    """The :class:`~.study.StudyConfig` of a scale, for one seed; ``world``: settings of the
+    pendulum world (:class:`~.config.PendulumConfig` fields, ``--world-config``) that replace
+    the scale's camera and the tasks' starts."""
     from latent_sindy.worlds.pendulum.study import StudyConfig
 
     _scale(scale, PENDULUM_SCALES, "pendulum")
@@ -192,6 +199,11 @@ def pendulum_config(scale: str, seed: int, device: str):
             "demo": {},
             "published": dict(image_size=48, sequences=1000, epochs=100),
             "published-cpu": dict(image_size=48, sequences=1000, models=())}[scale]
+    for key, value in (world or {}).items():
+        if key not in WORLD_TO_STUDY:
+            raise UserError(f"--world-config {key}: the pendulum study takes "
+                            f"{', '.join(WORLD_TO_STUDY)}")
+        base[WORLD_TO_STUDY[key]] = value
     return StudyConfig(**base, seed=seed, device=device)
 
 
@@ -237,7 +249,10 @@ def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
     from latent_sindy.worlds.pendulum.study import run_study
 
     path = out / f"pendulum_seed{cfg.seed}.json"
-    key = {k: v for k, v in to_json(cfg).items() if k != "device"}
+    # (the hanging starts' perturbation keys a seed only where it is not the default, so a
+    # seed run before it was a setting is still read back)
+    key = {k: v for k, v in to_json(cfg).items() if k != "device" and not (
+        k == "perturbation" and v == type(cfg)().perturbation)}
     try:
         saved = json.loads(path.read_text(encoding="utf-8"))
         if isinstance(saved, dict) and saved.get("settings") == key:
@@ -256,15 +271,16 @@ def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
 
 def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
                        device: str = "auto", threads: int = 1,
-                       say: Say = print) -> WorldStudy:
+                       say: Say = print, world: Mapping[str, Any] | None = None) -> WorldStudy:
     """The controlled-pendulum study at ``scale``, once per seed, in ``out`` (a seed run
-    there before with the same settings is read back)."""
+    there before with the same settings is read back); ``world``: the pendulum world's
+    settings given (:func:`pendulum_config`)."""
     import torch
 
     from latent_sindy.stats import wilson_interval
 
     seeds = tuple(seeds) if seeds else (0,)
-    configs = {s: pendulum_config(scale, s, device) for s in seeds}
+    configs = {s: pendulum_config(scale, s, device, world) for s in seeds}
     threads_before = torch.get_num_threads()
     torch.set_num_threads(threads)
     per_seed: dict[int, list[dict[str, Any]]] = {}

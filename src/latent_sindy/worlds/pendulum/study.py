@@ -103,7 +103,10 @@ class StudyConfig:
     """Swing-up tasks per model (the same tasks for every model)."""
     start: Literal["hanging", "random"] = "random"
     """Where the swing-up tasks start: anywhere (θ uniform, θ̇ in [−1, 1]; E2C's measure) or
-    hanging (π ± 0.1, each task a full swing-up)."""
+    hanging (π ± ``perturbation``, each task a full swing-up)."""
+    perturbation: float = 0.1
+    """Hanging starts: θ = π + U(−p, p) rad and θ̇ = U(−p, p) rad/s (the world's
+    ``perturbation``)."""
     episode_steps: int = 100
     """Actions per episode."""
     last: int = 20
@@ -133,6 +136,7 @@ class StudyConfig:
     plan on the CPU."""
 
     def __post_init__(self) -> None:
+        self.world_config()  # the camera and the tasks' starts, checked by the world
         unknown = (set(self.models) | set(self.centroid_models)) - set(MODELS)
         if unknown or not (self.models or self.centroid_models):
             raise UserError(f"pendulum study models {self.models!r} and centroid_models "
@@ -145,6 +149,11 @@ class StudyConfig:
         if not 1 <= self.last <= self.episode_steps:
             raise UserError(f"pendulum study last {self.last} must lie in 1..episode_steps "
                             f"({self.episode_steps}): success is judged on the last steps")
+
+    def world_config(self) -> PendulumConfig:
+        """The world of the swing-up tasks: this camera and these starts."""
+        return PendulumConfig(image_size=self.image_size, start=self.start,
+                              perturbation=self.perturbation)
 
     def mppi(self) -> MPPIConfig:
         return MPPIConfig(samples=self.samples, horizon=self.horizon, sigma=self.sigma,
@@ -269,7 +278,7 @@ def run_study(config: StudyConfig | None = None,
     result = StudyResult(cfg, data_seconds=time.perf_counter() - t0)
     report(f"data: {data.n} sequences of {data.steps} steps, frames {data.frame_shape} "
            f"({result.data_seconds:.0f} s)")
-    tasks = PendulumWorld(PendulumConfig(start=cfg.start, image_size=cfg.image_size))
+    tasks = PendulumWorld(cfg.world_config())
     train = data.split("train")
     frames = train.images.reshape(-1, *data.frame_shape)
 

@@ -1,0 +1,76 @@
+"""Round four of a hostile user, on the command line and the studies: world settings that
+reach their study (or are refused), seeds out of range, a missing optional dependency, the
+benchmark scripts' arguments, and advice and limits of `equations`, `--threads` and
+`collect --workers`. Every refusal is one line, exit 2, and leaves nothing on disk."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from latent_sindy.cli import main
+from latent_sindy.worlds.pendulum import study as study_module
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def _refused(capsys, *args: str) -> str:
+    """Run the command; assert exit 2 with one error line, and return that line."""
+    code = main(list(args))
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("latent-sindy: error:"), lines
+    return lines[0]
+
+
+# ------------------------------------------------------------------ 1: --world-config
+def _fake_study(seen: list):
+    """A stand-in for the pendulum study: records the settings it was run on."""
+    from latent_sindy.control.world import Task
+    from latent_sindy.worlds.pendulum.swing_up import SwingUp
+
+    def run(cfg, report=print):
+        seen.append(cfg)
+        episode = SwingUp(Task(np.zeros(2), np.zeros(2)), np.zeros((2, 2)), np.zeros((1, 1)),
+                          1.0, True)
+        row = study_module.ModelRow("state SINDy (true state)", [episode], ["x' = 0"])
+        return study_module.StudyResult(cfg, rows=[row])
+
+    return run
+
+
+def test_1_pendulum_world_config_reaches_the_study_and_its_identity(tmp_path, monkeypatch):
+    """`reproduce --world pendulum --world-config ...`: the camera and the tasks' starts are
+    the study's (recorded so), and another value is another study, not a reused one."""
+    seen: list = []
+    monkeypatch.setattr(study_module, "run_study", _fake_study(seen))
+    out = tmp_path / "study"
+
+    def run(*pairs: str) -> dict:
+        assert main(["reproduce", "--world", "pendulum", "--scale", "tiny", "--out", str(out),
+                     "--device", "cpu", "--world-config", *pairs]) == 0
+        return json.loads((out / "summary.json").read_text())["study"]["study"]
+
+    recorded = run("image_size=24", "start=hanging", "perturbation=0.2")
+    assert (seen[-1].image_size, seen[-1].start, seen[-1].perturbation) == (24, "hanging", 0.2)
+    assert seen[-1].world_config().perturbation == 0.2  # the tasks' world
+    assert (recorded["image_size"], recorded["start"], recorded["perturbation"]) == (
+        24, "hanging", 0.2)
+    run("image_size=32", "start=hanging", "perturbation=0.2")
+    assert len(seen) == 2 and seen[-1].image_size == 32  # not reused as "same settings"
+    run("image_size=32", "start=hanging", "perturbation=0.2")
+    assert len(seen) == 2  # the same settings are reused
+    run("image_size=48")  # the world's default value, given, still replaces the scale's 16
+    assert len(seen) == 3 and seen[-1].image_size == 48 and seen[-1].start == "random"
+
+
+@pytest.mark.parametrize("command", [
+    ["reproduce", "--world", "pendulum", "--scale", "tiny"],
+    ["collect", "--world", "pendulum", "--trajectories", "2", "--steps", "1"],
+])
+def test_1_a_world_setting_given_twice_is_refused(tmp_path, capsys, command):
+    out = tmp_path / ("study" if command[0] == "reproduce" else "p.h5")
+    line = _refused(capsys, *command, "--out", str(out), "--world-config", "image_size=24",
+                    "image_size=32")
+    assert "image_size is given twice" in line and not out.exists()
