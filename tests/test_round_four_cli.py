@@ -6,6 +6,7 @@ benchmark scripts' arguments, and advice and limits of `equations`, `--threads` 
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -74,3 +75,15 @@ def test_1_a_world_setting_given_twice_is_refused(tmp_path, capsys, command):
     line = _refused(capsys, *command, "--out", str(out), "--world-config", "image_size=24",
                     "image_size=32")
     assert "image_size is given twice" in line and not out.exists()
+
+
+# ------------------------------------------------------------------ 7: a missing dependency
+def test_7_dmc_without_the_suite_writes_nothing(tmp_path, capsys, monkeypatch):
+    """Without dm-control the install line, and no folder: a run at another scale gets the
+    same line (not "holds a dmc study of other settings"), and another study takes it."""
+    monkeypatch.setitem(sys.modules, "dm_control", None)  # (import dm_control fails)
+    out = tmp_path / "study"
+    for scale in ("tiny", "demo"):
+        line = _refused(capsys, "reproduce", "--world", "dmc", "--scale", scale, "--out",
+                        str(out))
+        assert "install latent-sindy[dmc]" in line and not out.exists()

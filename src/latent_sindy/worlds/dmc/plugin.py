@@ -40,8 +40,12 @@ class DmcPlugin(DmcWorld):
                   say: Callable[[str], None] = print, workers: int = 1) -> Any:
         """The model-based study of this world's task at ``scale`` in ``out`` (finished
         loops reused, ``workers`` loops at a time): a
-        :class:`~latent_sindy.world_study.WorldStudy` for the report."""
+        :class:`~latent_sindy.world_study.WorldStudy` for the report. The suite and the
+        task are checked first: without them nothing is written in ``out``."""
         from latent_sindy.worlds.dmc.study_report import reproduce_dmc
+        from latent_sindy.worlds.dmc.suite import check_task
+
+        check_task(self.config)
 
         return reproduce_dmc(self.config, scale, out, seeds, device, threads, say, workers)
 

@@ -16,7 +16,7 @@ from typing import Any
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.dmc.config import DmcConfig
 
-__all__ = ["INSTALL", "load", "suite", "task_names"]
+__all__ = ["INSTALL", "check_task", "load", "suite", "task_names"]
 
 INSTALL = ("the dmc world needs the DeepMind Control suite: install latent-sindy[dmc] "
            "(pip install 'latent-sindy[dmc]', i.e. dm-control 1.0.50 with mujoco 3.17.0)")
@@ -37,12 +37,19 @@ def task_names() -> list[str]:
     return [f"{domain}-{task}" for domain, task in suite().ALL_TASKS]
 
 
-def load(config: DmcConfig, seed: int = 0) -> Any:
-    """The dm_control environment of ``config.task``, its random starts seeded by ``seed``."""
+def check_task(config: DmcConfig) -> Any:
+    """``dm_control.suite``, once it is found to hold ``config.task``: UserError if the suite
+    is not installed (saying how to install it) or has no such task (naming those it has)."""
     dm_suite = suite()
     if (config.domain, config.task_name) not in dm_suite.ALL_TASKS:
         raise UserError(f"dmc task {config.task!r} is not in the DeepMind Control suite: use "
                         f"one of {', '.join(task_names())}")
+    return dm_suite
+
+
+def load(config: DmcConfig, seed: int = 0) -> Any:
+    """The dm_control environment of ``config.task``, its random starts seeded by ``seed``."""
+    dm_suite = check_task(config)
     env = dm_suite.load(config.domain, config.task_name,
                         task_kwargs={"random": seed, "time_limit": float("inf")})
     if config.camera >= env.physics.model.ncam:
