@@ -87,3 +87,35 @@ def test_7_dmc_without_the_suite_writes_nothing(tmp_path, capsys, monkeypatch):
         line = _refused(capsys, "reproduce", "--world", "dmc", "--scale", scale, "--out",
                         str(out))
         assert "install latent-sindy[dmc]" in line and not out.exists()
+
+
+# ------------------------------------------------------------------ 4: seeds out of range
+@pytest.mark.parametrize(("args", "flag"), [
+    (["train", "--data", "x.h5", "--out", "OUT", "--seed", "99999999999999999999"], "--seed"),
+    (["collect", "--out", "OUT.h5", "--trajectories", "2", "--steps", "1", "--workers", "1",
+      "--seed", "99999999999999999999"], "--seed"),
+    (["collect", "--world", "pendulum", "--out", "OUT.h5", "--seed", "4294967296"], "--seed"),
+    (["reproduce", "--scale", "tiny", "--out", "OUT", "--seeds", "99999999999999999999"],
+     "--seeds"),
+    (["reproduce", "--world", "pendulum", "--scale", "tiny", "--out", "OUT", "--seeds", "0",
+      "4294967296"], "--seeds"),
+    (["reproduce", "--scale", "tiny", "--out", "OUT", "--data-seed", "4294967296"],
+     "--data-seed"),
+    (["control", "RUN", "--seed", "4294967296"], "--seed"),
+])
+def test_4_a_seed_beyond_the_range_is_refused_before_any_work(tmp_path, capsys, monkeypatch,
+                                                               args, flag):
+    monkeypatch.chdir(tmp_path)
+    line = _refused(capsys, *args)
+    assert f"{flag} " in line and "seeds are integers from 0 to 4294967295" in line
+    assert list(tmp_path.iterdir()) == []  # no OUT, no OUT.h5.partial/
+
+
+def test_4_the_largest_seed_collects(tmp_path):
+    from latent_sindy.data import read_sequences
+    from latent_sindy.errors import MAX_SEED
+
+    out = tmp_path / "p.h5"
+    assert main(["collect", "--world", "pendulum", "--out", str(out), "--trajectories", "2",
+                 "--steps", "1", "--seed", str(MAX_SEED)]) == 0
+    assert read_sequences(out).seed == MAX_SEED

@@ -15,7 +15,8 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
-__all__ = ["CarriedUserError", "UserError", "carried_through_parsers"]
+__all__ = ["MAX_SEED", "CarriedUserError", "UserError", "carried_through_parsers",
+           "check_seed"]
 
 _carrying = False
 
@@ -31,6 +32,18 @@ class UserError(ValueError):
         if _carrying:
             return CarriedUserError(*args)
         return super().__new__(cls, *args, **kwargs)
+
+
+#: The largest seed any command or setting takes: numpy's legacy range, so that every seed
+#: derived from one (seed × 100 003 + index, seed × 1000 + episode) still fits the 64-bit
+#: integers that torch and numpy seed with.
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(seed: object, flag: str) -> None:
+    """UserError unless ``seed`` is an integer in 0..:data:`MAX_SEED` (``flag`` names it)."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise UserError(f"{flag} {seed}: seeds are integers from 0 to {MAX_SEED}")
 
 
 @contextlib.contextmanager

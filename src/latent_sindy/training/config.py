@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal
 import torch
 import tyro
 
-from latent_sindy.errors import UserError
+from latent_sindy.errors import MAX_SEED, UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
 from latent_sindy.models.renamed import renamed
 
@@ -207,7 +207,8 @@ class TrainConfig:
              f"--parallel {self.parallel!r} is unknown: use one of {', '.join(PARALLELS)}"),
             (self.device in DEVICES,
              f"--device {self.device!r} is unknown: use one of {', '.join(DEVICES)}"),
-            (self.seed >= 0, f"--seed {self.seed}: seeds are non-negative integers"),
+            (0 <= self.seed <= MAX_SEED,
+             f"--seed {self.seed}: seeds are integers from 0 to {MAX_SEED}"),
             (not (self.resume and self.overwrite),
              "--resume and --overwrite contradict each other: choose one"),
         )

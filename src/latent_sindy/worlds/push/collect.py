@@ -32,7 +32,7 @@ import tyro
 from latent_sindy.atomic import atomic_path, check_memory, write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data import SPLITS, read_sequences, write_sequences
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, check_seed
 from latent_sindy.executors import Executor, die_with_parent
 from latent_sindy.locks import exclusive
 from latent_sindy.worlds.push.config import PushEnvConfig
@@ -63,8 +63,7 @@ class CollectionPlan:
             raise UserError(f"--trajectories {self.trajectories}: collect at least 1")
         if self.steps < 1:
             raise UserError(f"--steps {self.steps}: each trajectory needs at least 1 push")
-        if self.seed < 0:
-            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
+        check_seed(self.seed, "--seed")
         for name, v in (("val", self.val_fraction), ("test", self.test_fraction)):
             if not 0.0 <= v < 1.0:
                 raise UserError(f"--{name}-fraction {v}: use a fraction in [0, 1)")

@@ -28,7 +28,7 @@ from latent_sindy.control.episodes import Observation
 from latent_sindy.control.mppi import MPPI, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import feasible_action
 from latent_sindy.data.windows import OBSERVATIONS, Normalizer
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, check_seed
 from latent_sindy.models.state import pose_cost_weights
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.reach import Reach
@@ -111,8 +111,7 @@ class ControlConfig:
                 raise UserError(f"--{name.replace('_', '-')} {getattr(self, name)}: use 1 or more")
         if self.gif_episodes < 0:
             raise UserError(f"--gif-episodes {self.gif_episodes}: use 0 or more")
-        if self.seed < 0:
-            raise UserError(f"--seed {self.seed}: seeds are non-negative integers")
+        check_seed(self.seed, "--seed")
 
 
 

@@ -26,7 +26,7 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
-from latent_sindy.errors import UserError
+from latent_sindy.errors import UserError, check_seed
 from latent_sindy.plugins import hook
 from latent_sindy.study.runner import study_worlds
 from latent_sindy.training.config import resolve_device
@@ -127,6 +127,8 @@ class ReproduceConfig:
         if self.seeds is not None and (not self.seeds or len(set(self.seeds)) != len(self.seeds)
                                        or min(self.seeds) < 0):
             raise UserError(f"--seeds {list(self.seeds)}: give distinct non-negative seeds")
+        for seed in self.seeds or ():
+            check_seed(seed, "--seeds")
         if self.world not in ENV_PRESETS:
             self._check_world_study()
             return
@@ -145,8 +147,7 @@ class ReproduceConfig:
         if self.workers < 1 or not 1 <= self.threads <= 1024:
             raise UserError(f"--workers {self.workers} and --threads {self.threads}: use 1 or "
                             "more workers and 1 to 1024 threads")
-        if self.data_seed < 0:
-            raise UserError(f"--data-seed {self.data_seed}: seeds are non-negative integers")
+        check_seed(self.data_seed, "--data-seed")
         if self.image_size is not None:
             self.env_config()  # checks the size
         if not (math.isfinite(self.gpus) and self.gpus >= 0):
