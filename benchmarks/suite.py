@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cli_args import check_output_file, positive_float, positive_int, seed_range
+
 SEQUENCES, STEPS = 60, 8
 
 
@@ -188,20 +190,36 @@ if importlib.util.find_spec("dm_control") is not None:  # the dmc extra: a row w
     SYSTEMS["dmc"] = System(_dmc, 6, "dm_control cartpole-swingup, two stacked 32x32 RGB frames")
 
 
-def _seeds(text: list[str]) -> list[int]:
-    out: list[int] = []
-    for t in text:
-        a, _, b = t.partition("..")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
-
-
 def _setting(text: str) -> tuple[str, object]:
-    key, _, value = text.partition("=")
+    key, eq, value = text.partition("=")
+    if not eq or not key:
+        raise argparse.ArgumentTypeError(f"{text!r} is not KEY=VALUE (e.g. batch_size=500)")
     try:
         return key, json.loads(value)
     except json.JSONDecodeError:
         return key, value
+
+
+def _check_settings(p: argparse.ArgumentParser, pairs: list[tuple[str, object]]) -> dict:
+    """The --set settings as fit takes them, or p.error before any fit runs: a key given
+    twice, one that is no training setting (with the closest), or a value TrainConfig
+    refuses."""
+    from latent_sindy.configs import from_json
+    from latent_sindy.errors import UserError
+    from latent_sindy.training.config import TrainConfig, check_fit_settings
+
+    settings = dict(pairs)
+    if len(settings) < len(pairs):
+        p.error("--set: a KEY is given twice; give each setting once")
+    try:
+        check_fit_settings(dict(settings), None)
+    except UserError as e:
+        p.error(f"--set: {e}")
+    try:
+        from_json(TrainConfig, settings, "--set")
+    except UserError as e:
+        p.error(str(e))
+    return settings
 
 
 def run_row(name: str, seed: int, settings: dict[str, object]) -> dict[str, object]:
@@ -269,17 +287,23 @@ def _law(name: str, seed: int, data, settings: dict[str, object]) -> dict[str, o
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
-    p.add_argument("--seeds", nargs="+", default=["0..2"], help="seeds: 0 1 2 or 0..7")
-    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+    p.add_argument("--seeds", nargs="+", type=seed_range, default=[[0, 1, 2]],
+                   help="seeds: 0 1 2, 0..7 or 0,3,5")
+    p.add_argument("--set", nargs="*", type=_setting, default=[], metavar="KEY=VALUE",
                    help="training settings for every row (TrainConfig fields)")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=positive_int, default=2)
     p.add_argument("--json", help="also write the rows to this file")
-    p.add_argument("--omega2", type=float, default=OMEGA2[0],
+    p.add_argument("--omega2", type=positive_float, default=OMEGA2[0],
                    help="ω² of the pendulum video (the video system)")
     args = p.parse_args(argv)
+    # every mistake is refused here, before the first fit (argparse's line, exit status 2)
+    settings = _check_settings(p, args.set)
+    check_output_file(p, args.json, "--json")
+    seeds = [s for group in args.seeds for s in group]
+    if len(set(seeds)) < len(seeds):
+        p.error(f"--seeds: a seed is given twice ({' '.join(map(str, seeds))})")
     OMEGA2[0] = args.omega2
-    settings = dict(_setting(s) for s in args.set)
-    jobs = [(n, s) for n in args.systems for s in _seeds(args.seeds)]
+    jobs = [(n, s) for n in args.systems for s in seeds]
     print(f"{len(jobs)} fits, settings: {settings or 'the defaults'}", file=sys.stderr)
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:

@@ -19,12 +19,7 @@ import json
 import time
 from pathlib import Path
 
-
-def seeds_of(text: str) -> list[int]:
-    if ".." in text:
-        lo, hi = text.split("..")
-        return list(range(int(lo), int(hi) + 1))
-    return [int(s) for s in text.split(",")]
+from cli_args import check_output_file, positive_float, seed_range
 
 
 def one_seed(omega2: float, seed: int, starts: str) -> dict:
@@ -53,19 +48,29 @@ def one_seed(omega2: float, seed: int, starts: str) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--omega2", type=float, default=1.44, help="ω² of θ̈ = −ω² sin θ")
-    p.add_argument("--seeds", default="0", help="model seeds: 0..9 or 0,3,5")
+    p.add_argument("--omega2", type=positive_float, default=1.44, help="ω² of θ̈ = −ω² sin θ")
+    p.add_argument("--seeds", type=seed_range, default=[0], help="model seeds: 0..9 or 0,3,5")
     p.add_argument("--starts", default="own_time", choices=["own_time", "benchmark"])
     p.add_argument("--out", type=Path, help="append one JSON line per seed; skip those there")
     args = p.parse_args(argv)
+    # every mistake is refused here, before the first seed (argparse's line, exit status 2)
+    if args.starts == "benchmark" and args.omega2 < 1:
+        p.error(f"--starts benchmark with --omega2 {args.omega2}: use --omega2 >= 1 (below, "
+                "some of its starts turn full circles), or --starts own_time")
+    check_output_file(p, args.out, "--out")
     done = {}
     if args.out is not None and args.out.exists():
-        for line in args.out.read_text().splitlines():
-            row = json.loads(line)
-            if (row["omega2"], row["starts"]) == (args.omega2, args.starts):
+        for number, line in enumerate(args.out.read_text().splitlines(), 1):
+            try:
+                row = json.loads(line)
+                key = (row["omega2"], row["starts"], row["seed"])
+            except (ValueError, TypeError, KeyError):
+                p.error(f"--out {args.out}: line {number} is not a row this script wrote; "
+                        "choose another file")
+            if key[:2] == (args.omega2, args.starts):
                 done[row["seed"]] = row
     rows = []
-    for seed in seeds_of(args.seeds):
+    for seed in args.seeds:
         row = done.get(seed) or one_seed(args.omega2, seed, args.starts)
         if seed not in done and args.out is not None:
             with args.out.open("a") as f:

@@ -1,0 +1,79 @@
+"""Argument types and checks the benchmark scripts share: every mistake is refused before
+any work starts, as argparse refuses its own (one ``PROG: error: ...`` line, exit status 2).
+
+    p.add_argument("--seeds", nargs="+", type=seed_range, default=[[0, 1, 2]])
+    p.add_argument("--workers", type=positive_int, default=2)
+    args = p.parse_args(argv)
+    check_output_file(p, args.json, "--json")
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+from latent_sindy.errors import MAX_SEED
+
+__all__ = ["check_output_file", "positive_float", "positive_int", "seed_range"]
+
+
+def seed_range(text: str) -> list[int]:
+    """Seeds from ``3``, ``0..7`` (both ends included) or ``0,3,5``: each an integer in
+    0..MAX_SEED, a range that holds at least one."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, dots, hi = part.partition("..")
+        try:
+            a, b = int(lo), int(hi) if dots else int(lo)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: give seeds as integers, e.g. 0 1 2, 0..7 or 0,3,5") from None
+        if not (0 <= a <= MAX_SEED and 0 <= b <= MAX_SEED):
+            raise argparse.ArgumentTypeError(f"{text!r}: seeds are integers from 0 to "
+                                             f"{MAX_SEED}")
+        if b < a:
+            raise argparse.ArgumentTypeError(f"{text!r}: the range {a}..{b} holds no seed; "
+                                             f"write it low..high, e.g. {b}..{a}")
+        seeds += range(a, b + 1)
+    return seeds
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: use 1 or more")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: use a finite number > 0")
+    return value
+
+
+def check_output_file(parser: argparse.ArgumentParser, path: str | os.PathLike | None,
+                      flag: str) -> None:
+    """parser.error unless ``path`` (None: no output) can be written as a file: not a
+    folder, in a folder that exists and lets us write, and writable where it exists.
+    Nothing is created."""
+    if path is None:
+        return
+    path = Path(path)
+    folder = path.parent
+    if path.is_dir():
+        parser.error(f"{flag} {path} is a folder: give a file name")
+    if not folder.is_dir():
+        parser.error(f"{flag} {path}: {folder} is not an existing folder")
+    if not os.access(folder, os.W_OK | os.X_OK) or (path.exists()
+                                                     and not os.access(path, os.W_OK)):
+        parser.error(f"{flag} {path}: cannot write there (permission denied); choose "
+                     "another path")
