@@ -1,0 +1,74 @@
+"""The gym world's study, ``latent-sindy reproduce --world gym``: the model-based study of
+:mod:`latent_sindy.study.model_based` (PlaNet's loop, SINDy, linear and MLP latent dynamics on
+the same seed episodes, planner and seeds) against the environment's own reward, with the
+learned-latent settings of the dmc world's scales.
+
+    latent-sindy reproduce --world gym --world-config id=Pendulum-v1 --scale small --out /tmp/p
+
+Each (seed, model) loop is its own resumable folder, ``OUT/seed<S>/<model>/``; the study's
+settings are in ``OUT/gym_study.json`` and a folder of other settings is refused.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+from latent_sindy.errors import UserError
+from latent_sindy.study.model_based import LoopScale, run_study
+from latent_sindy.study.model_based_report import model_based_study
+from latent_sindy.world_study import WorldStudy
+from latent_sindy.worlds.gym.config import GymConfig
+
+__all__ = ["SCALES", "reproduce_gym", "study_scale"]
+
+Say = Callable[[str], None]
+
+SCALES: dict[str, LoopScale] = {
+    "tiny": LoopScale(
+        "seconds, for tests: 16x16 single frames, 2 seed episodes and 2 planned ones of 8 "
+        "actions, 2 epochs then 4 updates a refit in batches of 8, MPPI K 16 H 3; seed 0",
+        (0,), 16, 1, 2, 2, 8, 2, 4, 2, 3, "mlp", 16, 3, 16, batch_size=8, eval_episodes=1),
+    "small": LoopScale(
+        "a few minutes a model on a CPU core, sized for Pendulum-v1's episodes of 200 "
+        "steps: 64x64, 2 frames, 5 seed episodes and 3 planned ones of 200 actions, latent "
+        "size 6, conv encoder, 15 epochs then 100 updates a refit in batches of 32 (SINDy "
+        "pruned by 30% a refit, down to 48 terms), MPPI K 300 H 12 λ 0.1, moving pixels "
+        "weighted 11x, 2 test episodes a fit; seed 0",
+        (0,), 64, 2, 5, 3, 200, 15, 100, 4, 6, "conv", 300, 12),
+}
+
+
+def study_scale(scale: str, seeds: tuple[int, ...] | None) -> LoopScale:
+    if scale not in SCALES:
+        raise UserError(f"--scale {scale}: the gym world's scales are {', '.join(SCALES)}")
+    s = SCALES[scale]
+    return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
+
+
+def _world_config(config: GymConfig, s: LoopScale) -> GymConfig:
+    """The world's settings with the scale's image size and frames where the world keeps
+    the defaults (a --world-config size or frames wins)."""
+    default = GymConfig(id=config.id)
+    size = s.size if config.size == default.size else config.size
+    frames = s.frames if config.frames == default.frames else config.frames
+    return dataclasses.replace(config, size=size, frames=frames)
+
+
+def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+                  device: str, threads: int, say: Say, workers: int = 1) -> WorldStudy:
+    """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
+    time), as a WorldStudy; the environment is made first (nothing is written for an id
+    gymnasium cannot make or a renderer that is missing)."""
+    from latent_sindy.worlds.gym.world import GymWorld, describe
+
+    s = study_scale(scale, seeds)
+    world = _world_config(config, s)
+    describe(world)
+    header = (f"gym {world.id}, {scale} scale: {world.size}x{world.size}, {world.frames} "
+              f"frame(s), repeat {world.action_repeat}")
+    result = run_study(GymWorld(world), s, scale, out, device, threads, say, workers,
+                       name="gym", header=header, steps_per_action=world.action_repeat)
+    return model_based_study(result, scale, out, f"Gymnasium from pixels: {world.id}, "
+                             "model-based, SINDy / linear / MLP", world.id)
