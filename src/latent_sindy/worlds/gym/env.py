@@ -16,6 +16,7 @@ true state is the environment's observation, flattened.
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from typing import Any
 
@@ -40,7 +41,11 @@ def _missing(config: GymConfig, e: Exception) -> UserError:
 
 def make(config: GymConfig) -> Any:
     """``gym.make(config.id, render_mode="rgb_array")``, its action space checked (a Box):
-    UserError for an id gymnasium cannot make or an action space that is not a Box."""
+    UserError for an id gymnasium cannot make or an action space that is not a Box. pygame
+    (classic control's renderer) draws off screen, without its greeting, unless the user
+    chose otherwise (``SDL_VIDEODRIVER``, ``PYGAME_HIDE_SUPPORT_PROMPT``)."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     try:
         env = gym.make(config.id, render_mode="rgb_array")
     except gym.error.DependencyNotInstalled as e:
