@@ -198,3 +198,67 @@ def test_8_video_defaults_refuses_bad_arguments_before_any_fit(tmp_path, capsys,
             for a in argv]
     assert needle in _usage_error(capsys, video, argv)
     assert (tmp_path / "FILE").read_text() == "x"
+
+
+# ------------------------------------------------------------------ 9: advice and limits
+TINY = ["--latent-dim", "3", "--encoder-hidden", "8", "--decoder-hidden", "16"]
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    from latent_sindy.worlds.push.collect import CollectionPlan, collect
+
+    root = tmp_path_factory.mktemp("data")
+    return collect(root / "data.h5", CollectionPlan(trajectories=3, steps=2, val_fraction=0.34,
+                                                    test_fraction=0.0), workers=1)
+
+
+def test_9_equations_of_a_run_in_training_does_not_advise_resume(tiny_data, tmp_path, capsys):
+    """A run another process is training has a checkpoint and no model.pt yet: the advice
+    is to wait (--resume would be refused by its lock); once free, to resume it."""
+    from latent_sindy.locks import exclusive
+
+    run = tmp_path / "run"
+    assert main(["train", "sindy", "--data", str(tiny_data), "--out", str(run), "--epochs",
+                 "1", "--no-progress", "--threads", "1", *TINY]) == 0
+    capsys.readouterr()
+    (run / "model.pt").unlink()  # as it is while its training runs
+    with exclusive(run, "run folder"):
+        line = _refused(capsys, "equations", str(run))
+    assert "is training it now: wait for it to finish" in line and "--resume" not in line
+    line = _refused(capsys, "equations", str(run))  # nobody trains it: it was interrupted
+    assert "resume it with --resume" in line
+
+
+@pytest.mark.parametrize("command", [
+    ["train", "--data", "missing.h5", "--out", "run"],
+    ["control", "no-run"],
+    ["reproduce", "--scale", "tiny", "--data", "missing.h5", "--out", "study"],
+])
+def test_9_threads_beyond_the_cores_are_refused(tmp_path, capsys, monkeypatch, command):
+    import os
+
+    monkeypatch.chdir(tmp_path)
+    cores = len(os.sched_getaffinity(0))
+    line = _refused(capsys, *command, "--threads", str(cores + 1))
+    assert f"--threads {cores + 1}: this process may run on {cores} core(s)" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_9_collect_workers_beyond_the_trajectories_are_cut_with_a_note(tmp_path, capsys,
+                                                                        monkeypatch):
+    import latent_sindy.cli as cli
+    from latent_sindy.plugins import Command
+
+    used: list[int] = []
+    real = cli.COMMAND_OF["collect"]
+    monkeypatch.setitem(cli.COMMAND_OF, "collect", Command(
+        real.settings, lambda plan, out, workers, progress: used.append(workers)))
+    assert main(["collect", "--out", str(tmp_path / "c.h5"), "--trajectories", "2",
+                 "--steps", "1", "--workers", "1000", "--no-progress"]) == 0
+    assert used == [2]
+    assert "note: --workers 1000 for 2 trajectories: using 2 worker processes" in (
+        capsys.readouterr().err)
+    assert main(["collect", "--out", str(tmp_path / "d.h5"), "--trajectories", "3",
+                 "--workers", "2", "--no-progress"]) == 0
+    assert used == [2, 2] and "note" not in capsys.readouterr().err

@@ -50,16 +50,25 @@ ControlSettings = COMMAND_OF["control"].settings
 StudySettings = COMMAND_OF["reproduce"].settings
 
 
-MAX_THREADS = 1024
 #: The control settings every world's closed loop takes (the rest are the default world's).
 GENERIC = ("episodes", "max_steps", "seed", "space", "mppi")
 
 
+def _cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # (no affinity on this platform)
+        return os.cpu_count() or 1
+
+
 def _check_threads(n: int, auto: bool) -> None:
-    """UserError unless ``n`` is a usable torch thread count (0 = one per core, if ``auto``)."""
-    if not (0 if auto else 1) <= n <= MAX_THREADS:
-        raise UserError(f"--threads {n}: use 1 to {MAX_THREADS}"
-                        + (", or 0 for one per core" if auto else ""))
+    """UserError unless ``n`` is a usable torch thread count: 1 to the cores this process may
+    run on (more only compete for them), or 0 for one per core if ``auto``."""
+    cores = _cores()
+    if not (0 if auto else 1) <= n <= cores:
+        raise UserError(f"--threads {n}: this process may run on {cores} core(s): use 1 to "
+                        f"{cores}" + (", or 0 for one per core" if auto else ""))
 
 
 def _bar(desc: str, unit: str):
@@ -86,7 +95,8 @@ class Collect:
     plan: Annotated[CollectSettings, tyro.conf.arg(name=""), Flat] = field(
         default_factory=CollectSettings)
     workers: int = 2
-    """Worker processes simulating in parallel (1 runs in this process)."""
+    """Worker processes simulating in parallel (1 runs in this process); more than
+    --trajectories is cut to one a trajectory, with a note."""
     progress: bool = True
     """Show a progress bar."""
 
@@ -97,7 +107,13 @@ class Collect:
         if self.world_config:
             raise UserError(f"--world-config sets another world's settings: the "
                             f"{DEFAULT_WORLD} world takes the options below")
-        COMMAND_OF["collect"].run(self.plan, self.out, self.workers,
+        workers = self.workers
+        if workers > self.plan.trajectories:  # (one trajectory is one worker's job)
+            workers = self.plan.trajectories
+            print(f"latent-sindy: note: --workers {self.workers} for {workers} "
+                  f"trajector{'y' if workers == 1 else 'ies'}: using {workers} worker "
+                  f"process{'' if workers == 1 else 'es'}", file=sys.stderr)
+        COMMAND_OF["collect"].run(self.plan, self.out, workers,
                                   _bar("collect", "traj") if self.progress else None)
 
     def _collect_world(self) -> None:
@@ -306,6 +322,8 @@ class Reproduce:
     def run(self) -> None:
         from latent_sindy.study.runner import reproduce_world, study_worlds
 
+        if not (self.config.executor == "ray" and self.config.ray_address):
+            _check_threads(self.config.threads, auto=False)  # (else: another machine's)
         world = study_worlds().get(self.config.world)
         if self.world_config and world is None:
             raise UserError(f"--world-config sets the settings of a world with a study of "

@@ -32,7 +32,7 @@ try:
 except ImportError:  # no flock (Windows): outputs are not locked there
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["exclusive", "lock_path"]
+__all__ = ["exclusive", "holder", "lock_path"]
 
 #: flock errors of file systems that have no locks (some network ones): go on unlocked there.
 _NO_LOCKS = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS}
@@ -74,6 +74,30 @@ def exclusive(path: str | os.PathLike, what: str, option: str = "--out") -> Iter
         for folder in reversed(made):
             with contextlib.suppress(OSError):  # not empty: something else lives there now
                 folder.rmdir()
+
+
+def holder(path: str | os.PathLike) -> str | None:
+    """Who holds ``path`` now ("another process (pid N)", as a refusal names it), or None
+    where nobody does. A reader's check: it takes a shared lock for an instant where the
+    lock file exists, and creates nothing."""
+    lock = lock_path(path)
+    if fcntl is None:
+        return None
+    try:
+        fd = os.open(lock, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None  # no lock file: nobody holds it
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return _holder(fd)
+    except OSError:
+        return None  # a file system without locks
+    else:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
 
 
 def _make_parents(folder: Path, made: list[Path]) -> None:

@@ -43,6 +43,7 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
+from latent_sindy.locks import holder
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.plugins import get_world
 from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
@@ -304,7 +305,9 @@ class RunDir:
                             f"{given[2]} and {given[3]}: the file was edited; retrain the run")
         name = self.CHECKPOINT if checkpoint else self.MODEL
         if not (self.path / name).is_file():
-            hint = ("" if checkpoint or not self.interrupted else
+            training = holder(self.path)
+            hint = (f" ({training} is training it now: wait for it to finish)" if training
+                    else "" if checkpoint or not self.interrupted else
                     f" (its training did not finish: resume it with --resume --out "
                     f"{self.path}, or load its checkpoint)")
             raise UserError(f"{self.path} has no {name}{hint}")
