@@ -66,6 +66,41 @@ def test_1_pendulum_world_config_reaches_the_study_and_its_identity(tmp_path, mo
     assert len(seen) == 3 and seen[-1].image_size == 48 and seen[-1].start == "random"
 
 
+class _Stop(Exception):
+    """Raised by a stand-in study once it has seen its world's settings."""
+
+
+@pytest.mark.parametrize("world", ["gym", "dmc"])
+def test_1_model_based_worlds_take_a_given_size_even_the_default(tmp_path, monkeypatch, world):
+    """`--world-config size=64 frames=2` (the world's defaults) replace the tiny scale's 16
+    and 1: given is given, whatever its value; sizes not given stay the scale's."""
+    seen: list = []
+
+    def stand_in(env_world, *args, **kwargs):
+        seen.append(env_world.config)
+        raise _Stop
+
+    if world == "gym":
+        import gym_blob  # noqa: F401  (registers the blob environment)
+        import latent_sindy.worlds.gym.study as module
+
+        pairs = ["id=gym_blob:BlobTest-v0"]
+    else:
+        import latent_sindy.worlds.dmc.study as module
+        import latent_sindy.worlds.dmc.suite as suite
+
+        monkeypatch.setattr(suite, "check_task", lambda config: None)  # (no dm-control here)
+        pairs = []
+    monkeypatch.setattr(module.study if world == "dmc" else module, "run_study", stand_in)
+    out = tmp_path / "study"
+    for given, expected in ((["size=64", "frames=2"], (64, 2)), (["frames=2"], (16, 2))):
+        with pytest.raises(_Stop):
+            main(["reproduce", "--world", world, "--scale", "tiny", "--out", str(out),
+                  "--world-config", *pairs, *given])
+        assert (seen[-1].size, seen[-1].frames) == expected
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("command", [
     ["reproduce", "--world", "pendulum", "--scale", "tiny"],
     ["collect", "--world", "pendulum", "--trajectories", "2", "--steps", "1"],

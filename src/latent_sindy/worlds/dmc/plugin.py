@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from latent_sindy.plugins import CONFIG_GIVEN
 from latent_sindy.worlds.dmc.world import GOALS, DmcWorld
 
 __all__ = ["GOALS", "WORLD", "DmcPlugin", "DmcWorld"]
@@ -46,8 +47,8 @@ class DmcPlugin(DmcWorld):
         from latent_sindy.worlds.dmc.suite import check_task
 
         check_task(self.config)
-
-        return reproduce_dmc(self.config, scale, out, seeds, device, threads, say, workers)
+        return reproduce_dmc(self.config, scale, out, seeds, device, threads, say, workers,
+                             getattr(self, CONFIG_GIVEN, None))
 
 
 WORLD = DmcPlugin()

@@ -16,7 +16,7 @@ settings are in ``OUT/dmc_study.json``; a folder of other settings is refused.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -99,26 +99,32 @@ def study_scale(scale: str, seeds: tuple[int, ...] | None) -> DmcScale:
     return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
 
 
-def _world_config(config: DmcConfig, s: DmcScale) -> DmcConfig:
-    """The world's settings with the scale's image size and frames where the world keeps
-    the defaults (a --world-config size or frames wins)."""
-    default = DmcConfig(task=config.task)
-    size = s.size if config.size == default.size else config.size
-    frames = s.frames if config.frames == default.frames else config.frames
+def _world_config(config: DmcConfig, s: DmcScale,
+                  given: Collection[str] | None = None) -> DmcConfig:
+    """The world's settings with the scale's image size and frames, except those ``given``
+    (the fields a --world-config set, whatever their value); ``given`` None (a Python
+    caller's config): a size or frames other than the defaults wins."""
+    if given is None:
+        default = DmcConfig(task=config.task)
+        given = [k for k in ("size", "frames") if getattr(config, k) != getattr(default, k)]
+    size = config.size if "size" in given else s.size
+    frames = config.frames if "frames" in given else s.frames
     return dataclasses.replace(config, size=size, frames=frames)
 
 
 def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say, workers: int = 1) -> dict[str, Any]:
+                  device: str, threads: int, say: Say, workers: int = 1,
+                  given: Collection[str] | None = None) -> dict[str, Any]:
     """Every (seed, model) loop of the scale in ``out`` (finished ones reused), ``workers``
     loops at a time (1: one after another in this process; more: in worker processes that
     end with this one, each loop's numbers the same as in this process): the study's
     settings and, per model and seed, the log of its loop and its wall time
-    (:func:`latent_sindy.study.model_based.run_study`)."""
+    (:func:`latent_sindy.study.model_based.run_study`). ``given``: the fields of ``config``
+    a user set (:func:`_world_config`)."""
     from latent_sindy.worlds.dmc.world import DmcWorld
 
     s = study_scale(scale, seeds)
-    world = _world_config(config, s)
+    world = _world_config(config, s, given)
     header = (f"dmc {world.task}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
     result = study.run_study(DmcWorld(world), s, scale, out, device, threads, say, workers,

@@ -9,7 +9,7 @@ the last SINDy equations; a figure) with the published reference rows of cartpol
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 from latent_sindy.study.model_based_report import Reference, model_based_study
@@ -28,10 +28,11 @@ _REFERENCE = Reference(REFERENCE_TASK, REFERENCE_STEPS, REFERENCE,
 
 
 def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say, workers: int = 1) -> WorldStudy:
+                  device: str, threads: int, say: Say, workers: int = 1,
+                  given: Collection[str] | None = None) -> WorldStudy:
     """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
-    time), as a WorldStudy."""
-    result = run_dmc_study(config, scale, out, seeds, device, threads, say, workers)
+    time), as a WorldStudy; ``given``: the fields of ``config`` a user set."""
+    result = run_dmc_study(config, scale, out, seeds, device, threads, say, workers, given)
     task = result["settings"]["world"]["task"]
     return model_based_study(
         result, scale, out, f"DeepMind Control from pixels: {task}, model-based, SINDy / "

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from latent_sindy.plugins import CONFIG_GIVEN
 from latent_sindy.worlds.gym.world import GymWorld
 
 __all__ = ["WORLD", "GymPlugin", "GymWorld"]
@@ -43,7 +44,8 @@ class GymPlugin(GymWorld):
         made first: an id it cannot make or a missing renderer writes nothing in ``out``."""
         from latent_sindy.worlds.gym.study import reproduce_gym
 
-        return reproduce_gym(self.config, scale, out, seeds, device, threads, say, workers)
+        return reproduce_gym(self.config, scale, out, seeds, device, threads, say, workers,
+                             getattr(self, CONFIG_GIVEN, None))
 
 
 WORLD = GymPlugin()

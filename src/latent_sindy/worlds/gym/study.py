@@ -12,7 +12,7 @@ settings are in ``OUT/gym_study.json`` and a folder of other settings is refused
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 from latent_sindy.errors import UserError
@@ -47,24 +47,30 @@ def study_scale(scale: str, seeds: tuple[int, ...] | None) -> LoopScale:
     return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
 
 
-def _world_config(config: GymConfig, s: LoopScale) -> GymConfig:
-    """The world's settings with the scale's image size and frames where the world keeps
-    the defaults (a --world-config size or frames wins)."""
-    default = GymConfig(id=config.id)
-    size = s.size if config.size == default.size else config.size
-    frames = s.frames if config.frames == default.frames else config.frames
+def _world_config(config: GymConfig, s: LoopScale,
+                  given: Collection[str] | None = None) -> GymConfig:
+    """The world's settings with the scale's image size and frames, except those ``given``
+    (the fields a --world-config set, whatever their value); ``given`` None (a Python
+    caller's config): a size or frames other than the defaults wins."""
+    if given is None:
+        default = GymConfig(id=config.id)
+        given = [k for k in ("size", "frames") if getattr(config, k) != getattr(default, k)]
+    size = config.size if "size" in given else s.size
+    frames = config.frames if "frames" in given else s.frames
     return dataclasses.replace(config, size=size, frames=frames)
 
 
 def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say, workers: int = 1) -> WorldStudy:
+                  device: str, threads: int, say: Say, workers: int = 1,
+                  given: Collection[str] | None = None) -> WorldStudy:
     """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
     time), as a WorldStudy; the environment is made first (nothing is written for an id
-    gymnasium cannot make or a renderer that is missing)."""
+    gymnasium cannot make or a renderer that is missing); ``given``: the fields of ``config``
+    a user set (:func:`_world_config`)."""
     from latent_sindy.worlds.gym.world import GymWorld, describe
 
     s = study_scale(scale, seeds)
-    world = _world_config(config, s)
+    world = _world_config(config, s, given)
     describe(world)
     header = (f"gym {world.id}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
