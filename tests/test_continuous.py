@@ -278,8 +278,11 @@ def test_save_and_load_give_the_same_model(fitted: LatentSINDy, tmp_path) -> Non
     assert back.time == "continuous" and back.derivative_order == 2
     images = oscillator(n=2, frames=5).images
     np.testing.assert_array_equal(back.encode(images), fitted.encode(images))
-    with pytest.raises(UserError, match="phase state of 2 coordinates"):  # ż is not in a frame
-        back.predict(images[0, 0], np.zeros(0, np.float32))
+    with pytest.raises(UserError, match="previous=frames_before"):  # ż is not in a frame
+        back.predict(images[0, 1], np.zeros(0, np.float32))
+    np.testing.assert_array_equal(  # the loaded model steps from two frames as the fitted
+        back.predict(images[0, 1], np.zeros(0, np.float32), previous=images[0, 0]),
+        fitted.predict(images[0, 1], np.zeros(0, np.float32), previous=images[0, 0]))
 
 
 def test_a_first_order_model_predicts_by_integrating_one_step() -> None:

@@ -28,8 +28,7 @@ import torch
 
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planner import ImagePlanner, Objective
-from latent_sindy.data import SequenceData
-from latent_sindy.data.inputs import check_actions, check_frames
+from latent_sindy.data import SequenceData, inputs
 from latent_sindy.equations import coefficient_table, name_actions, pruned_note
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
@@ -93,6 +92,8 @@ class LatentSINDy:
                  time: Literal["discrete", "continuous"] = "discrete",
                  derivative_order: int = 1, pca_components: int | None = None,
                  time_unit: float | Literal["data"] | None = None) -> None:
+        inputs.check_estimator_arguments(latent_dim, order, include_sine, seed,
+                                         derivative_order, pca_components, time_unit)
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
@@ -167,9 +168,9 @@ class LatentSINDy:
         recipe's, in continuous time without settings; else none)."""
         if not isinstance(data, SequenceData):
             raise UserError(f"fit takes a SequenceData, got {type(data).__name__}")
-        check_fit_settings(settings, out)
         if epochs is not None:
             settings["epochs"] = epochs
+        check_fit_settings(settings, out)  # (names and types: epochs=1.5 or True refused)
         folder = {} if out is None else {"out": Path(out), "data": Path(data.source)}
         cfg = self.train_config(**folder, **(recipes.recipe_epochs(settings) if self.recipe
                                              else settings))
@@ -224,7 +225,7 @@ class LatentSINDy:
         if kind != "image":
             raise UserError(f"this model observes {kind}s, not images")
         d = self.description_
-        return self.normalizer_.normalize(check_frames(
+        return self.normalizer_.normalize(inputs.check_frames(
             images, name, dims, d["frame_shape"], d.get("pixel_dtype", "uint8")))
 
     def _pixels(self, x: torch.Tensor) -> np.ndarray:
@@ -233,7 +234,7 @@ class LatentSINDy:
 
     def _actions(self, actions: Any, lead: tuple[int, ...]) -> torch.Tensor:
         nu = len(self.description_["action_low"])
-        return torch.as_tensor(check_actions(actions, "actions", lead, nu))
+        return torch.as_tensor(inputs.check_actions(actions, "actions", lead, nu))
 
     @torch.no_grad()
     def encode(self, images: np.ndarray) -> np.ndarray:
@@ -243,52 +244,52 @@ class LatentSINDy:
         lead = x.shape[:-3]
         return self.model_.encode(x.reshape(-1, *x.shape[-3:])).reshape(*lead, -1).numpy()
 
+    def _start(self, x: torch.Tensor, previous: Any, u: torch.Tensor, second: bool
+               ) -> torch.Tensor:
+        """The latent at frames ``x``, or (``second``) the phase (z, ż) from them, ``previous``."""
+        return self.model_.phase(x, self._observe(np.asarray(previous)[None] if np.ndim(
+            previous) == 3 else previous, "previous", (4,)), u) if second else self.model_.encode(x)
+
     @torch.no_grad()
-    def predict(self, images: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    def predict(self, images: np.ndarray, actions: np.ndarray, previous: Any = None) -> np.ndarray:
         """The next images (N, C, H, W) after ``actions`` (N, nu) from ``images`` (N, C, H, W),
-        in the data's pixel scale (a single image (C, H, W) and action (nu,) work too)."""
+        in the data's pixel scale, float32 (a uint8 model's 0..255: np.round(out).astype(np.uint8)
+        feeds them back); a single image (C, H, W) and action (nu,) work too. A second-order
+        continuous-time model also needs ``previous``, the frames one dt before ``images``."""
         self._check_fitted()
+        second = inputs.check_previous(self.model_.dynamics, previous, "predict")
         single = np.ndim(images) == 3
         x = self._observe(np.asarray(images)[None] if single else images, "images", (4,))
         nu = len(self.description_["action_low"])
         u = self._actions(actions, () if single else (len(x),)).reshape(len(x), nu)
-        z_next = self.model_.step(self.model_.encode(x), u)
+        z_next = self.model_.step(self._start(x, previous, u, second), u)
+        z_next = z_next[:, :self.model_.dynamics.nz]
         out = self._pixels(self.model_.decode(z_next))
         return out[0] if single else out
 
     @torch.no_grad()
-    def simulate(self, image: np.ndarray, actions: np.ndarray | int
-                 ) -> tuple[np.ndarray, np.ndarray]:
+    def simulate(self, image: np.ndarray, actions: np.ndarray | int,
+                 previous: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Roll the model out from ``image`` (C, H, W) under ``actions`` (T, nu): the latents
         (T+1, nz) and the decoded images (T+1, C, H, W), in the data's pixel scale; from a
         batch of images (N, C, H, W) under actions (N, T, nu), (N, T+1, nz) and
         (N, T+1, C, H, W). A model without actions (an autonomous system) takes the number of
-        steps T instead; a continuous-time model steps dt apart."""
+        steps T instead; a continuous-time model steps dt apart. A second-order one also
+        needs ``previous``, the frame(s) one time step before ``image`` (see :meth:`predict`)."""
         self._check_fitted()
         if np.ndim(image) not in (3, 4):
             raise UserError(f"simulate rolls out an image (C, H, W) or a batch (N, C, H, W), "
                             f"got shape {np.shape(image)}")
         single = np.ndim(image) == 3
-        if getattr(self.model_.dynamics, "derivative_order", 1) != 1:
-            raise UserError("a second-order continuous-time model needs the latent's velocity "
-                            "as well as the image to roll out, which an image does not give: "
-                            "use predict, or a first-order model")
+        second = inputs.check_previous(self.model_.dynamics, previous, "simulate")
         nu, n = len(self.description_["action_low"]), 1 if single else len(image)
-        if isinstance(actions, int | np.integer) and not isinstance(actions, bool):
-            if nu:
-                raise UserError(f"simulate: this model takes {nu} action(s) a step: give the "
-                                f"actions (T, {nu}), not a number of steps")
-            if actions < 0:
-                raise UserError(f"simulate: {actions} steps: use 0 or more")
-            actions = np.zeros((int(actions), 0) if single else (n, int(actions), 0))
-        want = f"(T, {nu})" if single else f"(N, T, nu) with N = {n}, nu = {nu}"
-        if np.ndim(actions) != (2 if single else 3) or (not single and len(actions) != n):
-            raise UserError(f"actions of shape {np.shape(actions)}: give {want}, the actions "
-                            "of each step")
+        actions = inputs.check_rollout_actions(actions, single, n, nu)
         lead = np.shape(actions)[:-1]
         u = self._actions(actions, lead).reshape(n, lead[-1], nu)  # (N, T, nu)
         x = self._observe(np.asarray(image)[None] if single else image, "image", (4,))
-        z = self.model_.rollout_latent(self.model_.encode(x), u)  # (N, T+1, nz)
+        first = u[:, 0] if u.shape[1] else u.new_zeros(n, nu)
+        z = self.model_.rollout_latent(self._start(x, previous, first, second), u)
+        z = z[..., :self.model_.dynamics.nz]  # (N, T+1, nz)
         frames = self._pixels(self.model_.decode(z.flatten(0, 1))).reshape(
             *z.shape[:2], *x.shape[1:])
         return (z[0].numpy(), frames[0]) if single else (z.numpy(), frames)
@@ -311,14 +312,8 @@ class LatentSINDy:
                   ) -> list[str]:
         """The latent update rules as text, one per latent state (SINDy: active terms only)."""
         self._check_fitted()
-        nu = len(self.description_["action_low"])
-        if action_names is not None and (isinstance(action_names, str)
-                                         or len(action_names) != nu):
-            given = [action_names] if isinstance(action_names, str) else list(action_names)
-            raise UserError(f"action_names {given}: give a list of {nu} name(s), one per "
-                            "action of this model")
-        names = action_names or self.description_.get("action_names") or []
-        return name_actions(self.model_.dynamics.equations(precision), list(names))
+        return name_actions(self.model_.dynamics.equations(precision),
+                            inputs.action_names(self.description_, action_names))
 
     def print(self, action_names: list[str] | None = None, precision: int = 3) -> None:
         """Print :meth:`equations` (with the data's action names unless others are given), or
@@ -335,8 +330,9 @@ class LatentSINDy:
 
     def get_feature_names(self) -> list[str]:
         """The candidate terms, in the order of :meth:`coefficients`' columns (pysindy's
-        name): "1", "z0", "u1", "z0 u1", "sin(z0)", ..."""
-        return self._table()[0]
+        name): "1", "z0", "u1", "z0 u1", "sin(z0)", ..., the actions by the names
+        :meth:`equations` gives them (the data's: "vx", "z0 vx", ...)."""
+        return name_actions(self._table()[0], inputs.action_names(self.description_))
 
     def _table(self) -> tuple[list[str], np.ndarray]:
         self._check_fitted()
@@ -350,9 +346,10 @@ class LatentSINDy:
         that holds it refuses this save) and must hold no run."""
         self._check_fitted()
         from latent_sindy.training.core import to_cpu
+        from latent_sindy.training.record import action_box
         from latent_sindy.version import __version__
 
-        run = RunDir(path)
+        run = RunDir(inputs.check_folder(path, "save"))
         if run.path.exists() and not run.path.is_dir():
             raise UserError(f"{run.path} is a file: save to a folder")
         with exclusive(run.path, "run folder", "folder"):
@@ -368,7 +365,7 @@ class LatentSINDy:
                 "epoch": self.kept_["epoch"], "epochs": self.record_["train"]["epochs"],
                 "selection": self.kept_["selection"], "model": to_cpu(self.model_.state_dict()),
                 "model_config": self.record_["model"], "normalizer": self.record_["normalizer"],
-                "package_version": __version__})
+                "action_box": action_box(self.description_), "package_version": __version__})
         return run.path
 
     @classmethod

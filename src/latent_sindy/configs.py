@@ -21,7 +21,9 @@ would each need adapters for the same rules and add a dependency to every instal
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import json
 import types
 import typing
@@ -31,7 +33,8 @@ from typing import Any, Literal, Union
 
 from latent_sindy.errors import UserError
 
-__all__ = ["from_json", "from_pairs", "to_json"]
+__all__ = ["check_field_types", "checked_value", "from_json", "from_pairs", "one_name_each",
+           "to_json"]
 
 
 def to_json(obj: Any) -> Any:
@@ -90,6 +93,95 @@ def from_pairs(cls: type, pairs: Sequence[str], where: str) -> Any:
     return from_json(cls, given, where)
 
 
+def one_name_each(old_to_new: dict[str, str], given: Any, where: str) -> None:
+    """UserError where ``given`` (keywords, record keys or flags) holds an old name and its
+    new one together: until the old names are removed, which one is meant is not guessed."""
+    for old, new in old_to_new.items():
+        if old in given and new in given:
+            raise UserError(f"{where}: {old} and {new} are the same setting ({old} is its old "
+                            f"name) and both are given: keep {new} only")
+
+
+def checked_value(tp: Any, value: Any, name: str) -> Any:
+    """A Python caller's ``value`` for a field of type ``tp`` (argument ``name``): UserError
+    naming it where its type is wrong (``True`` where a number is meant, ``"2"`` or ``1.5``
+    where an integer is), numpy scalars as Python ones; types other than plain numbers,
+    booleans, strings, literals, optional and tuples of them pass as they are."""
+    import numbers
+
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        return checked_value(typing.get_args(tp)[0], value, name)
+    if origin in (Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        for a in (a for a in args if a is not type(None)):
+            with contextlib.suppress(UserError):
+                return checked_value(a, value, name)
+        raise UserError(f"{name}={value!r}: give " + " or ".join(_wanted(a) for a in args))
+    if origin is tuple and isinstance(value, list | tuple):
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            args = (args[0],) * len(value)
+        if len(args) == len(value):
+            return tuple(checked_value(a, v, f"{name}[{i}]")
+                         for i, (a, v) in enumerate(zip(args, value, strict=True)))
+    boolean = isinstance(value, bool | np_bool())
+    ok = {int: not boolean and isinstance(value, numbers.Integral),
+          float: not boolean and isinstance(value, numbers.Real),
+          bool: boolean, str: isinstance(value, str),
+          type(None): value is None}.get(tp)
+    if origin is Literal:
+        ok = isinstance(value, str | int) and not boolean and value in typing.get_args(tp)
+    elif origin is tuple:
+        ok = False
+    if ok is None:
+        return value
+    if not ok:
+        raise UserError(f"{name}={value!r}: give {_wanted(tp)}")
+    if type(value).__module__ == "numpy":  # a numpy scalar: as Python's own
+        return {int: int, float: float, bool: bool}.get(tp, lambda v: v)(value)
+    return value
+
+
+def np_bool() -> type:
+    """numpy's boolean scalar type (imported only when asked)."""
+    import numpy as np
+
+    return np.bool_
+
+
+def _wanted(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        return _wanted(typing.get_args(tp)[0])
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        return "a tuple of " + ", ".join(_wanted(a) for a in typing.get_args(tp)
+                                         if a is not Ellipsis)
+    return {int: "an integer (not True/False)", float: "a number (not True/False)",
+            bool: "True or False", str: "a string", type(None): "None"}.get(
+                tp, getattr(tp, "__name__", str(tp)))
+
+
+def check_field_types(obj: Any, owner: str) -> None:
+    """UserError naming the first field of the dataclass ``obj`` whose value has the wrong
+    type (:func:`checked_value`); numpy scalars become Python ones (so records stay JSON)."""
+    hints = _hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        checked = checked_value(hints[f.name], value, f"{owner}{f.name}")
+        if checked is not value:
+            object.__setattr__(obj, f.name, checked)
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
 def _fail(where: str, msg: str) -> UserError:
     return UserError(f"{where}: {msg}")
 
@@ -101,8 +193,10 @@ def _dataclass(cls: type, data: Any, where: str) -> Any:
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     data = dict(data)
     # settings renamed since the record was written: old key -> new (models/renamed.py)
-    for old, new in getattr(cls, "renamed_settings", {}).items():
-        if old in data and new not in data:
+    old_to_new = getattr(cls, "renamed_settings", {})
+    one_name_each(old_to_new, data, where)
+    for old, new in old_to_new.items():
+        if old in data:
             data[new] = data.pop(old)
     # a record of an older layout that the class reads itself (a flat autoencoder config)
     if (upgrade := getattr(cls, "upgrade_record", None)) is not None:

@@ -27,9 +27,11 @@ from typing import Any
 
 import numpy as np
 
+from latent_sindy.data.checks import check_action_names, check_dt, check_pixels
 from latent_sindy.errors import UserError
 
-__all__ = ["SPLITS", "SequenceData", "check_pixels", "concatenate", "seeded_split"]
+__all__ = ["SPLITS", "SequenceData", "check_action_names", "check_pixels", "concatenate",
+           "seeded_split"]
 
 SPLITS = ("train", "val", "test")
 _SLACK = 1e-4
@@ -45,22 +47,6 @@ def seeded_split(n: int, seed: int = 0, val: float = 0.1, test: float = 0.1) -> 
     labels[order[:n_val]] = 1
     labels[order[n_val:n_val + n_test]] = 2
     return labels
-
-
-def check_pixels(images: np.ndarray, pixel_dtype: str, name: str = "images") -> None:
-    """UserError unless ``images`` are of the pixel type a model was trained on
-    (``pixel_dtype``, a data description's): uint8 pixels (0..255) and floating-point ones
-    (0..1) differ by a factor 255, so one passed for the other would give another latent."""
-    dtype = np.asarray(images).dtype
-    if pixel_dtype == "uint8":
-        if not np.issubdtype(dtype, np.integer):
-            raise UserError(f"{name} are {dtype} but this model was trained on uint8 pixels "
-                            f"(0..255): pass np.round({name} * 255).astype(np.uint8) for "
-                            "pixels in [0, 1]")
-    elif not np.issubdtype(dtype, np.floating):
-        raise UserError(f"{name} are {dtype} but this model was trained on {pixel_dtype} "
-                        f"pixels in [0, 1]: pass {name}.astype(np.float32) / 255 for uint8 "
-                        "pixels")
 
 
 def _names(given: Sequence[str] | None, n: int, stem: str, what: str, where: str) -> tuple:
@@ -164,8 +150,7 @@ class SequenceData:
             raise UserError(f"{where}: split labels must be the integers 0 (train), 1 (val) "
                             f"or 2 (test), found {sorted(set(split.tolist()))[:5]}")
         self.split_ids = split.astype(np.uint8)
-        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
-            raise UserError(f"{where}: dt must be a positive number, got {self.dt}")
+        self.dt = check_dt(self.dt, where)
 
     def _check_actions(self, n: int, steps: int, where: str) -> None:
         if self.actions is None:
@@ -173,6 +158,8 @@ class SequenceData:
         actions = _float_array("actions", self.actions, (n, steps), "nu", where)
         nu = actions.shape[2]
         self.actions = actions
+        if self.action_names is not None:
+            check_action_names(self.action_names, nu, f"{where}: action_names")
         self.action_names = _names(self.action_names, nu, "u", "action_names", where)
         if nu and (self.action_low is None or self.action_high is None):
             raise UserError(f"{where}: give the action box (action_low and action_high, "
@@ -215,6 +202,10 @@ class SequenceData:
         self.state_periods = periods
 
     def _check_extras(self, n: int, t1: int, where: str) -> None:
+        if self.images_ddot is not None and self.images_dot is None:
+            raise UserError(f"{where}: images_ddot without images_dot: a second-order model "
+                            "needs the images' first derivatives as well (give both, or "
+                            "neither: the frames' differences estimate them)")
         for name in ("images_dot", "images_ddot"):
             value = getattr(self, name)
             if value is None:

@@ -125,6 +125,24 @@ def _check_sizes(f: h5py.File, path: Path) -> None:
                  "use a smaller data set")
 
 
+def _number_attr(attrs: Any, key: str, path: Path, kind: type, meaning: str,
+                 example: str) -> Any:
+    """The attribute ``key`` as one number of ``kind`` (None where absent); a UserError
+    naming the attribute and what it holds where it is a word, a list or a bool."""
+    if key not in attrs:
+        return None
+    value = attrs[key]
+    if isinstance(value, np.ndarray) and value.shape in ((), (1,)):
+        value = value.reshape(()).item()
+    number = (np.integer, int) if kind is int else (np.integer, np.floating, int, float)
+    if isinstance(value, bool | np.bool_) or not isinstance(value, number):
+        shown = (value.decode(errors="replace") if isinstance(value, bytes)
+                 else value.tolist() if isinstance(value, np.generic | np.ndarray) else value)
+        raise UserError(f"{path}: the attribute {key} holds {shown!r}, not a number: set it "
+                        f"to {meaning} (f.attrs[{key!r}] = {example} with h5py), or delete it")
+    return kind(value)
+
+
 def _executed(f: h5py.File, path: Path) -> np.ndarray | None:
     """/executed as bools: stored as bools, or as integers 0 and 1; anything else refused
     (a 7 is no answer to whether an action was carried out)."""
@@ -163,7 +181,8 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
     a = f.attrs
     periods = a.get("state_periods")
     record = json.loads(a.get("world_record", "{}"))
-    seed = int(a.get("seed", -1))
+    seed = _number_attr(a, "seed", path, int, "the seed the data was collected with", "0")
+    dt = _number_attr(a, "dt", path, float, "the time between frames in seconds", "0.1")
     return SequenceData(
         images=f["images"][()],
         actions=f["actions"][()] if "actions" in f else None,
@@ -177,9 +196,9 @@ def _read(f: h5py.File, path: Path) -> SequenceData:
         images_ddot=f["images_ddot"][()] if "images_ddot" in f else None,
         executed=_executed(f, path),
         rewards=f["rewards"][()] if "rewards" in f else None,
-        dt=float(a["dt"]) if "dt" in a else None,
+        dt=dt,
         world=_strings(a.get("world"))[0] if "world" in a else None,
-        record=record, seed=None if seed < 0 else seed, source=str(path))
+        record=record, seed=None if seed is None or seed < 0 else seed, source=str(path))
 
 
 def read_sequences(path: str | os.PathLike) -> SequenceData:

@@ -33,6 +33,7 @@ from tyro.constructors import ConstructorRegistry, StructConstructorSpec, Struct
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder_parts import DECODER_PARTS, ENCODER_PARTS
+from latent_sindy.models.renamed import replaced_from
 
 __all__ = ["CLI_REGISTRY", "AutoencoderFlags", "ImageSize", "flat_settings"]
 
@@ -149,6 +150,7 @@ def _nested(kwargs: dict[str, Any], own: set[str]) -> dict[str, Any]:
     named = {which: kwargs[which] for which in _KINDS if isinstance(kwargs.get(which), str)}
     if not flat and not named:
         return kwargs
+    _one_form_each(kwargs, flat, named, replaced_from())
     out = {k: v for k, v in kwargs.items() if k not in flat}
     for which, (kind_flag, parts) in _KINDS.items():
         part = out.get(which)
@@ -163,6 +165,28 @@ def _nested(kwargs: dict[str, Any], own: set[str]) -> dict[str, Any]:
         cls = parts[kind]
         out[which] = cls(**{name: base[f] for name, f in cls.flat.items() if f in base})
     return out
+
+
+def _one_form_each(kwargs: dict[str, Any], flat: dict[str, Any], named: dict[str, str],
+                   copied: Any) -> None:
+    """UserError where a setting is given twice: ``encoder``/``decoder`` as a kind's name
+    with ``encoder_kind``/``decoder_kind``, or a part (``encoder=MomentEncoderConfig(...)``)
+    with a flat setting of its own (``moment_order=``). ``dataclasses.replace(cfg,
+    moment_order=n)`` passes the ``copied`` config's part too: that one is not counted."""
+    for which, (kind_flag, _) in _KINDS.items():
+        if which in named and kind_flag in flat:
+            raise UserError(f"AutoencoderConfig(...): {which}={named[which]!r} and "
+                            f"{kind_flag}={flat[kind_flag]!r} are the same setting ({which} "
+                            f"as a name is its old form) and both are given: keep {kind_flag}")
+        part = kwargs.get(which)
+        if part is None or which in named or (
+                copied is not None and part is getattr(copied, which, None)):
+            continue
+        twice = [k for k in flat if k == kind_flag or k in part.flat.values()]
+        if twice:
+            raise UserError(f"AutoencoderConfig(...): {which}={part!r} and {twice[0]}= both "
+                            f"set the {which}'s {twice[0]}: give the part, or its flat "
+                            "settings, not both")
 
 
 def _flat_property(name: str) -> property:
@@ -200,11 +224,12 @@ def flat_settings(cls: T) -> T:
         if not (set(data) & (set(FLAGS) - own)) and not any(
                 isinstance(data.get(k), str) for k in _KINDS):
             return data
-        from latent_sindy.configs import from_json, to_json
+        from latent_sindy.configs import from_json, one_name_each, to_json
 
         flat = {k: v for k, v in data.items() if k != "kind"}
         for which, (kind_flag, _) in _KINDS.items():
-            if isinstance(flat.get(which), str) and kind_flag not in flat:
+            if isinstance(flat.get(which), str):
+                one_name_each({which: kind_flag}, flat, where)
                 flat[kind_flag] = flat.pop(which)
         flags = from_json(AutoencoderFlags, flat, where)
         try:

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import torch
 
+from latent_sindy.errors import UserError
 from latent_sindy.models.derivatives import along, along_layers
 from latent_sindy.models.front import LinearMap
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
@@ -95,6 +96,22 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         recon = (x_hat[0] - frames[0]).square().mean()
         pred_x = (x_hat[k] - frames[k]).square().mean()
         return self._terms(recon, pred_x, top, z[k], weights or DEFAULT_WEIGHTS)
+
+    def phase(self, x: torch.Tensor, before: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """The phase state (z, ż) (N, 2 nz) of a second-order model at normalised frames x
+        (N, C, h, w), from ``before``, the frames dt earlier: ż is the two latents'
+        difference over dt, corrected by the model's own acceleration at x (z(t − dt) = z −
+        dt ż + dt² z̈ / 2, so second order in dt; ``u`` (N, nu), the actions taken there)."""
+        dyn = self.dynamics
+        if before.shape != x.shape:
+            raise UserError(f"previous of shape {tuple(before.shape)} does not match the "
+                            f"images' {tuple(x.shape)}: give one frame before each image")
+        z = self.encode(x)
+        rate = (z - self.encode(before)) / dyn.dt
+        velocity = rate
+        for _ in range(3):  # a fixed point: the acceleration depends on the velocity
+            velocity = rate + 0.5 * dyn.dt * dyn.derivative(torch.cat([z, velocity], -1), u)
+        return torch.cat([z, velocity], -1)
 
     def front(self) -> tuple[LinearMap, LinearMap] | None:
         """The fixed linear front (the encoder's first map, the decoder's last), or None."""

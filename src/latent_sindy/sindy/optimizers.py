@@ -53,9 +53,10 @@ class STLSQ:
 
     Args:
         min_share: smallest relative contribution of an active term (see the module
-            docstring): the default keeps the terms that explain at least 1 % of a target's
-            RMS. 0 keeps every term (then it is a ridge / least-squares fit). ``threshold=``,
-            its old name, still reads (with a FutureWarning).
+            docstring): the default (None: 0.01) keeps the terms that explain at least 1 % of
+            a target's RMS. 0 keeps every term (then it is a ridge / least-squares fit).
+            ``threshold=``, its old name, still reads (with a FutureWarning); both together
+            are refused.
         alpha: ridge weight during thresholding, relative to the unit diagonal of the
             normalised Gram matrix ``theta_nᵀ theta_n / N``. Keep it below that matrix's
             smallest eigenvalue: a larger ridge moves weight between nearly collinear columns
@@ -80,7 +81,7 @@ class STLSQ:
 
     def __init__(
         self,
-        min_share: float = 1e-2,
+        min_share: float | None = None,
         alpha: float = 1e-10,
         max_iter: int = 20,
         unbias: bool = True,
@@ -88,11 +89,15 @@ class STLSQ:
         threshold: float | None = None,
     ) -> None:
         if threshold is not None:
+            if min_share is not None:
+                raise UserError("STLSQ(threshold=..., min_share=...): threshold is min_share's "
+                                "old name and both are given: keep min_share only")
             warnings.warn(
                 "STLSQ(threshold=...) is now STLSQ(min_share=...): the smallest share of its "
                 "target's RMS a term must explain (on RMS-normalised columns), not pysindy's "
                 "absolute coefficient cut", FutureWarning, stacklevel=2)
             min_share = threshold
+        min_share = 1e-2 if min_share is None else min_share
         for name, value in (("min_share", min_share), ("alpha", alpha)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise UserError(f"STLSQ {name}={value!r} is not valid: use a number >= 0")

@@ -13,6 +13,7 @@ import dataclasses
 import difflib
 import math
 import os
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -20,9 +21,10 @@ from typing import Annotated, Any, Literal
 import torch
 import tyro
 
+from latent_sindy.configs import check_field_types, checked_value
 from latent_sindy.errors import MAX_SEED, UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
-from latent_sindy.models.renamed import renamed
+from latent_sindy.models.renamed import one_name_each, renamed
 
 __all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "PRUNINGS", "RESUMABLE", "TrainConfig",
            "auto_batch_size", "check_fit_settings", "default_threads", "resolve_batching",
@@ -161,6 +163,8 @@ class TrainConfig:
     """Replace a finished or interrupted run in `out` (all of it) instead of refusing."""
 
     def __post_init__(self) -> None:
+        check_field_types(self, "TrainConfig ")  # (True, "2" or 1.5 for an integer, ...)
+
         def finite(v: float) -> bool:
             return math.isfinite(v)
 
@@ -301,6 +305,8 @@ def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
     estimator or ``fit`` sets elsewhere."""
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
     old = TrainConfig.renamed_settings  # old names read as the new ones
+    one_name_each(old, settings, "fit")
+    hints = typing.get_type_hints(TrainConfig, include_extras=True)
     for key in settings:
         if key in FIT_OWN_SETTINGS:
             raise UserError(f"fit(..., {key}=...): {key} is set by {FIT_OWN_SETTINGS[key]}, not "
@@ -312,3 +318,4 @@ def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
                             + "; the settings are TrainConfig's fields")
         if key in ("resume", "overwrite") and out is None:
             raise UserError(f"fit(..., {key}=...) is for a run folder: add out=FOLDER")
+        settings[key] = checked_value(hints[old.get(key, key)], settings[key], f"fit: {key}")

@@ -37,7 +37,7 @@ from latent_sindy.training.core import (
 )
 from latent_sindy.training.metrics import METRIC_COLUMNS
 from latent_sindy.training.prepare import settle_settings
-from latent_sindy.training.record import run_record
+from latent_sindy.training.record import action_box, run_record
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.session import prepare
 
@@ -167,7 +167,8 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
             "epoch": epoch, "model": to_cpu(model.state_dict()),
             "optimizer": to_cpu(opt.state_dict()), "generator": gen.get_state(),
             "metrics": metrics, "best": best.to_checkpoint(), "device": device.type,
-            "threads": threads, "parallel": parallel, "start": session.info})
+            "threads": threads, "parallel": parallel, "start": session.info,
+            "action_box": action_box(record["description"])})
         last_ckpt = epoch
 
     if ckpt is None and done:  # the chosen start resumes from here, not the probes
@@ -203,6 +204,7 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
                                "selection": kept["selection"], "model": to_cpu(result.state),
                                "model_config": record["model"],
                                "normalizer": record["normalizer"],
+                               "action_box": action_box(record["description"]),
                                "package_version": __version__})
     return run.path
 

@@ -8,6 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from latent_sindy.configs import one_name_each
+from latent_sindy.errors import UserError
 from latent_sindy.plugins import legacy_world
 from latent_sindy.training.record import RUN_FORMAT_VERSION
 
@@ -34,6 +36,9 @@ def run_description(record: Mapping[str, Any], where: Path) -> tuple[dict, dict]
 
 
 
+#: Version 1's loss weights, at the top of the training settings.
+_LOSS_V1 = ("lambda_pred_x", "lambda_pred_z", "lambda_l1")
+
 _AUTOENCODER_V1 = ("channels", "image_size", "latent_dim", "conv_channels", "encoder_hidden",
                    "decoder", "decoder_hidden", "decoder_channels")
 
@@ -57,14 +62,20 @@ def _model_v1(m: Mapping[str, Any], resolved: bool) -> dict[str, Any]:
     return {"dynamics": dynamics, "encoder": auto, "action_dim": action_dim}
 
 
-def migrate_v1(record: Mapping[str, Any]) -> dict[str, Any]:
+def migrate_v1(record: Mapping[str, Any], where: str = "config.json") -> dict[str, Any]:
     """A version-1 record (flat model config, ``horizon``, loss weights at the top of the
-    training settings) in the current layout; the values are kept as they were."""
+    training settings) in the current layout; the values are kept as they were. A setting
+    under its version-1 name and its current one together is refused (UserError)."""
     record = json.loads(json.dumps(record))
     train = record["train"]
+    if isinstance(train, dict):
+        one_name_each({"horizon": "window"}, train, f"{where}: train")
+        weights = [k for k in _LOSS_V1 if k in train]
+        if weights and "loss" in train:
+            raise UserError(f"{where}: train holds {weights[0]} and loss, the same setting "
+                            "(version 1 kept the loss weights at the top): keep loss only")
     train["window"] = train.pop("horizon", 1)
-    train["loss"] = {k: train.pop(k) for k in ("lambda_pred_x", "lambda_pred_z", "lambda_l1")
-                     if k in train}
+    train["loss"] = {k: train.pop(k) for k in _LOSS_V1 if k in train}
     train["model"] = _model_v1(train["model"], resolved=False)
     record["model"] = _model_v1(record["model"], resolved=True)
     record["format_version"] = RUN_FORMAT_VERSION

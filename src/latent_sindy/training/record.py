@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,8 +26,8 @@ from latent_sindy.plugins import get_world, hook
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
 __all__ = ["CONTEXT_KEYS", "PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
-           "check_derivatives", "check_description", "data_identity", "data_time",
-           "resolve_model", "run_record"]
+           "action_box", "check_action_box", "check_derivatives", "check_description",
+           "data_identity", "data_time", "resolve_model", "run_record"]
 
 RUN_FORMAT = "latent-sindy-run"
 RUN_FORMAT_VERSION = 2
@@ -170,6 +171,34 @@ def run_record(cfg: TrainConfig, data: SequenceData) -> dict[str, Any]:
     return json.loads(json.dumps(record))  # as config.json will hold it
 
 
+def action_box(description: Mapping[str, Any]) -> list[list[float]]:
+    """The action box of a run's description, [action_low, action_high]: saved in its .pt
+    files beside the weights, so an edited config.json is seen (:func:`check_action_box`)."""
+    return [[float(v) for v in description["action_low"]],
+            [float(v) for v in description["action_high"]]]
+
+
+def check_action_box(description: Mapping[str, Any], record: Mapping[str, Any],
+                     payload: Mapping[str, Any], where: Path, name: str) -> None:
+    """UserError where the action box of a run's description (config.json, ``where``)
+    differs from the one the model was trained with: kept in its .pt file ``name``
+    (``payload``), or for a run saved before that, the data's in ``record``; neither: not
+    checked."""
+    data = record.get("data") if isinstance(record.get("data"), dict) else {}
+    trained, saved = payload.get("action_box"), f"kept in {name}"
+    if trained is None and "action_low" in data and "action_high" in data:
+        trained, saved = [data["action_low"], data["action_high"]], "the data's, in that file"
+    if trained is None:
+        return
+    if action_box(description) != [[float(v) for v in side] for side in trained]:
+        low, high = trained
+        raise UserError(f"{where}: the action box (action_low {description['action_low']}, "
+                        f"action_high {description['action_high']}) is not the one the model "
+                        f"was trained with (action_low {list(low)}, action_high {list(high)}, "
+                        f"{saved}): the file was edited; put that box back, or retrain the "
+                        "run on data with the box you want")
+
+
 #: The pixel types a model can have been trained on (SequenceData's images).
 PIXEL_DTYPES = ("uint8", "float16", "float32", "float64")
 
@@ -184,6 +213,10 @@ def check_description(d: Mapping[str, Any], where: Path) -> None:
     if not (isinstance(low, list) and isinstance(high, list) and len(low) == len(high)
             and all(isinstance(v, int | float) for v in low + high)):
         raise edited(f"action_low {low!r} and action_high {high!r} are not an action box")
+    if not all(math.isfinite(lo) and math.isfinite(hi) and lo < hi
+               for lo, hi in zip(low, high, strict=True)):
+        raise edited(f"action_low {low} and action_high {high} are not a finite box with "
+                     "action_low < action_high")
     if d.get("pixel_dtype", "uint8") not in PIXEL_DTYPES:
         raise edited(f"pixel_dtype {d.get('pixel_dtype')!r} is not one of "
                      f"{', '.join(PIXEL_DTYPES)}")

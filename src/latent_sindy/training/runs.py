@@ -54,6 +54,7 @@ from latent_sindy.training.record import (
     RECORD_KEYS,
     RUN_FORMAT,
     RUN_FORMAT_VERSION,
+    check_action_box,
     check_description,
 )
 
@@ -191,7 +192,7 @@ class RunDir:
                             "edited): remove it, or retrain the run")
         version = record.get("format_version")
         if version == 1:
-            record = migrate_v1(record)
+            record = migrate_v1(record, str(path))
         elif version != RUN_FORMAT_VERSION:
             raise UserError(f"{path} has run format version {version}; this latent-sindy "
                             f"reads versions 1 and {RUN_FORMAT_VERSION}: retrain the run")
@@ -312,6 +313,7 @@ class RunDir:
                     f"{self.path}, or load its checkpoint)")
             raise UserError(f"{self.path} has no {name}{hint}")
         payload = self.load_torch(name)
+        check_action_box(description, record, payload, where, name)
         model = LatentModel(model_cfg)
         try:
             model.load_state_dict(payload["model"])

@@ -101,6 +101,9 @@ class CentroidSindy:
         if sparsifier not in SPARSIFIERS:
             raise UserError(f"centroid SINDy sparsifier {sparsifier!r}: choose from "
                             f"{', '.join(SPARSIFIERS)}")
+        if threshold is not None and min_share is not None:
+            raise UserError("CentroidSindy(threshold=..., min_share=...): threshold is "
+                            "min_share's old name and both are given: keep min_share only")
         min_share = threshold if threshold is not None else min_share
         self.order, self.min_share, self.sparsifier = order, min_share, sparsifier
         self.library: SindyLibrary | None = None
