@@ -1,5 +1,5 @@
-"""The house as the README draws it: the layout section names what the tree holds, modules stay
-small, the README stays a front door."""
+"""The house as the README draws it: the layout section names what the tree holds, the README
+stays a front door. (Modules are split by meaning, with no line cap.)"""
 
 from __future__ import annotations
 
@@ -8,12 +8,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "src" / "latent_sindy"
-
-
-def test_no_module_over_400_lines():
-    big = {str(p.relative_to(ROOT)): n for p in PACKAGE.rglob("*.py")
-           if (n := len(p.read_text().splitlines())) > 400}
-    assert not big, big
 
 
 def test_the_readme_is_a_front_door():

@@ -69,3 +69,33 @@ def test_without_validation_nothing_is_judged_and_a_warm_up_needs_epochs_left() 
     assert est.kept_["restarts"] == {"starts": 1, "kept": 0}
     with pytest.raises(UserError, match="warm-up of 2 epochs leaves none"):
         est.fit(data, epochs=2, starts=1, warmup=[Phase(2, "warm-up")])
+
+
+def test_starts_are_trained_until_two_write_the_same_law() -> None:
+    rule = Restarts(count=2, recon_above=float("inf"), agree=2)
+    est = fitted(rule)
+    starts = est.kept_["restarts"]
+    laws = [tuple(map(tuple, s["law"])) for s in starts["laws"]]
+    assert starts["starts"] == len(laws) >= 2
+    if starts["agreed"]:  # stopped at the first law seen twice; the kept start wrote it
+        assert laws[-1] in laws[:-1]
+        assert laws[starts["kept"]] == laws[-1]
+    else:  # three starts, no two alike
+        assert len(set(laws)) == 3
+
+
+def test_a_law_of_no_term_agrees_with_nothing_and_agree_must_be_whole() -> None:
+    from latent_sindy.models.dynamics import ContinuousSindyConfig  # noqa: F401
+    from latent_sindy.training.session import law_key
+
+    class Empty:
+        sparse = True
+
+        def n_active(self) -> int:
+            return 0
+
+    assert law_key(Empty()) == ()
+    with pytest.raises(UserError, match="agree"):
+        Restarts(agree=0)
+    with pytest.raises(UserError, match="agree"):
+        Restarts(agree=True)

@@ -29,7 +29,7 @@ import torch
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.planner import ImagePlanner, Objective
 from latent_sindy.data import SequenceData, inputs
-from latent_sindy.equations import coefficient_table, name_actions, pruned_note
+from latent_sindy.equations import coefficient_table, doubt_notes, name_actions, pruned_note
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
@@ -41,11 +41,16 @@ from latent_sindy.training.loop import train
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.session import Phase, Restarts, fit_in_memory
 
-__all__ = ["AllTermsPruned", "LatentSINDy"]
+__all__ = ["AllTermsPruned", "LatentSINDy", "UncertainLaw"]
 
 
 class AllTermsPruned(UserWarning):
     """A fit whose SINDy model lost every term: it predicts that nothing moves."""
+
+
+class UncertainLaw(UserWarning):
+    """A fit whose law may be wrong: its starts disagreed, or it leaves much of the latent's
+    derivative unexplained (:func:`latent_sindy.equations.doubt_notes`)."""
 
 
 class LatentSINDy:
@@ -174,9 +179,11 @@ class LatentSINDy:
         folder = {} if out is None else {"out": Path(out), "data": Path(data.source)}
         cfg = self.train_config(**folder, **(recipes.recipe_epochs(settings) if self.recipe
                                              else settings))
+        finish = None
         if self.recipe:  # (into a folder: its main fit, the phases and restarts in memory)
-            cfg, phases, restarts = recipes.apply_recipe(
-                cfg, data, self._loss_given, self.pca_components, phases, restarts, bool(folder))
+            cfg, phases, restarts, finish = recipes.apply_recipe(
+                cfg, data, self._loss_given, self.pca_components, phases, restarts, bool(folder),
+                scale="epochs" not in settings)
         if out is not None:
             if phases or warmup or restarts:
                 raise UserError("phases, warmup and restarts train in memory: drop out= (save "
@@ -185,13 +192,17 @@ class LatentSINDy:
             self._adopt(RunDir(out))
         else:
             session, result, metrics = fit_in_memory(cfg, data, progress, phases or (),
-                                                     warmup=warmup, restarts=restarts)
+                                                     warmup=warmup, restarts=restarts,
+                                                     finish=finish)
             self.model_, self.normalizer_, record = session.model, session.norm, session.record
             self.description_, self.world_record_ = record["description"], record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}
             self.metrics_, self.kept_ = metrics, result.kept
         if note := pruned_note(self.model_.dynamics):
             warnings.warn(note, AllTermsPruned, stacklevel=2)
+        else:
+            for note in doubt_notes(self.kept_):
+                warnings.warn(note, UncertainLaw, stacklevel=2)
         return self
 
     def _adopt(self, folder: RunDir) -> LatentSINDy:

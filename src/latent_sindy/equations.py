@@ -82,8 +82,41 @@ def pruned_note(dynamics: Any) -> str | None:
     identities, z[t+1] = z: nothing moves), with what to try; None where a term is left."""
     if not getattr(dynamics, "sparse", False) or dynamics.n_active() > 0:
         return None
+    if getattr(dynamics, "continuous", False):
+        k = getattr(dynamics, "derivative_order", 1)
+        said = "z'' = 0: nothing accelerates" if k == 2 else "z' = 0: nothing moves"
+        return (f"every SINDy term was pruned: the model says {said}; try more starts "
+                "(fit(..., restarts=Restarts(count=4, agree=2))), more epochs, or a lower "
+                "prune_below (TrainConfig), and check that the frames show the motion")
     return ("every SINDy term was pruned: the model predicts that nothing moves (z[t+1] = z); "
             "lower --prune-below, train longer, or try more starts")
+
+
+#: A continuous-time law that leaves more than this share of the latent's derivative
+#: unexplained on the validation frames is reported with a warning.
+UNEXPLAINED_LIMIT = 0.05
+
+
+def doubt_notes(kept: dict[str, Any]) -> list[str]:
+    """Why a fit's law may be wrong, one line each, from what its training kept (``kept``:
+    the estimator's ``kept_``): starts that wrote different laws and no two agreed, or a
+    law that leaves over :data:`UNEXPLAINED_LIMIT` of the latent's derivative unexplained
+    on the validation frames. Empty where neither."""
+    notes = []
+    starts = kept.get("restarts") or {}
+    if starts.get("agreed") is False:
+        laws = "; ".join(" | ".join(" + ".join(t) or "0" for t in law["law"]) or "no term"
+                         for law in starts.get("laws", []))
+        notes.append(f"no two of the {starts.get('starts')} starts wrote the same law (those "
+                     f"trained through: {laws}): the law kept may be wrong; try more starts "
+                     "(fit(..., restarts=Restarts(count=5, agree=2))) or more data")
+    share = kept.get("unexplained")
+    if share is not None and not share <= UNEXPLAINED_LIMIT:
+        notes.append(f"the law leaves {100 * share:.0f} % of the latent's derivative "
+                     "unexplained on the validation frames: it may be wrong or miss a term "
+                     "(derivatives taken from noisy frames make this share larger; give "
+                     "exact derivatives where you have them)")
+    return notes
 
 
 def equations_report(run_dir: str | os.PathLike, export: bool = True, precision: int = 3) -> str:

@@ -11,23 +11,35 @@ model whose rollout error is within ``slack`` times the best on the path.
     >>> choice = select_on_rollouts(library, Z, U, Znext, X_val, U_val)
     >>> choice.model.coef_, choice.setting   # the chosen fit and its tolerance
     >>> print(choice.table())                # the whole path: terms and rollout error
+
+A continuous-time law is chosen the same way on held-out derivatives: :func:`select_law`
+fits STLSQ (a term kept while it carries at least ``min_share`` of its target's size) at
+every share of a path from fine to coarse, scores each law by the fraction of the held-out
+target's variance it leaves unexplained (FVU), and keeps the sparsest law within
+``tolerance`` of the best: a term stays when it explains what the others cannot, wherever
+its coefficient sits against a fixed cut.
+
+    >>> law = select_law(theta_train, zdd_train, theta_val, zdd_val)
+    >>> law.coef.shape, law.fvu, law.share   # (p, m), held-out FVU, the cut it came from
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from latent_sindy.errors import UserError
 from latent_sindy.sindy.fit import Sparsifier, fit_state_data
+from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import SindyLibrary
 
-__all__ = ["TOLERANCES", "PathPoint", "Selection", "rollout_error", "select_on_rollouts"]
+__all__ = ["SHARES", "TOLERANCES", "LawChoice", "PathPoint", "Selection", "held_out_fvu",
+           "rollout_error", "select_law", "select_on_rollouts"]
 
 TOLERANCES: tuple[float, ...] = tuple(float(t) for t in 10.0 ** np.linspace(-5, -2, 13))
 """StepwiseSR tolerances tried by default: 1e-5 to 1e-2, four to a decade."""
@@ -129,3 +141,65 @@ def select_on_rollouts(
     ok = [k for k, p in enumerate(path) if p.error <= slack * best]
     k = min(ok, key=lambda i: (path[i].active, path[i].error))
     return Selection(fits[k], path[k].setting, tuple(path))
+
+
+#: The path of STLSQ cuts (each term's share of its target's size), fine to coarse.
+SHARES = tuple(float(s) for s in np.geomspace(0.005, 0.5, 21))
+
+
+@dataclass
+class LawChoice:
+    """The law kept: coefficients (p, m) with pruned entries 0, its mask, the STLSQ share it
+    came from, its held-out FVU, and every candidate on the path (share, active terms, FVU)."""
+
+    coef: np.ndarray
+    mask: np.ndarray
+    share: float
+    fvu: float
+    path: list[dict[str, float]] = field(default_factory=list)
+
+
+def held_out_fvu(theta: np.ndarray, target: np.ndarray, coef: np.ndarray) -> float:
+    """Σ (target − θ coef)² / Σ (target − its mean)², over every sample and column."""
+    resid = target - theta @ coef
+    spread = ((target - target.mean(0)) ** 2).sum()
+    return float((resid ** 2).sum() / max(spread, 1e-300))
+
+
+def select_law(theta: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tensor,
+               theta_val: np.ndarray | torch.Tensor, target_val: np.ndarray | torch.Tensor,
+               shares: tuple[float, ...] = SHARES, tolerance: float = 0.25,
+               floor: float = 1e-6) -> LawChoice:
+    """The sparsest law along ``shares`` whose held-out FVU is at most (1 + ``tolerance``)
+    times the path's best plus ``floor`` (ties: the lower FVU). ``theta`` (N, p), ``target``
+    (N, m) fit; ``theta_val``, ``target_val`` score. A law of no term is a candidate too
+    (FVU 1 on centred targets)."""
+    arrays = [np.asarray(a.detach().cpu() if isinstance(a, torch.Tensor) else a, np.float64)
+              for a in (theta, target, theta_val, target_val)]
+    th, y, thv, yv = arrays
+    if th.ndim != 2 or y.ndim != 2 or thv.shape[1:] != th.shape[1:] or (
+            yv.shape[1:] != y.shape[1:]) or len(th) != len(y) or len(thv) != len(yv):
+        raise UserError(f"select_law: theta (N, p) and target (N, m) for both sets, got "
+                        f"{th.shape}, {y.shape}, {thv.shape}, {yv.shape}")
+    if not (np.isfinite(th).all() and np.isfinite(y).all() and np.isfinite(thv).all()
+            and np.isfinite(yv).all()):
+        raise UserError("select_law: the library or target holds NaN or inf")
+    candidates = []
+    seen = set()
+    for share in shares:
+        opt = STLSQ(min_share=share).fit(th, y)
+        coef = np.asarray(opt.coef_, np.float64) * np.asarray(opt.mask_)
+        key = np.asarray(opt.mask_).tobytes()
+        if key in seen:
+            continue
+        seen.add(key)
+        candidates.append((share, coef, np.asarray(opt.mask_, bool)))
+    zero = np.zeros((th.shape[1], y.shape[1]))
+    candidates.append((float("inf"), zero, zero.astype(bool)))
+    scored = [(share, coef, mask, held_out_fvu(thv, yv, coef)) for share, coef, mask in
+              candidates]
+    best = min(s[3] for s in scored)
+    ok = [s for s in scored if s[3] <= (1 + tolerance) * best + floor]
+    share, coef, mask, fvu = min(ok, key=lambda s: (int(s[2].sum()), s[3]))
+    path = [{"share": s, "active": int(m.sum()), "fvu": f} for s, _, m, f in scored]
+    return LawChoice(coef, mask, share, fvu, path)

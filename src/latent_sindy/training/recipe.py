@@ -18,6 +18,7 @@ then a calibration of 300 epochs (:func:`calibration`) and one fresh start by th
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -25,11 +26,13 @@ import numpy as np
 from latent_sindy.data import SequenceData
 from latent_sindy.models.loss import LossWeights
 from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.reselect import reselect_session
 from latent_sindy.training.session import Phase, Restarts
 
-__all__ = ["COMPONENTS", "INIT", "RESTARTS", "SCHEDULE", "apply_recipe", "calibration",
+__all__ = ["COMPONENTS", "INIT", "REFERENCE_BATCHES", "RESTARTS", "SCHEDULE", "apply_recipe",
+           "calibration",
            "components_for", "default_settings", "pixel_spread", "recipe_epochs", "recipe_loss",
-           "recipe_settings", "unit_of"]
+           "recipe_settings", "scaled", "schedule_scale", "unit_of"]
 
 #: Principal components in front of the networks (the published model's 48).
 COMPONENTS = 48
@@ -37,11 +40,15 @@ COMPONENTS = 48
 SCHEDULE: dict[str, Any] = {"epochs": 250, "lr": 3e-3, "batch_size": 100, "prune_below": 0.1,
                             "prune_every": 25, "refine_epochs": 50, "weight_decay": 0.0,
                             "starts": 1}
+#: Batches an epoch of the video the schedule was set on (100 trajectories of 100 frames).
+REFERENCE_BATCHES = 100
 #: The coefficients' start.
 INIT: dict[str, Any] = {"init": "normal", "init_scale": 1e-3}
-#: A start that reconstructs the validation frames poorly, or whose calibrated equations
-#: leave over 1 % of the encoder's z^(k) unexplained, is followed by one more.
-RESTARTS = Restarts(count=1, recon_above=0.1, fvu_above=0.01)
+#: Starts are trained until two write the same law (the same active terms) with a good
+#: validation reconstruction and under 1 % of the encoder's z^(k) unexplained, three at most;
+#: the kept start is the best of the largest group that agrees (a single start's residual
+#: does not tell a wrong law from a right one: RESULTS.md, "Videos drawn from a family").
+RESTARTS = Restarts(count=2, recon_above=0.1, fvu_above=0.01, agree=2)
 #: The published weights (pixels in [0, 1], means over pixels): ẍ, then z̈ and L1 of the
 #: schedule; both of the latter grow as the frames' spread shrinks (:func:`recipe_loss`).
 PRED_X, PRED_Z, L1 = 5e-4, 5e-7, 1e-9 / 12
@@ -63,13 +70,29 @@ def recipe_loss(spread: float, pred_x: float = PRED_X, relative_z: float = 0.0) 
         if relative_z else loss
 
 
-def calibration(spread: float, epochs: int = 300) -> Phase:
+def calibration(spread: float, epochs: int = 300, prune_every: int = 25) -> Phase:
     """The last phase: ``epochs`` at learning rate 1e-3 with the ẍ weight 100 times the
     main fit's and the z̈ term scale-free (weight 100: it straightens z instead of shrinking
-    it), pruning every 25 epochs through its first two thirds, the last third refining."""
+    it), pruning every ``prune_every`` epochs through its first two thirds, the last third
+    refining."""
     return Phase(epochs, "calibration", {
         "lr": 1e-3, "loss": recipe_loss(spread, pred_x=5e-2, relative_z=100.0),
-        "refine_epochs": epochs - 2 * epochs // 3, "prune_every": 25})
+        "refine_epochs": epochs - 2 * epochs // 3, "prune_every": prune_every})
+
+
+def schedule_scale(data: SequenceData, batch_size: int = SCHEDULE["batch_size"]) -> float:
+    """How many of the schedule's epochs make one of ``data``'s: the recipe counts updates,
+    not passes, so that a video of few short trajectories trains as long as one of many
+    long ones (:data:`REFERENCE_BATCHES` batches an epoch: the schedule's own video,
+    100 training trajectories of 100 frames)."""
+    train = data.split("train")
+    batches = max(1, math.ceil(train.n * (train.steps + 1) / batch_size))
+    return REFERENCE_BATCHES / batches
+
+
+def scaled(epochs: int, factor: float) -> int:
+    """``epochs`` of the schedule in epochs of data ``factor`` (:func:`schedule_scale`)."""
+    return max(1, round(epochs * factor))
 
 
 def components_for(data: SequenceData) -> int:
@@ -93,14 +116,24 @@ def recipe_settings(base: TrainConfig | None = None) -> TrainConfig:
 
 def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
                  components: int | None, phases: Any, restarts: Restarts | None,
-                 in_folder: bool = False
-                 ) -> tuple[TrainConfig, list[Phase], Restarts | None]:
+                 in_folder: bool = False, scale: bool = False
+                 ) -> tuple[TrainConfig, list[Phase], Restarts | None, Any]:
     """A fit's settings ``cfg`` (its model already the recipe's) on ``data`` with the recipe
     filled in where the caller left it (None): the loss weights, the principal components
     (with the mlp encoder and decoder, which take them),
     the phases (the calibration) and the restart rule; ``in_folder``: a run folder's fit,
-    which trains the main fit alone (phases and restarts are in memory only)."""
+    which trains the main fit alone (phases and restarts are in memory only); ``scale``
+    (the caller gave no epochs): the schedule's epochs, pruning interval and refinement, and
+    the calibration's, counted in updates (:func:`schedule_scale`). The last of the four
+    returned is what each start does after its phases (the recipe's: the law chosen again on
+    held-out derivatives, :func:`~latent_sindy.training.reselect.reselect_session`), None
+    in a run folder."""
     spread = pixel_spread(data)
+    factor = schedule_scale(data, cfg.batch_size) if scale else 1.0
+    if scale:
+        cfg = dataclasses.replace(cfg, epochs=scaled(cfg.epochs, factor),
+                                  prune_every=scaled(cfg.prune_every, factor),
+                                  refine_epochs=scaled(cfg.refine_epochs, factor))
     model = cfg.model
     mlp = (model.observation.encoder_kind, model.observation.decoder_kind) == ("mlp", "mlp")
     k = (components_for(data) if mlp else 0) if components is None else components
@@ -108,9 +141,10 @@ def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
                                                                        pca_components=k))
     cfg = dataclasses.replace(cfg, model=model, loss=loss or recipe_loss(spread))
     if in_folder:
-        return cfg, list(phases or ()), restarts
-    return (cfg, [calibration(spread)] if phases is None else list(phases),
-            RESTARTS if restarts is None else restarts)
+        return cfg, list(phases or ()), restarts, None
+    calibrate = calibration(spread, scaled(300, factor), scaled(25, factor))
+    return (cfg, [calibrate] if phases is None else list(phases),
+            RESTARTS if restarts is None else restarts, reselect_session)
 
 
 def recipe_epochs(settings: dict[str, Any]) -> dict[str, Any]:

@@ -20,7 +20,9 @@ one (its metrics from epoch 1, its optimiser and batches as they were).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -213,10 +215,17 @@ class Restarts:
     """Fresh starts allowed after the first."""
     recon_above: float = 0.1
     fvu_above: float = math.inf
+    agree: int = 1
+    """Starts that must write the same law (the same active terms, whatever the latents'
+    order) before one is trusted: with 2, starts are trained through until two agree (up to
+    ``count``), and the kept start is the best of the largest group that agrees; a law of no
+    term agrees with nothing. 1: the first start under the limits is trusted."""
 
     def __post_init__(self) -> None:
         if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 0:
             raise UserError(f"restarts count {self.count!r}: use a whole number >= 0")
+        if isinstance(self.agree, bool) or not isinstance(self.agree, int) or self.agree < 1:
+            raise UserError(f"restarts agree {self.agree!r}: use a whole number >= 1")
         if not (self.recon_above >= 0 and self.fvu_above >= 0):
             raise UserError(f"restarts recon_above {self.recon_above}, fvu_above "
                             f"{self.fvu_above}: use numbers >= 0 (inf: never)")
@@ -224,14 +233,18 @@ class Restarts:
 
 def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | None = None,
                   phases: Sequence[Phase] = (), *, warmup: Sequence[Phase] = (),
-                  restarts: Restarts | None = None
+                  restarts: Restarts | None = None,
+                  finish: Callable[[Session], float | None] | None = None
                   ) -> tuple[Session, FitResult, list[dict]]:
     """Train ``cfg``'s model on ``data`` without a run folder: ``warmup`` phases, the fit to
     ``cfg.epochs`` (its epochs counting the warm-up's), then each of ``phases`` in turn, from
     the kept weights of the stretch before; with ``restarts``, fresh starts by its rule.
     Returns the session (its model holding the kept weights, on the CPU, in eval mode), the
     last fit's result (``kept["restarts"]``: starts trained and the one kept, with
-    ``restarts``) and every epoch's metrics rows of the kept start."""
+    ``restarts``) and every epoch's metrics rows of the kept start. ``finish``, called on
+    each start's session after its phases (its model holding the kept weights), may change
+    the model (the recipe chooses the law again: :mod:`~latent_sindy.training.reselect`)
+    and returns the validation share of z^(k) the law leaves unexplained, or None."""
     if not all(isinstance(p, Phase) for p in (*phases, *warmup)):
         raise UserError("phases, warmup: give a sequence of latent_sindy.Phase")
     if restarts is not None and not isinstance(restarts, Restarts):
@@ -269,6 +282,16 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             c["result"] = c["session"].fit(phase, on_epoch=progress.update)
             c["metrics"] += c["result"].metrics
         c["fvu"] = kept_value(c["result"], "val/pred_z") if phases else 0.0
+        c["session"].model.load_state_dict(c["result"].state)
+        if finish is not None:
+            share = finish(c["session"])
+            if share is not None:
+                c["fvu"] = share
+                c["result"].state = to_cpu(c["session"].model.state_dict())
+        c["law"] = law_key(c["session"].model.dynamics)
+
+    def agreeing(c: dict[str, Any]) -> list[dict[str, Any]]:
+        return [d for d in done if c["law"] and d["law"] == c["law"]]
 
     def poor(value: float | None, limit: float) -> bool:  # (not validated: cannot judge)
         return value is not None and not value <= limit  # (NaN: poor)
@@ -287,16 +310,50 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             waiting.remove(pick)
             finish_phases(pick)
             done.append(pick)
-            if not poor(pick["fvu"], rule.fvu_above):
+            if not poor(pick["fvu"], rule.fvu_above) and len(agreeing(pick)) >= rule.agree:
                 break
     finally:
         progress.close()
-    kept = min(done, key=lambda c: rank(c["fvu"]))
+    groups = [agreeing(c) for c in done]
+    largest = max((len(g) for g in groups), default=0)
+    pool = [c for c, g in zip(done, groups, strict=True) if len(g) == largest] \
+        if rule.agree > 1 and largest > 0 else done
+    kept = min(pool, key=lambda c: rank(c["fvu"]))
     session, result = kept["session"], kept["result"]
     if restarts is not None:
         result.kept["restarts"] = {"starts": start + 1, "kept": kept["start"]}
+        if rule.agree > 1:
+            result.kept["restarts"]["laws"] = [
+                {"start": c["start"], "law": [list(t) for t in c["law"]], "fvu": c["fvu"]}
+                for c in done]
+            result.kept["restarts"]["agreed"] = largest >= rule.agree
+    if phases:
+        result.kept["unexplained"] = kept["fvu"]
     session.finish(result).cpu().eval()
     return session, result, kept["metrics"]
+
+
+def law_key(dynamics: Any) -> tuple[tuple[str, ...], ...]:
+    """What a sparse model's law is, whatever the order of its latents: per latent, its
+    active terms' names, the latents renumbered to the smallest such tuple over every
+    order (z0 <-> z1 swapped reads the same law). Empty: no term (or not a sparse model)."""
+    if not getattr(dynamics, "sparse", False) or dynamics.n_active() == 0:
+        return ()
+    mask = dynamics.mask.detach().cpu().numpy()  # (p, nz)
+    names = dynamics.names
+    nz = mask.shape[1]
+
+    def renamed(name: str, order: tuple[int, ...]) -> str:
+        return re.sub(r"\bz(\d+)", lambda m: f"z{order[int(m[1])]}", name)
+
+    keys = []
+    for order in itertools.permutations(range(nz)):
+        law: list[tuple[str, ...]] = [()] * nz
+        for j in range(nz):
+            law[order[j]] = tuple(sorted(renamed(names[i], order)
+                                         for i in range(len(names)) if mask[i, j]))
+        keys.append(tuple(law))
+    return min(keys)
 
 
 def kept_value(result: FitResult, key: str) -> float | None:

@@ -1,0 +1,129 @@
+"""The family of videos the estimator's default is judged on, and the judge itself."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from latent_sindy.errors import UserError
+from latent_sindy.worlds.pendulum.video_draws import (
+    RANGES,
+    SYSTEMS,
+    VideoDraw,
+    draw,
+    judge_equations,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def small(d: VideoDraw, **changes) -> VideoDraw:
+    return dataclasses.replace(d, **{"trajectories": 4, "frames": 60, **changes})
+
+
+@pytest.mark.parametrize("system", SYSTEMS)
+def test_exact_derivatives_match_finite_differences_of_the_frames(system):
+    d = small(draw(np.random.default_rng(5), system=system), dt=0.002, noise=0.0,
+              background=0.0, exact=True, size=24)
+    v = d.video()
+    x = v.images.astype(np.float64)
+    fd1 = (x[:, 2:] - x[:, :-2]) / (2 * d.dt)
+    fd2 = (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]) / d.dt ** 2
+    for fd, exact in ((fd1, v.images_dot), (fd2, v.images_ddot)):
+        ref = exact[:, 1:-1]
+        assert np.abs(fd - ref).max() < 0.01 * np.abs(ref).max()
+
+
+def test_states_obey_the_drawn_law():
+    d = VideoDraw(system="pendulum", omega2=(2.0,), damping=(0.3,), trajectories=3, frames=50,
+                  dt=0.05)
+    q = d.states()[:, :, 0]  # (N, F, 3): q, q̇, q̈
+    assert np.allclose(q[..., 2], -2.0 * np.sin(q[..., 0]) - 0.3 * q[..., 1])
+    energy = q[..., 1] ** 2 / 2 - 2.0 * np.cos(q[..., 0])
+    assert np.all(np.diff(energy, axis=1) <= 1e-9)  # friction only takes energy away
+    assert np.all(np.abs(q[:, 0, 0]) < math.pi)
+
+
+def test_draws_stay_within_the_ranges_and_repeat_by_seed():
+    seen = set()
+    for i in range(40):
+        d = draw(np.random.default_rng([7, i]))
+        seen.add(d.system)
+        assert RANGES["size"][0] <= d.size <= RANGES["size"][1]
+        assert RANGES["trajectories"][0] <= d.trajectories <= RANGES["trajectories"][1]
+        assert RANGES["frames"][0] <= d.frames <= RANGES["frames"][1]
+        for w2, c in zip(d.omega2, d.damping, strict=True):
+            assert RANGES["omega2"][0] <= w2 <= RANGES["omega2"][1]
+            assert 0 <= c <= min(0.4, 0.3 * math.sqrt(w2)) + 1e-12
+            assert d.dt * math.sqrt(w2) <= 2 * math.pi / 8 + 1e-12  # 8 frames a period
+        assert d == draw(np.random.default_rng([7, i]))
+    assert seen == set(SYSTEMS)
+
+
+def test_video_is_a_valid_sequence_with_or_without_derivatives():
+    d = small(draw(np.random.default_rng(3), system="pendulum"), noise=0.02, background=0.3)
+    with_rates = dataclasses.replace(d, exact=True).video()
+    frames_only = dataclasses.replace(d, exact=False).video()
+    assert with_rates.images.min() >= 0 and with_rates.images.max() <= 1
+    assert with_rates.images_ddot is not None and frames_only.images_dot is None
+    assert np.array_equal(with_rates.images, frames_only.images)
+    assert with_rates.split_counts()["train"] >= 1
+
+
+def test_judge_names_each_failure():
+    d = VideoDraw(system="pendulum", omega2=(1.5,), damping=(0.2,))
+    names = ["1", "z0", "z0'", "sin(z0)", "z0 z0'^2"]
+    ok = judge_equations(d, names, np.array([[0, 0, -0.21, -1.52, 0]]))
+    assert ok == {"recovered": True, "why": ""}
+    assert judge_equations(d, names, np.zeros((1, 5)))["why"] == "all terms pruned"
+    assert judge_equations(d, names, np.array([[0, 0, 0, -1.5, 0]]))["why"] == "missed z0'"
+    wrong = judge_equations(d, names, np.array([[0, -0.2, -0.2, -1.5, 0]]))
+    assert wrong["why"] == "wrong term z0"
+    assert "off by" in judge_equations(d, names, np.array([[0, 0, -0.2, -1.3, 0]]))["why"]
+    assert not judge_equations(d, names, np.array([[0, 0, -0.25, -1.5, 0]]))["recovered"]
+
+
+def test_judge_takes_two_pendulums_in_either_order_and_a_spring_offset():
+    two = VideoDraw(system="two_pendulums", omega2=(1.0, 2.0), damping=(0.0, 0.1),
+                    centre=((-0.5, 0.0), (0.5, 0.0)), radius=(0.3, 0.3), direction=(0.0, 0.0))
+    names = ["z0", "z1", "z0'", "z1'", "sin(z0)", "sin(z1)"]
+    swapped = np.array([[0, 0, -0.1, 0, -2.0, 0], [0, 0, 0, 0, 0, -1.0]])
+    assert judge_equations(two, names, swapped)["recovered"]
+    spring = VideoDraw(system="spring", omega2=(2.0,), damping=(0.1,))
+    assert judge_equations(spring, ["1", "z0", "z0'"], np.array([[0.4, -2.0, -0.1]]))[
+        "recovered"]
+
+
+def test_a_draw_refuses_inconsistent_settings():
+    with pytest.raises(UserError, match="one per blob"):
+        VideoDraw(system="two_pendulums")
+    with pytest.raises(UserError, match="system"):
+        VideoDraw(system="rope")
+
+
+def test_benchmark_smoke_writes_a_row_per_fit_and_resumes(tmp_path):
+    out = tmp_path / "rows.jsonl"
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "video_draws.py"), "--smoke",
+           "--derivatives", "exact", "--out", str(out)]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    assert len(out.read_text().splitlines()) == 1
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and len(out.read_text().splitlines()) == 1
+    assert "recovered 0 of 1" in again.stdout or "recovered 1 of 1" in again.stdout
+
+
+def test_benchmark_refuses_bad_arguments(tmp_path):
+    script = str(ROOT / "benchmarks" / "video_draws.py")
+    for args in (["--derivatives", "pixels"], ["--workers", "0"], ["--only", "5..2"],
+                 ["--out", str(tmp_path)]):
+        r = subprocess.run([sys.executable, script, *args], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 2, (args, r.stderr)
+        assert "Traceback" not in r.stderr
