@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -101,8 +102,8 @@ def test_a_missing_renderer_names_the_install_command():
     assert "pip install 'latent-sindy[gym]'" in _one_line(e)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("pygame") is not None, reason="pygame installed")
-def test_pendulum_without_pygame_names_the_install_command():
+def test_pendulum_without_pygame_names_the_install_command(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pygame", None)  # (as if not installed, where it is)
     with pytest.raises(UserError) as e:
         GymWorld(GymConfig(id="Pendulum-v1", size=32)).collect(1, 1)
     assert "pygame" in _one_line(e) and "pip install 'latent-sindy[gym]'" in str(e.value)
