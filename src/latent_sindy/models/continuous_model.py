@@ -72,12 +72,16 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
     def loss(
         self, x: torch.Tensor, u: torch.Tensor, weights: LossWeights | None = None,
         poses: torch.Tensor | Targets | None = None, window: int | None = None,
+        stencil: float = 0.0,
     ) -> dict[str, torch.Tensor]:
         """The loss terms of :data:`~latent_sindy.models.latent_model.LOSS_TERMS` on frames
         and their k time derivatives x (B, 1+k, C, h, w) and their actions u (B, nu).
         ``weights`` None uses the defaults of :class:`LossWeights`; ``poses`` and ``window``
-        (a discrete model's) must be None."""
+        (a discrete model's) must be None. ``stencil`` h > 0: x (B, 5, C, h, w) holds five
+        frames h apart around each sample instead (:meth:`stencil_loss`)."""
         k = self.dynamics.derivative_order
+        if stencil:
+            return self.stencil_loss(x, u, stencil, weights)
         if poses is not None:
             raise ValueError("a continuous-time model's loss has no pose or reward term: call "
                              "loss(x, u, weights) without poses or targets")
@@ -113,6 +117,34 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
             velocity = rate + 0.5 * dyn.dt * dyn.derivative(torch.cat([z, velocity], -1), u)
         return torch.cat([z, velocity], -1)
 
+    def stencil_latents(self, z: torch.Tensor, h: float) -> tuple[torch.Tensor, ...]:
+        """The latent and its k time derivatives at the middle of five latents h apart,
+        z (B, 5, nz), by fourth-order central differences (their error for a motion of
+        frequency ω is about (ωh)^4/30 of ż and (ωh)^4/90 of z̈): (z, ż[, z̈]) (B, nz) each."""
+        d1 = (z[:, 0] - 8 * z[:, 1] + 8 * z[:, 3] - z[:, 4]) / (12 * h)
+        d2 = (-z[:, 0] + 16 * z[:, 1] - 30 * z[:, 2] + 16 * z[:, 3] - z[:, 4]) / (12 * h * h)
+        return (z[:, 2], d1, d2)[: self.dynamics.derivative_order + 1]
+
+    def stencil_loss(self, x: torch.Tensor, u: torch.Tensor, h: float,
+                     weights: LossWeights | None = None) -> dict[str, torch.Tensor]:
+        """The loss on frames without derivatives: x (B, 5, C, h, w), five frames ``h`` apart
+        around each sample. The encoder's latents of the five are differentiated
+        (:meth:`stencil_latents`), so no pixel is: a pixel's intensity changes far faster
+        than the motion it shows (a blob passing it), and its differences are wrong long
+        before the latent's are. The reconstruction is the middle frame's; there is no
+        x^(k) term (no pixel derivative to compare with)."""
+        if x.ndim != 5 or x.shape[1] != 5 or u.shape != (x.shape[0], self.dynamics.nu):
+            raise ValueError(f"a stencil loss expects x (B, 5, C, h, w) and u (B, nu), got "
+                             f"{tuple(x.shape)} and {tuple(u.shape)}")
+        ae = self.autoencoder
+        b = x.shape[0]
+        z = ae.encoder(x.flatten(0, 1)).view(b, 5, -1)
+        zs = self.stencil_latents(z, h)
+        k = self.dynamics.derivative_order
+        top = self.dynamics.derivative(torch.cat(zs[:k], -1), u)
+        recon = (ae.decoder(zs[0]) - x[:, 2]).square().mean()
+        return self._terms(recon, recon.new_zeros(()), top, zs[k], weights or DEFAULT_WEIGHTS)
+
     def front(self) -> tuple[LinearMap, LinearMap] | None:
         """The fixed linear front (the encoder's first map, the decoder's last), or None."""
         enc = getattr(self.autoencoder.encoder, "net", None)
@@ -123,12 +155,13 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         return None
 
     @torch.no_grad()
-    def coordinates(self, x: torch.Tensor, chunk: int = 1024
+    def coordinates(self, x: torch.Tensor, chunk: int = 1024, frames: bool = False
                     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Frames and their derivatives x (B, 1+k, C, h, w) on the front: their coordinates
         (B, 1+k, K) (the derivatives' without the mean) and the squared norm of what the
-        front leaves out of each (B, 1+k), summed over pixels in float64; ValueError without
-        a front."""
+        front leaves out of each (B, 1+k), summed over pixels in float64; ``frames``: every
+        entry of x is a frame (a stencil's), each with the mean. ValueError without a
+        front."""
         front = self.front()
         if front is None:
             raise ValueError("coordinates: this model has no principal-component front "
@@ -138,20 +171,36 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         for part in x.split(chunk):
             flat = part.flatten(2)  # (b, 1+k, P)
             c = flat @ enc.weight.T
-            c[:, 0] += enc.bias
+            which = slice(None) if frames else 0
+            c[:, which] += enc.bias
             back = c.double() @ dec.weight.T.double()
-            back[:, 0] += dec.bias.double()
+            back[:, which] += dec.bias.double()
             coords.append(c)
             left.append((flat.double() - back).square().sum(-1).float())
         return torch.cat(coords), torch.cat(left)
 
     def coordinate_loss(self, c: torch.Tensor, u: torch.Tensor, left: torch.Tensor,
-                        weights: LossWeights | None = None) -> dict[str, torch.Tensor]:
+                        weights: LossWeights | None = None, stencil: float = 0.0
+                        ) -> dict[str, torch.Tensor]:
         """:meth:`loss` from the samples' coordinates c (B, 1+k, K) and what the front leaves
         out of them, ``left`` (B, 1+k) (:meth:`coordinates`), through the networks without
-        the front: the same terms up to rounding."""
+        the front: the same terms up to rounding. ``stencil`` h > 0: c (B, 5, K), left
+        (B, 5) of five frames h apart (:meth:`stencil_loss`)."""
         k = self.dynamics.derivative_order
         _, dec = self.front() or (None, None)
+        if stencil:
+            if dec is None or c.ndim != 3 or c.shape[1:] != (5, dec.weight.shape[1]):
+                raise ValueError(f"a stencil's coordinate_loss expects coordinates (B, 5, K) "
+                                 f"on the model's front, got {tuple(c.shape)}")
+            b = c.shape[0]
+            z = self.autoencoder.encoder.net[1:](c.flatten(0, 1)).view(b, 5, -1)
+            zs = self.stencil_latents(z, stencil)
+            top = self.dynamics.derivative(torch.cat(zs[:k], -1), u)
+            c_hat = self.autoencoder.decoder.net[:-1](zs[0])
+            column = dec.weight.square().sum(0)
+            recon = ((c_hat - c[:, 2]).square() @ column + left[:, 2]).mean() / dec.weight.shape[0]
+            return self._terms(recon, recon.new_zeros(()), top, zs[k],
+                               weights or DEFAULT_WEIGHTS)
         if dec is None or c.ndim != 3 or c.shape[1:] != (k + 1, dec.weight.shape[1]) or (
                 left.shape != c.shape[:2]):
             raise ValueError(f"coordinate_loss expects coordinates (B, {k + 1}, K) on the "

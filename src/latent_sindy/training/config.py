@@ -116,11 +116,13 @@ class TrainConfig:
     refine_epochs: int = 0
     """SINDy: the last this many of the epochs refine the coefficients: no pruning (the mask
     stays as it is) and no L1 term (the SINDy autoencoder: 1001 after 5001, --epochs 6002)."""
-    derivatives: Literal["auto", "central", "smooth"] = "auto"
-    """Continuous-time models: where the frames' time derivatives come from. "auto": the
-    data's exact ones (images_dot, images_ddot) where it has them, else estimated as
-    "central" (central differences of the frames, dt apart); "smooth": a Savitzky-Golay
-    differentiator over --derivative-window frames (for noisy frames)."""
+    derivatives: Literal["auto", "latent", "central", "smooth"] = "auto"
+    """Continuous-time models: where the time derivatives come from. "auto": the data's
+    exact ones (images_dot, images_ddot) where it has them, else "latent": the encoder's
+    latents of five frames around each differentiated (fourth-order differences, the
+    frames' spacing chosen from the model's time unit), never the pixels; "central":
+    central differences of the frames, dt apart; "smooth": a Savitzky-Golay differentiator
+    of the frames over --derivative-window frames."""
     derivative_window: int = 9
     """--derivatives smooth: frames in the differentiator's window (odd, at least 5)."""
     sindy_init: Literal["auto", "random", "regression"] = "auto"
@@ -198,8 +200,8 @@ class TrainConfig:
             (0 <= self.refine_epochs <= self.epochs,
              f"--refine-epochs {self.refine_epochs}: use 0 to --epochs ({self.epochs}); the "
              "refinement is the last of the epochs"),
-            (self.derivatives in ("auto", "central", "smooth"),
-             f"--derivatives {self.derivatives!r}: use auto, central or smooth"),
+            (self.derivatives in ("auto", "latent", "central", "smooth"),
+             f"--derivatives {self.derivatives!r}: use auto, latent, central or smooth"),
             (self.derivative_window >= 5 and self.derivative_window % 2 == 1,
              f"--derivative-window {self.derivative_window}: use an odd number, at least 5"),
             (self.checkpoint_every >= 1,

@@ -27,8 +27,21 @@ from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_b
 from latent_sindy.training.core import ENCODE_CHUNK
 from latent_sindy.training.samples import CoordinateSamples, DerivativeSamples, Samples, Sequences
 
-__all__ = ["TrainingTensors", "derivative_samples", "fit_after", "new_model",
-           "regression_init", "settle_model", "settle_settings", "training_tensors"]
+__all__ = [
+    "STENCIL_SPAN",
+    "TrainingTensors",
+    "derivative_samples",
+    "derivative_source",
+    "fit_after",
+    "frame_windows",
+    "new_model",
+    "regression_init",
+    "settle_model",
+    "settle_settings",
+    "stencil_stride",
+    "stencil_tensors",
+    "training_tensors",
+]
 
 
 def settle_settings(cfg: TrainConfig, data: SequenceData) -> TrainConfig:
@@ -182,6 +195,8 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
                      regression: bool = False) -> TrainingTensors:
     """The training and validation tensors of ``data`` on ``device``; for a ``fresh`` model
     (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
+    if model.dynamics.continuous and derivative_source(cfg, data) == "latent":
+        return stencil_tensors(model, data, norm, cfg, device, fresh)
     if model.dynamics.continuous:
         order = model.dynamics.derivative_order
         train = derivative_samples(data.split("train"), norm, order, cfg)
@@ -239,6 +254,91 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
         prime(model)
     return TrainingTensors(Sequences(x, u, s), None if xv is None else Sequences(xv, uv, sv),
                            per_batch, prime)
+
+
+def derivative_source(cfg: TrainConfig, data: SequenceData) -> str:
+    """Where a continuous-time model's derivatives come from: "given" (the data's exact
+    ones), "latent" (the encoder's latents of nearby frames differentiated) or a method
+    that differentiates the frames ("central", "smooth"). ``--derivatives auto``: the
+    data's where it has them, else the latent's (central differences of the frames for
+    sequences too short for a stencil, under five frames)."""
+    order = cfg.model.dynamics.derivative_order
+    given = [data.images_dot, data.images_ddot][:order]
+    if cfg.derivatives == "auto":
+        if all(g is not None for g in given):
+            return "given"
+        return "latent" if data.steps + 1 >= 5 else "central"
+    return cfg.derivatives
+
+
+#: The latent's stencil spans about this much of the motion's time (h ω, the model's time
+#: unit standing for 1/ω), where the frames allow: its fourth-order differences are then
+#: within (ωh)^4/90 < 1e-4 of z̈, and pixel noise is averaged over more time than dt.
+STENCIL_SPAN = 0.3
+
+
+def stencil_stride(unit: float, dt: float, frames: int) -> int:
+    """Frames between a stencil's five points: near :data:`STENCIL_SPAN` · ``unit`` / ``dt``,
+    at least 1, at most (frames − 1) // 8 so that half of each sequence's frames are
+    centres."""
+    want = round(STENCIL_SPAN * unit / dt)
+    return max(1, min(want, max(1, (frames - 1) // 8)))
+
+
+def frame_windows(data: SequenceData, norm: Normalizer, stride: int
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``data``'s frames normalised, one after another (N (T+1), C, H, W), the indices of
+    every window of five frames ``stride`` apart within a sequence (B, 5), and the action
+    acting at each window's middle frame (B, nu) (the last frame keeps the last action)."""
+    n, f = data.n, data.steps + 1
+    frames = norm.normalize(data.images).flatten(0, 1)
+    centres = torch.arange(2 * stride, f - 2 * stride)
+    offsets = stride * torch.arange(-2, 3)
+    idx = (torch.arange(n)[:, None, None] * f + centres[None, :, None]
+           + offsets[None, None, :]).flatten(0, 1)  # (B, 5)
+    a = torch.as_tensor(data.actions, dtype=torch.float32)  # (N, T, nu)
+    u = torch.cat([a, a[:, -1:]], 1).flatten(0, 1)[idx[:, 2]]
+    frames = frames.masked_fill(frames.abs() < torch.finfo(frames.dtype).tiny, 0.0)
+    return frames, idx, u
+
+
+def stencil_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
+                    cfg: TrainConfig, device: torch.device, fresh: bool) -> TrainingTensors:
+    """A continuous-time model's tensors on frames without derivatives: windows of five
+    frames (``DerivativeSamples`` with ``stencil`` h), or behind a principal-component
+    front their coordinates, each frame projected once (``CoordinateSamples``)."""
+    dyn = model.dynamics
+    train, val = data.split("train"), data.split("val")
+    dt = float(data.dt)
+    stride = stencil_stride(dyn.time_unit, dt, data.steps + 1)
+    h = stride * dt
+    parts = [frame_windows(train, norm, stride)]
+    if val.n and val.steps + 1 > 4 * stride:
+        parts.append(frame_windows(val, norm, stride))
+    if fresh:
+        model.fit_statistics(parts[0][0].to(device), None)
+    front = model.front()
+    if front is None:
+        samples = [DerivativeSamples(f[i], u, h).to(device) for f, i, u in parts]
+
+        def prime_frames(m: LatentModel) -> None:
+            m.fit_statistics(parts[0][0].to(device), None)
+
+        return TrainingTensors(samples[0], samples[1] if len(samples) > 1 else None,
+                               cfg.batch_size, prime_frames)
+    maps = [(m.weight.clone(), m.bias.clone()) for m in front]
+
+    def prime_front(m: LatentModel) -> None:
+        for target, (weight, bias) in zip(m.front(), maps, strict=True):
+            target.set(weight, bias)
+
+    coords = []
+    for f, i, u in parts:
+        c, left = model.coordinates(f.to(device)[:, None])  # (M, 1, K), (M, 1)
+        i = i.to(device)
+        coords.append(CoordinateSamples(c[:, 0][i], u.to(device), left[:, 0][i], h))
+    return TrainingTensors(coords[0], coords[1] if len(coords) > 1 else None, cfg.batch_size,
+                           prime_front)
 
 
 def derivative_samples(data: SequenceData, norm: Normalizer, order: int, cfg: TrainConfig

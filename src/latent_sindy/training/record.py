@@ -111,7 +111,7 @@ def data_time(data: SequenceData, order: int, where: str, derivatives: str = "au
     if len(given) == order and all(g is not None for g in given):
         rate = np.asarray(given[-1][keep])
     else:
-        method = "central" if derivatives == "auto" else derivatives
+        method = "central" if derivatives in ("auto", "latent") else derivatives
         exact = np.asarray(given[0][keep]) if given and given[0] is not None and order == 2 \
             else None
         rate = estimate_derivatives(frames, data.dt or 1.0, order, method, window,
@@ -134,7 +134,7 @@ def check_derivatives(cfg: TrainConfig, data: SequenceData) -> None:
                         "derivatives: give the data's time step (SequenceData(dt=...)) to "
                         "estimate them from the frames, or the exact ones (images_dot"
                         + (", images_ddot)" if order == 2 else ")"))
-    need = 5 if cfg.derivatives == "smooth" else 4
+    need = 5 if cfg.derivatives in ("smooth", "latent") else 4
     if data.steps + 1 < max(need, cfg.derivative_window if need == 5 else 0):
         raise UserError(f"{data.source}: sequences of {data.steps + 1} frames are too short "
                         f"to estimate derivatives ({cfg.derivatives}): use longer sequences "

@@ -8,10 +8,13 @@ loop never asks which it has:
     Sequences(x, u, s)                 x (N, T+1, ...) sequences or (W, H+1, ...) windows,
                                        u their actions (N, T, nu), s their true states or None
     DerivativeSamples(frames, actions) frames (N, 1+k, C, h, w): a frame and its k time
-                                       derivatives; actions (N, nu): the action at each frame
+                                       derivatives; actions (N, nu): the action at each frame;
+                                       with ``stencil`` h > 0, frames (N, 5, C, h, w) are five
+                                       frames h apart around each instead, whose latents the
+                                       model differentiates (derivatives="latent")
     CoordinateSamples(coords, actions, left)   the same on a model's principal-component
-                                       front: coordinates (N, 1+k, K) and the squared norm of
-                                       what the front leaves out of each (N, 1+k)
+                                       front: coordinates (N, 1+k or 5, K) and the squared norm
+                                       of what the front leaves out of each (N, 1+k or 5)
 
     batch = samples.pick(idx)
     terms = batch.loss(model, weights, window)
@@ -61,6 +64,8 @@ class DerivativeSamples(NamedTuple):
 
     frames: torch.Tensor
     actions: torch.Tensor
+    stencil: float = 0.0
+    """0: frames with their derivatives; h > 0: five frames h apart around each."""
 
     @property
     def n(self) -> int:
@@ -71,16 +76,16 @@ class DerivativeSamples(NamedTuple):
         return self.frames.device
 
     def pick(self, idx: torch.Tensor | slice) -> DerivativeSamples:
-        return DerivativeSamples(self.frames[idx], self.actions[idx])
+        return DerivativeSamples(self.frames[idx], self.actions[idx], self.stencil)
 
     def to(self, device: torch.device | str) -> DerivativeSamples:
-        return DerivativeSamples(self.frames.to(device), self.actions.to(device))
+        return DerivativeSamples(self.frames.to(device), self.actions.to(device), self.stencil)
 
     def loss(self, model: LatentModel, weights: LossWeights, window: int | None
              ) -> dict[str, torch.Tensor]:
         """The model's loss terms on the samples: single frames, so no window is cut (the
         trainer's ``window`` is a sequence's and does not apply), and no true states."""
-        return model.loss(self.frames, self.actions, weights)
+        return model.loss(self.frames, self.actions, weights, stencil=self.stencil)
 
 
 class CoordinateSamples(NamedTuple):
@@ -93,12 +98,13 @@ class CoordinateSamples(NamedTuple):
     coords: torch.Tensor
     actions: torch.Tensor
     left: torch.Tensor
+    stencil: float = 0.0
 
     @classmethod
     def of(cls, samples: DerivativeSamples, model: LatentModel) -> CoordinateSamples:
         """``samples`` on ``model``'s front (fitted: after its statistics)."""
-        coords, left = model.coordinates(samples.frames)
-        return cls(coords, samples.actions, left)
+        coords, left = model.coordinates(samples.frames, frames=bool(samples.stencil))
+        return cls(coords, samples.actions, left, samples.stencil)
 
     @property
     def n(self) -> int:
@@ -109,15 +115,18 @@ class CoordinateSamples(NamedTuple):
         return self.coords.device
 
     def pick(self, idx: torch.Tensor | slice) -> CoordinateSamples:
-        return CoordinateSamples(self.coords[idx], self.actions[idx], self.left[idx])
+        return CoordinateSamples(self.coords[idx], self.actions[idx], self.left[idx],
+                                 self.stencil)
 
     def to(self, device: torch.device | str) -> CoordinateSamples:
-        return CoordinateSamples(*(t.to(device) for t in self))
+        return CoordinateSamples(self.coords.to(device), self.actions.to(device),
+                                 self.left.to(device), self.stencil)
 
     def loss(self, model: LatentModel, weights: LossWeights, window: int | None
              ) -> dict[str, torch.Tensor]:
         """The model's loss terms on the samples' coordinates (no window, no true states)."""
-        return model.coordinate_loss(self.coords, self.actions, self.left, weights)
+        return model.coordinate_loss(self.coords, self.actions, self.left, weights,
+                                     stencil=self.stencil)
 
 
 #: Any of the trainer's sample types.
