@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import pytest
 import torch
 
 from latent_sindy import LatentSINDy, Phase, Restarts
 from latent_sindy.training.config import TrainConfig
 from latent_sindy.training.prepare import (
-    derivative_source, frame_windows, stencil_stride, training_tensors)
+    derivative_source,
+    frame_windows,
+    stencil_stride,
+    training_tensors,
+)
 from latent_sindy.training.samples import CoordinateSamples, DerivativeSamples
 from latent_sindy.worlds.pendulum.video_draws import VideoDraw
 
@@ -36,7 +39,7 @@ def test_the_stencil_differentiates_a_latent_to_fourth_order(wh):
     h, w = 0.05, wh / 0.05
     t = torch.linspace(0, 3, 50, dtype=torch.float64)[:, None] + h * torch.arange(-2, 3)
     z = torch.sin(w * t)[..., None]  # (B, 5, 1)
-    zc, dz, ddz = est.model_.stencil_latents(z, h)
+    _zc, dz, ddz = est.model_.stencil_latents(z, h)
     centre = t[:, 2:3]
     assert torch.allclose(dz, w * torch.cos(w * centre), atol=w * wh ** 4 / 20)
     assert torch.allclose(ddz, -w * w * torch.sin(w * centre), atol=w * w * wh ** 4 / 60)
@@ -58,7 +61,7 @@ def test_frames_without_derivatives_train_on_stencils_and_exact_ones_on_themselv
     # the windows' middle frames are the frames, their neighbours stride frames apart
     stride = round(tensors.train.stencil / 0.08)
     train = frames_only.split("train")
-    f, idx, _ = frame_windows(train, est.normalizer_, stride)
+    _f, idx, _ = frame_windows(train, est.normalizer_, stride)
     assert tensors.train.n == len(idx) == train.n * (train.steps + 1 - 4 * stride)
     assert torch.equal(idx[:, 1:] - idx[:, :-1], torch.full((len(idx), 4), stride))
 
