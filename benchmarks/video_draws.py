@@ -79,6 +79,22 @@ def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> 
             "data_s": round(t1 - t0, 1), "fit_s": round(t2 - t1, 1)}
 
 
+def derivative_error(seed: int, index: int) -> str:
+    """How far central differences of the draw's frames (as ``--derivatives central``
+    takes them) are from its exact ẍ: ‖estimate − exact‖ / ‖exact‖ over every pixel."""
+    import numpy as np
+
+    from latent_sindy.models.derivatives import estimate_derivatives
+
+    d = video_of(seed, index, "exact")
+    v = d.video()
+    ddx = estimate_derivatives(v.images, d.dt, 2, "central")[1]
+    err = float(np.linalg.norm(ddx - v.images_ddot) / np.linalg.norm(v.images_ddot))
+    omega = max(d.omega2) ** 0.5
+    return (f"draw {index} {d.system:13s} dt·ω {d.dt * omega:.3f} noise {d.noise:.3f}: "
+            f"central differences of the frames miss ẍ by {100 * err:.0f} %")
+
+
 def draws_of(text: str) -> list[int]:
     try:
         if ".." in text:
@@ -102,6 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="append one JSON line per fit; skip those there")
     p.add_argument("--save", help="save each fitted model under this folder")
     p.add_argument("--smoke", action="store_true", help="one tiny draw, two epochs (tests)")
+    p.add_argument("--derivative-error", action="store_true",
+                   help="only print how far central differences of each draw's frames are "
+                        "from its exact second derivative (no fit)")
     args = p.parse_args(argv)
     modes = args.derivatives.split(",")
     if not modes or any(m not in MODES for m in modes):
@@ -112,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
             args.out.parent if args.out.parent != Path("") else Path("."), os.W_OK)):
         p.error(f"--out {args.out}: give a writable file path")
     indices = [0] if args.smoke else (args.only or list(range(args.draws)))
+    if args.derivative_error:
+        for i in indices:
+            print(derivative_error(args.seed, i), flush=True)
+        return 0
     done: dict[tuple, dict] = {}
     if args.out is not None and args.out.exists():
         for line in args.out.read_text().splitlines():
