@@ -12,33 +12,31 @@ model whose rollout error is within ``slack`` times the best on the path.
     >>> choice.model.coef_, choice.setting   # the chosen fit and its tolerance
     >>> print(choice.table())                # the whole path: terms and rollout error
 
-A continuous-time law is chosen the same way on held-out derivatives: :func:`select_law`
-fits STLSQ (a term kept while it carries at least ``min_share`` of its target's size) at
-every share of a path from fine to coarse, scores each law by the fraction of the held-out
-target's variance it leaves unexplained (FVU), and keeps the sparsest law within
-``tolerance`` of the best: a term stays when it explains what the others cannot, wherever
-its coefficient sits against a fixed cut.
+A continuous-time law is checked the same way on held-out derivatives: :func:`select_law`
+compares a trained law with its neighbours (one term added, removed or swapped), each
+refitted by least squares, by the fraction of the held-out target's variance it leaves
+unexplained (FVU), and keeps the sparsest within ``tolerance`` of the best: a term that a
+fixed pruning cut lost comes back where it explains what the others cannot.
 
-    >>> law = select_law(theta_train, zdd_train, theta_val, zdd_val)
-    >>> law.coef.shape, law.fvu, law.share   # (p, m), held-out FVU, the cut it came from
+    >>> law = select_law(theta_train, zdd_train, theta_val, zdd_val, start=trained_mask)
+    >>> law.coef.shape, law.fvu, law.start_fvu   # (p, m), held-out FVU, the trained law's
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from latent_sindy.errors import UserError
 from latent_sindy.sindy.fit import Sparsifier, fit_state_data
-from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import SindyLibrary
 
-__all__ = ["SHARES", "TOLERANCES", "LawChoice", "PathPoint", "Selection", "held_out_fvu",
+__all__ = ["TOLERANCES", "LawChoice", "PathPoint", "Selection", "held_out_fvu",
            "rollout_error", "select_law", "select_on_rollouts"]
 
 TOLERANCES: tuple[float, ...] = tuple(float(t) for t in 10.0 ** np.linspace(-5, -2, 13))
@@ -143,20 +141,17 @@ def select_on_rollouts(
     return Selection(fits[k], path[k].setting, tuple(path))
 
 
-#: The path of STLSQ cuts (each term's share of its target's size), fine to coarse.
-SHARES = tuple(float(s) for s in np.geomspace(0.005, 0.5, 21))
-
-
 @dataclass
 class LawChoice:
-    """The law kept: coefficients (p, m) with pruned entries 0, its mask, the STLSQ share it
-    came from, its held-out FVU, and every candidate on the path (share, active terms, FVU)."""
+    """The law kept: coefficients (p, m) with pruned entries 0, its mask, its held-out FVU
+    (the fraction of the held-out target's variance it leaves unexplained), the starting
+    law's, and how many laws were compared."""
 
     coef: np.ndarray
     mask: np.ndarray
-    share: float
     fvu: float
-    path: list[dict[str, float]] = field(default_factory=list)
+    start_fvu: float
+    compared: int = 0
 
 
 def held_out_fvu(theta: np.ndarray, target: np.ndarray, coef: np.ndarray) -> float:
@@ -166,40 +161,57 @@ def held_out_fvu(theta: np.ndarray, target: np.ndarray, coef: np.ndarray) -> flo
     return float((resid ** 2).sum() / max(spread, 1e-300))
 
 
+def _lstsq(theta: np.ndarray, y: np.ndarray, active: tuple[int, ...]) -> np.ndarray:
+    coef = np.zeros(theta.shape[1])
+    if active:
+        cols = list(active)
+        coef[cols] = np.linalg.lstsq(theta[:, cols], y, rcond=None)[0]
+    return coef
+
+
 def select_law(theta: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tensor,
                theta_val: np.ndarray | torch.Tensor, target_val: np.ndarray | torch.Tensor,
-               shares: tuple[float, ...] = SHARES, tolerance: float = 0.25,
-               floor: float = 1e-6) -> LawChoice:
-    """The sparsest law along ``shares`` whose held-out FVU is at most (1 + ``tolerance``)
-    times the path's best plus ``floor`` (ties: the lower FVU). ``theta`` (N, p), ``target``
-    (N, m) fit; ``theta_val``, ``target_val`` score. A law of no term is a candidate too
-    (FVU 1 on centred targets)."""
+               start: np.ndarray, tolerance: float = 0.25, floor: float = 1e-6) -> LawChoice:
+    """The law of each target column chosen among ``start``'s (p, m) bool mask and its
+    neighbours: one term added, one removed, one swapped for another, each refitted by least
+    squares on ``theta`` (N, p), ``target`` (N, m) and scored on ``theta_val``,
+    ``target_val``. The sparsest whose held-out FVU is within (1 + ``tolerance``) of the
+    best compared (plus ``floor``) is kept (ties: the lower FVU): a term is added only where
+    it explains what the others cannot, removed where it explains nothing, and a law never
+    grows by more than one term a column."""
     arrays = [np.asarray(a.detach().cpu() if isinstance(a, torch.Tensor) else a, np.float64)
               for a in (theta, target, theta_val, target_val)]
     th, y, thv, yv = arrays
+    start = np.asarray(start, bool)
     if th.ndim != 2 or y.ndim != 2 or thv.shape[1:] != th.shape[1:] or (
-            yv.shape[1:] != y.shape[1:]) or len(th) != len(y) or len(thv) != len(yv):
-        raise UserError(f"select_law: theta (N, p) and target (N, m) for both sets, got "
-                        f"{th.shape}, {y.shape}, {thv.shape}, {yv.shape}")
+            yv.shape[1:] != y.shape[1:]) or len(th) != len(y) or len(thv) != len(yv) or (
+            start.shape != (th.shape[1], y.shape[1])):
+        raise UserError(f"select_law: theta (N, p) and target (N, m) for both sets and a start "
+                        f"mask (p, m), got {th.shape}, {y.shape}, {thv.shape}, {yv.shape}, "
+                        f"{start.shape}")
     if not (np.isfinite(th).all() and np.isfinite(y).all() and np.isfinite(thv).all()
             and np.isfinite(yv).all()):
         raise UserError("select_law: the library or target holds NaN or inf")
-    candidates = []
-    seen = set()
-    for share in shares:
-        opt = STLSQ(min_share=share).fit(th, y)
-        coef = np.asarray(opt.coef_, np.float64) * np.asarray(opt.mask_)
-        key = np.asarray(opt.mask_).tobytes()
-        if key in seen:
-            continue
-        seen.add(key)
-        candidates.append((share, coef, np.asarray(opt.mask_, bool)))
-    zero = np.zeros((th.shape[1], y.shape[1]))
-    candidates.append((float("inf"), zero, zero.astype(bool)))
-    scored = [(share, coef, mask, held_out_fvu(thv, yv, coef)) for share, coef, mask in
-              candidates]
-    best = min(s[3] for s in scored)
-    ok = [s for s in scored if s[3] <= (1 + tolerance) * best + floor]
-    share, coef, mask, fvu = min(ok, key=lambda s: (int(s[2].sum()), s[3]))
-    path = [{"share": s, "active": int(m.sum()), "fvu": f} for s, _, m, f in scored]
-    return LawChoice(coef, mask, share, fvu, path)
+    p, m = start.shape
+    coef = np.zeros((p, m))
+    compared = 0
+    for j in range(m):
+        now = tuple(np.flatnonzero(start[:, j]))
+        others = [k for k in range(p) if k not in now]
+        laws = {now}
+        laws |= {tuple(sorted((*now, k))) for k in others}
+        laws |= {tuple(i for i in now if i != r) for r in now}
+        laws |= {tuple(sorted((*(i for i in now if i != r), k))) for r in now for k in others}
+        scored = []
+        for law in laws:
+            c = _lstsq(th, y[:, j], law)
+            scored.append((law, c, held_out_fvu(thv, yv[:, j:j + 1], c[:, None])))
+        compared += len(scored)
+        best = min(f for _, _, f in scored)
+        ok = [s for s in scored if s[2] <= (1 + tolerance) * best + floor]
+        _, coef[:, j], _ = min(ok, key=lambda s: (len(s[0]), s[2]))
+    mask = coef != 0
+    start_coef = np.stack([_lstsq(th, y[:, j], tuple(np.flatnonzero(start[:, j])))
+                           for j in range(m)], axis=1)
+    return LawChoice(coef, mask, held_out_fvu(thv, yv, coef),
+                     held_out_fvu(thv, yv, start_coef), compared)

@@ -195,7 +195,8 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
                      regression: bool = False) -> TrainingTensors:
     """The training and validation tensors of ``data`` on ``device``; for a ``fresh`` model
     (not resumed) also its data statistics and, with ``regression``, its SINDy start."""
-    if model.dynamics.continuous and derivative_source(cfg, data) == "latent":
+    if model.dynamics.continuous and derivative_source(
+            cfg, data, model.dynamics.derivative_order) == "latent":
         return stencil_tensors(model, data, norm, cfg, device, fresh)
     if model.dynamics.continuous:
         order = model.dynamics.derivative_order
@@ -256,13 +257,14 @@ def training_tensors(model: LatentModel, data: SequenceData, norm: Normalizer,
                            per_batch, prime)
 
 
-def derivative_source(cfg: TrainConfig, data: SequenceData) -> str:
+def derivative_source(cfg: TrainConfig, data: SequenceData, order: int | None = None) -> str:
     """Where a continuous-time model's derivatives come from: "given" (the data's exact
     ones), "latent" (the encoder's latents of nearby frames differentiated) or a method
     that differentiates the frames ("central", "smooth"). ``--derivatives auto``: the
     data's where it has them, else the latent's (central differences of the frames for
-    sequences too short for a stencil, under five frames)."""
-    order = cfg.model.dynamics.derivative_order
+    sequences too short for a stencil, under five frames). ``order``: the model's
+    derivative order (None: ``cfg``'s model's)."""
+    order = cfg.model.dynamics.derivative_order if order is None else order
     given = [data.images_dot, data.images_ddot][:order]
     if cfg.derivatives == "auto":
         if all(g is not None for g in given):

@@ -4,9 +4,12 @@ Pruning during training cuts every coefficient below one fixed size, so a term t
 but is small in the model's time unit (a pendulum's friction c/ω of 0.05) is lost, and
 whatever law is left when the cut falls is the one printed. After training, the encoder's
 latent and its derivatives on the training and validation samples are a regression problem
-of their own: :func:`reselect_law` fits the library to them along the whole sparsity path
-(:func:`~latent_sindy.sindy.selection.select_law`) and keeps the sparsest law that explains
-the validation samples as well as any, in place of the trained one.
+of their own: :func:`reselect_law` compares the trained law with its neighbours, one term
+added, removed or swapped, each refitted by least squares on the training samples
+(:func:`~latent_sindy.sindy.selection.select_law`), and keeps the sparsest that explains
+the validation samples as well as any, in place of the trained one. A law never grows by
+more than one term a latent, so a latent that no sparse law fits keeps its trained law (and
+the warning its unexplained share earns).
 
     choice = reselect_law(session.model, session.tensors.train, session.tensors.val)
     choice.fvu            # the share of the validation latent's z^(k) left unexplained
@@ -57,8 +60,9 @@ def latent_derivatives(model: LatentModel, samples: CoordinateSamples | Derivati
 
 def reselect_law(model: LatentModel, train: CoordinateSamples | DerivativeSamples,
                  val: CoordinateSamples | DerivativeSamples | None) -> LawChoice | None:
-    """Choose the continuous-time ``model``'s law again on its encoder's derivatives (fit on
-    ``train``, judged on ``val``) and set its coefficients and mask to it; None (nothing
+    """Check the continuous-time ``model``'s law against its neighbours on its encoder's
+    derivatives (fit on ``train``, judged on ``val``) and set its coefficients and mask to
+    the one kept; None (nothing
     changed) without validation samples or where the derivatives are not finite."""
     dyn = model.dynamics
     if val is None or val.n == 0 or not getattr(dyn, "continuous", False):
@@ -74,7 +78,7 @@ def reselect_law(model: LatentModel, train: CoordinateSamples | DerivativeSample
         fitted += [theta.double(), (top * unit ** k).double()]
     if not all(torch.isfinite(t).all() for t in fitted):
         return None
-    choice = select_law(*fitted)
+    choice = select_law(*fitted, start=dyn.mask.detach().cpu().numpy())
     coef = torch.as_tensor(choice.coef, dtype=dyn.psi.dtype)
     with torch.no_grad():
         dyn.mask.copy_(torch.as_tensor(choice.mask, device=dyn.mask.device))

@@ -219,7 +219,8 @@ class Restarts:
     """Starts that must write the same law (the same active terms, whatever the latents'
     order) before one is trusted: with 2, starts are trained through until two agree (up to
     ``count``), and the kept start is the best of the largest group that agrees; a law of no
-    term agrees with nothing. 1: the first start under the limits is trusted."""
+    term agrees with nothing. 1: the first start under the limits is trusted (the rule as it
+    was before laws were compared)."""
 
     def __post_init__(self) -> None:
         if isinstance(self.count, bool) or not isinstance(self.count, int) or self.count < 0:
@@ -310,7 +311,8 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             waiting.remove(pick)
             finish_phases(pick)
             done.append(pick)
-            if not poor(pick["fvu"], rule.fvu_above) and len(agreeing(pick)) >= rule.agree:
+            if not poor(pick["fvu"], rule.fvu_above) and (
+                    rule.agree == 1 or len(agreeing(pick)) >= rule.agree):
                 break
     finally:
         progress.close()
