@@ -216,6 +216,9 @@ def test_an_unedited_run_loads_and_plans_inside_its_box(fitted, tmp_path: Path) 
      r"dt='0\.1': give the time between frames as a positive number"),
     (lambda d: SequenceData(d.images, d.actions, [-1, -1], [1, 1], dt=True), "dt=True"),
     (lambda d: TrainConfig(epochs=2.0), r"epochs=2\.0: give an integer"),
+    (lambda d: LatentSINDy(2, **SMALL).fit(d, epochs=1, sindy_fit="later"),
+     "--sindy-fit 'later': use joint or after"),  # (a string outside the choices: the flag)
+    (lambda d: TrainConfig(device=5), "device=5: give one of 'auto', 'cpu', 'cuda'"),
     (lambda d: Phase(2, "p", {"prune_every": True}) and TrainConfig(prune_every=True),
      "prune_every=True"),
 ])
@@ -355,6 +358,14 @@ def test_ambiguous_action_names_are_refused(fitted, names, needle) -> None:
     with pytest.raises(UserError, match=needle):
         fitted[1].equations(action_names=names)
     assert _data(action_names=["u0", "u1"]).action_names == ("u0", "u1")  # the defaults
+
+
+def test_a_bare_u_or_z_names_an_action(fitted) -> None:
+    """The equations write single variables (z0, u1), never a bare u or z: those are free."""
+    assert _data(nu=1, action_names=["u"]).action_names == ("u",)
+    assert _data(action_names=["z", "u"]).action_names == ("z", "u")
+    lines = fitted[1].equations(precision=12, action_names=["u", "z"])
+    assert not any(t in line for line in lines for t in ("u0", "u1"))
 
 
 def test_second_derivatives_without_first_are_refused() -> None:

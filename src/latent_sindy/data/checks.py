@@ -40,7 +40,8 @@ def check_pixels(images: np.ndarray, pixel_dtype: str, name: str = "images") -> 
 
 #: Names an action may not have: the latents' and the actions' own variables (z0, u1: an
 #: action named u1 at another place would read as that one), and the library's functions.
-_RESERVED = re.compile(r"^(z\d*|u|sin|cos)$")
+#: A bare z or u is free: the equations name only single variables (z0, u1), never a group.
+_RESERVED = re.compile(r"^(z\d+|sin|cos)$")
 
 
 def check_action_names(names: Any, n: int, where: str) -> None:

@@ -28,7 +28,7 @@ from latent_sindy.models.renamed import one_name_each, renamed
 
 __all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "PRUNINGS", "RESUMABLE", "TrainConfig",
            "auto_batch_size", "check_fit_settings", "default_threads", "resolve_batching",
-           "resolve_device", "resolve_parallel", "resolve_prune"]
+           "resolve_device", "resolve_parallel", "resolve_prune", "unknown_choice"]
 
 #: Settings that may change when resuming; everything else must match the run's record. The
 #: data file may move: its identity (fingerprint, sizes, splits) is checked instead.
@@ -51,6 +51,31 @@ AUTO_BATCH = (16, 500)
 
 #: Values of :attr:`TrainConfig.device`.
 DEVICES = ("auto", "cpu", "cuda")
+
+
+def unknown_choice(name: str, value: Any) -> str | None:
+    """The message refusing ``value`` for the TrainConfig field ``name`` of a few fixed choices
+    (a Literal) where it is a string outside them, in the words of the command line (the flag
+    and the value, for Python callers too); None where it is one of them, is no string (the
+    type check's), or ``name`` has no fixed choices."""
+    if not isinstance(value, str):
+        return None
+    choices = {
+        "prune": (PRUNINGS, f"--prune {value!r} is unknown: use one of {', '.join(PRUNINGS)}"),
+        "sindy_init": (("auto", "random", "regression"),
+                       f"--sindy-init {value!r}: use auto, random or regression"),
+        "sindy_fit": (("joint", "after"), f"--sindy-fit {value!r}: use joint or after"),
+        "derivatives": (("auto", "latent", "central", "smooth"),
+                        f"--derivatives {value!r}: use auto, latent, central or smooth"),
+        "batching": (BATCHINGS,
+                     f"--batching {value!r} is unknown: use one of {', '.join(BATCHINGS)}"),
+        "parallel": (PARALLELS,
+                     f"--parallel {value!r} is unknown: use one of {', '.join(PARALLELS)}"),
+        "device": (DEVICES, f"--device {value!r} is unknown: use one of {', '.join(DEVICES)}"),
+    }
+    if name not in choices or value in choices[name][0]:
+        return None
+    return choices[name][1]
 
 
 @renamed(threshold="prune_below", threshold_every="prune_every",
@@ -165,6 +190,9 @@ class TrainConfig:
     """Replace a finished or interrupted run in `out` (all of it) instead of refusing."""
 
     def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # a string outside the choices: the flag's words
+            if (message := unknown_choice(f.name, getattr(self, f.name))) is not None:
+                raise UserError(message)
         check_field_types(self, "TrainConfig ")  # (True, "2" or 1.5 for an integer, ...)
 
         def finite(v: float) -> bool:
@@ -179,8 +207,6 @@ class TrainConfig:
             (self.start_epochs is None or self.start_epochs >= 1,
              f"--start-epochs {self.start_epochs}: use 1 or more (or None: a fifth of "
              "--epochs)"),
-            (self.prune in PRUNINGS,
-             f"--prune {self.prune!r} is unknown: use one of {', '.join(PRUNINGS)}"),
             (self.lr > 0 and finite(self.lr), f"--lr {self.lr}: use a finite positive number"),
             (len(self.betas) == 2 and all(0 <= b < 1 for b in self.betas),
              f"--betas {self.betas}: use two numbers in [0, 1)"),
@@ -188,31 +214,19 @@ class TrainConfig:
              f"--weight-decay {self.weight_decay}: use a finite number >= 0"),
             (self.prune_below >= 0 and finite(self.prune_below),
              f"--prune-below {self.prune_below}: use a finite number >= 0"),
-            (self.sindy_init in ("auto", "random", "regression"),
-             f"--sindy-init {self.sindy_init!r}: use auto, random or regression"),
             (self.sindy_init_share >= 0 and finite(self.sindy_init_share),
              f"--sindy-init-share {self.sindy_init_share}: use a finite number >= 0"),
-            (self.sindy_fit in ("joint", "after"),
-             f"--sindy-fit {self.sindy_fit!r}: use joint or after"),
             (self.order_epochs >= 1, f"--order-epochs {self.order_epochs}: use 1 or more"),
             (self.prune_every >= 0,
              f"--prune-every {self.prune_every}: use 0 (never) or more"),
             (0 <= self.refine_epochs <= self.epochs,
              f"--refine-epochs {self.refine_epochs}: use 0 to --epochs ({self.epochs}); the "
              "refinement is the last of the epochs"),
-            (self.derivatives in ("auto", "latent", "central", "smooth"),
-             f"--derivatives {self.derivatives!r}: use auto, latent, central or smooth"),
             (self.derivative_window >= 5 and self.derivative_window % 2 == 1,
              f"--derivative-window {self.derivative_window}: use an odd number, at least 5"),
             (self.checkpoint_every >= 1,
              f"--checkpoint-every {self.checkpoint_every}: use 1 or more"),
             (self.eval_every >= 1, f"--eval-every {self.eval_every}: use 1 or more"),
-            (self.batching in BATCHINGS,
-             f"--batching {self.batching!r} is unknown: use one of {', '.join(BATCHINGS)}"),
-            (self.parallel in PARALLELS,
-             f"--parallel {self.parallel!r} is unknown: use one of {', '.join(PARALLELS)}"),
-            (self.device in DEVICES,
-             f"--device {self.device!r} is unknown: use one of {', '.join(DEVICES)}"),
             (0 <= self.seed <= MAX_SEED,
              f"--seed {self.seed}: seeds are integers from 0 to {MAX_SEED}"),
             (not (self.resume and self.overwrite),
@@ -320,4 +334,6 @@ def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
                             + "; the settings are TrainConfig's fields")
         if key in ("resume", "overwrite") and out is None:
             raise UserError(f"fit(..., {key}=...) is for a run folder: add out=FOLDER")
+        if (message := unknown_choice(old.get(key, key), settings[key])) is not None:
+            raise UserError(message)  # (as TrainConfig words it)
         settings[key] = checked_value(hints[old.get(key, key)], settings[key], f"fit: {key}")
