@@ -83,6 +83,9 @@ def test_a_law_reads_the_same_whatever_the_latents_order():
     b = dyn({0: ["sin(z0)", "z0'"], 1: ["sin(z1)"]})
     c = dyn({0: ["sin(z0)"], 1: ["sin(z1)", "z0'"]})
     assert law_key(a) == law_key(b) != law_key(c)
+    mixed = dyn({0: ["z0 z1"], 1: ["z1'"]})  # a product's factors swap places too
+    swapped = dyn({0: ["z0'"], 1: ["z0 z1"]})
+    assert law_key(mixed) == law_key(swapped)
 
 
 def test_doubt_notes_name_disagreeing_starts_and_an_unexplained_share():

@@ -159,3 +159,28 @@ def test_a_saved_model_keeps_its_unit_and_equations(tmp_path) -> None:
     assert again.model_.dynamics.time_unit == unit
     assert again.equations() == est.equations()
     np.testing.assert_array_equal(again.coefficients(), est.coefficients())
+
+
+def test_the_motion_time_holds_on_noisy_frames_any_blob_and_background():
+    """The time unit is read on the centroid of what moves: the same for a noise-free and a
+    noisy video of one motion, a narrow and a wide blob, a short and a long pendulum, with a
+    background or none, where the pixels' characteristic time moves with the blob."""
+    import dataclasses
+
+    from latent_sindy.models.derivatives import motion_time
+    from latent_sindy.worlds.pendulum.video_draws import VideoDraw
+
+    base = VideoDraw(system="pendulum", omega2=(1.0,), damping=(0.0,), size=32, width=0.01,
+                     trajectories=12, frames=200, dt=0.02, exact=True)
+    times = [motion_time(dataclasses.replace(base, **c).video().images, 0.02) for c in
+             ({}, {"noise": 0.02}, {"width": 0.04}, {"radius": (0.4,)}, {"background": 0.4})]
+    assert max(times) / min(times) < 1.05
+    assert times[0] == pytest.approx(1.0, rel=0.1)  # about 1/ω
+    pixels = []
+    for c in ({}, {"width": 0.04}):
+        v = dataclasses.replace(base, **c).video()
+        pixels.append(characteristic_time(v.images.reshape(-1, 1, 32, 32),
+                                          v.images_ddot.reshape(-1, 1, 32, 32), 2))
+    assert pixels[1] / pixels[0] > 1.3  # what the unit was read from before
+    faster = dataclasses.replace(base, omega2=(4.0,)).video()
+    assert motion_time(faster.images, 0.02) == pytest.approx(times[0] / 2, rel=0.1)

@@ -87,6 +87,7 @@ def test_judge_names_each_failure():
     assert wrong["why"] == "wrong term z0"
     assert "off by" in judge_equations(d, names, np.array([[0, 0, -0.2, -1.3, 0]]))["why"]
     assert not judge_equations(d, names, np.array([[0, 0, -0.25, -1.5, 0]]))["recovered"]
+    assert not judge_equations(d, names, np.array([[0, 0, np.nan, -1.5, 0]]))["recovered"]
 
 
 def test_judge_takes_two_pendulums_in_either_order_and_a_spring_offset():

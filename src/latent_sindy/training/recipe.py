@@ -7,8 +7,10 @@ scales: the SINDy autoencoder's fully connected networks behind a principal-comp
 250 epochs at learning rate 3e-3, batch 100, pruning at 0.1 every 25 epochs, 50 of
 refinement; coefficients starting normal with std 1e-3); loss weights set for the frames'
 pixel spread (:func:`recipe_loss`); a time unit chosen from the data (``time_unit=None``);
-then a calibration of 300 epochs (:func:`calibration`) and one fresh start by the rule
-:data:`RESTARTS`.
+then a calibration of 300 epochs (:func:`calibration`), the law checked against its
+neighbours on held-out derivatives (:mod:`~latent_sindy.training.reselect`), and fresh
+starts by the rule :data:`RESTARTS` until two agree; the schedule counts updates
+(:func:`schedule_scale`).
 
     from latent_sindy import LatentSINDy
     model = LatentSINDy(latent_dim=1, time="continuous", derivative_order=2).fit(video)
@@ -44,8 +46,8 @@ SCHEDULE: dict[str, Any] = {"epochs": 250, "lr": 3e-3, "batch_size": 100, "prune
 REFERENCE_BATCHES = 100
 #: The coefficients' start.
 INIT: dict[str, Any] = {"init": "normal", "init_scale": 1e-3}
-#: Starts are trained until two write the same law (the same active terms) with a good
-#: validation reconstruction and under 1 % of the encoder's z^(k) unexplained, three at most;
+#: Starts are trained until one with a good validation reconstruction and under 1 % of the
+#: encoder's z^(k) unexplained writes the law (the same active terms) of another, three at most;
 #: the kept start is the best of the largest group that agrees (a single start's residual
 #: does not tell a wrong law from a right one: RESULTS.md, "Videos drawn from a family").
 RESTARTS = Restarts(count=2, recon_above=0.1, fvu_above=0.01, agree=2)

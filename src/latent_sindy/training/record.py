@@ -95,19 +95,27 @@ TIME_SEQUENCES = 64
 
 def data_time(data: SequenceData, order: int, where: str, derivatives: str = "auto",
               window: int = 9) -> float:
-    """The characteristic time of ``data``'s training frames
-    (:func:`~latent_sindy.models.derivatives.characteristic_time`) from their ``order``-th
-    derivatives, taken as training takes them (``derivatives``, ``window``: the data's own
-    where given and "auto", else estimated from the frames), on at most
-    :data:`TIME_SEQUENCES` sequences."""
-    from latent_sindy.models.derivatives import characteristic_time, estimate_derivatives
+    """The time the motion in ``data``'s training frames takes
+    (:func:`~latent_sindy.models.derivatives.motion_time`, the centroid of what moves, on at
+    most :data:`TIME_SEQUENCES` sequences), whatever the derivatives given
+    or how they are taken (``order``, ``derivatives`` and ``window`` are kept for callers).
+    Sequences of under three frames read it as before, from the pixels' ``order``-th
+    derivatives (:func:`~latent_sindy.models.derivatives.characteristic_time` over
+    :data:`PIXEL_TIME_RATIO` of the motion's)."""
+    from latent_sindy.models.derivatives import (
+        characteristic_time,
+        estimate_derivatives,
+        motion_time,
+    )
 
     part = data.split("train")
     if part.n == 0:
         raise UserError(f"{where} has no training sequences to choose a time unit from")
     keep = slice(0, TIME_SEQUENCES)
-    given = [part.images_dot, part.images_ddot][:order] if derivatives == "auto" else []
     frames = np.asarray(part.images[keep])
+    if frames.shape[1] >= 3 and data.dt:
+        return motion_time(frames, data.dt)
+    given = [part.images_dot, part.images_ddot][:order] if derivatives == "auto" else []
     if len(given) == order and all(g is not None for g in given):
         rate = np.asarray(given[-1][keep])
     else:
@@ -116,8 +124,12 @@ def data_time(data: SequenceData, order: int, where: str, derivatives: str = "au
             else None
         rate = estimate_derivatives(frames, data.dt or 1.0, order, method, window,
                                     dx=exact)[order - 1]
-    return characteristic_time(frames.reshape(-1, *frames.shape[2:]),
-                               rate.reshape(-1, *rate.shape[2:]), order)
+    return PIXEL_TIME_RATIO * characteristic_time(frames.reshape(-1, *frames.shape[2:]),
+                                                  rate.reshape(-1, *rate.shape[2:]), order)
+
+
+#: The motion time over the pixels' characteristic time on the pendulum video (1.013 / 0.141).
+PIXEL_TIME_RATIO = 1.013 / 0.141
 
 
 def check_derivatives(cfg: TrainConfig, data: SequenceData) -> None:

@@ -335,10 +335,15 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
     return session, result, kept["metrics"]
 
 
+#: Latent sizes up to this compare laws over every order of the latents (beyond, as given).
+MAX_PERMUTED = 5
+
+
 def law_key(dynamics: Any) -> tuple[tuple[str, ...], ...]:
     """What a sparse model's law is, whatever the order of its latents: per latent, its
-    active terms' names, the latents renumbered to the smallest such tuple over every
-    order (z0 <-> z1 swapped reads the same law). Empty: no term (or not a sparse model)."""
+    active terms' names (a product's factors sorted), the latents renumbered to the
+    smallest such tuple over every order (z0 <-> z1 swapped reads the same law; up to
+    :data:`MAX_PERMUTED` latents). Empty: no term (or not a sparse model)."""
     if not getattr(dynamics, "sparse", False) or dynamics.n_active() == 0:
         return ()
     mask = dynamics.mask.detach().cpu().numpy()  # (p, nz)
@@ -346,10 +351,13 @@ def law_key(dynamics: Any) -> tuple[tuple[str, ...], ...]:
     nz = mask.shape[1]
 
     def renamed(name: str, order: tuple[int, ...]) -> str:
-        return re.sub(r"\bz(\d+)", lambda m: f"z{order[int(m[1])]}", name)
+        # a product's factors in one order, whatever the renumbering made of them
+        return " ".join(sorted(re.sub(r"\bz(\d+)", lambda m: f"z{order[int(m[1])]}", part)
+                               for part in name.split(" ")))
 
+    orders = itertools.permutations(range(nz)) if nz <= MAX_PERMUTED else [tuple(range(nz))]
     keys = []
-    for order in itertools.permutations(range(nz)):
+    for order in orders:
         law: list[tuple[str, ...]] = [()] * nz
         for j in range(nz):
             law[order[j]] = tuple(sorted(renamed(names[i], order)

@@ -154,8 +154,10 @@ class VideoDraw:
         rng = np.random.default_rng([self.seed, 2])
         if self.background > 0:
             x += self.background * _background(X, Y, rng).astype(np.float32)
-        if self.noise > 0:
-            x += rng.normal(0.0, self.noise * float(x.std()), x.shape).astype(np.float32)
+        if self.noise > 0:  # one trajectory at a time: no float64 array of the whole video
+            sd = self.noise * float(x.std())
+            for i in range(n):
+                x[i] += sd * rng.standard_normal(x.shape[1:], dtype=np.float32)
         top = float(x.max())
         low = float(x.min())
         scale = 1.0 / (top - low)  # frames in [0, 1]; derivatives scaled alike
@@ -378,6 +380,6 @@ def _compare(terms: dict[str, float], found: dict[str, float], tol: float,
             continue
         limit = friction_tol if n.endswith("'") else tol
         off = abs(found[n] - v) / abs(v)
-        if off > limit:
+        if not off <= limit:  # (NaN: off)
             whys.append(f"{n} off by {100 * off:.0f} %")
     return whys
