@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from latent_sindy import LatentSINDy, Phase, Restarts
+from latent_sindy.errors import UserError
 from latent_sindy.training.config import TrainConfig
 from latent_sindy.training.prepare import (
     derivative_source,
@@ -90,3 +91,13 @@ def model_weights(est):
     from latent_sindy.configs import from_json
     from latent_sindy.models.loss import LossWeights
     return from_json(LossWeights, est.record_["train"]["loss"], "loss")
+
+
+def test_latent_derivatives_asked_for_need_five_frames_not_a_smoothing_window():
+    data = video(frames=6)
+    est = LatentSINDy(1, time="continuous", derivative_order=2, seed=0)
+    # 6 frames: a stencil fits; the smoothing window (9 frames) is not asked for
+    est.fit(data, epochs=1, derivatives="latent", phases=[], restarts=Restarts(count=0))
+    assert est.record_["train"]["derivatives"] == "latent"
+    with pytest.raises(UserError, match="too short"):
+        est.fit(data, epochs=1, derivatives="smooth", phases=[], restarts=Restarts(count=0))

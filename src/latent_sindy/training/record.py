@@ -147,7 +147,7 @@ def check_derivatives(cfg: TrainConfig, data: SequenceData) -> None:
                         "estimate them from the frames, or the exact ones (images_dot"
                         + (", images_ddot)" if order == 2 else ")"))
     need = 5 if cfg.derivatives in ("smooth", "latent") else 4
-    if data.steps + 1 < max(need, cfg.derivative_window if need == 5 else 0):
+    if data.steps + 1 < max(need, cfg.derivative_window if cfg.derivatives == "smooth" else 0):
         raise UserError(f"{data.source}: sequences of {data.steps + 1} frames are too short "
                         f"to estimate derivatives ({cfg.derivatives}): use longer sequences "
                         "or give the exact derivatives")

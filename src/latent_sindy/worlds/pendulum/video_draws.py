@@ -291,7 +291,8 @@ def draw(rng: np.random.Generator, system: str | None = None,
     """One video of the family, every choice drawn from ``rng`` within :data:`RANGES`
     (``system`` and ``exact``: fixed instead of drawn). The draw's own seed (its noise and
     starts) comes from ``rng`` too, so the same generator state gives the same video."""
-    system = system or str(rng.choice(["pendulum", "pendulum", "spring", "two_pendulums"]))
+    drawn = str(rng.choice(["pendulum", "pendulum", "spring", "two_pendulums"]))
+    system = system or drawn  # (drawn either way: the draws after it stay the same)
     blobs = 2 if system == "two_pendulums" else 1
     lo, hi = RANGES["omega2"]
     omega2 = tuple(float(rng.uniform(lo, hi)) for _ in range(blobs))
@@ -323,7 +324,8 @@ def draw(rng: np.random.Generator, system: str | None = None,
     frames = round(_log_uniform(rng, *RANGES["frames"]))
     noise = float(rng.uniform(*RANGES["noise"])) if rng.uniform() < 0.7 else 0.0
     background = float(rng.uniform(0.1, 0.5)) if rng.uniform() < 0.3 else 0.0
-    exact = bool(rng.uniform() < 0.5) if exact is None else exact
+    with_rates = bool(rng.uniform() < 0.5)
+    exact = with_rates if exact is None else exact
     return VideoDraw(system=system, omega2=omega2, damping=damping, size=size, width=width,
                      centre=centre, radius=radius, direction=direction,
                      trajectories=trajectories, frames=frames, dt=dt, noise=noise,
