@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
+
+from cli_args import check_output_file, positive_int, seed_range
 
 MODES = ("exact", "frames")
 
@@ -95,26 +96,16 @@ def derivative_error(seed: int, index: int) -> str:
             f"central differences of the frames miss ẍ by {100 * err:.0f} %")
 
 
-def draws_of(text: str) -> list[int]:
-    try:
-        if ".." in text:
-            lo, hi = (int(s) for s in text.split(".."))
-            if hi < lo:
-                raise ValueError
-            return list(range(lo, hi + 1))
-        return [int(s) for s in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: give draws as 3, 0..9 or 1,4,7") from None
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--draws", type=int, default=20, help="how many draws (0 .. draws-1)")
-    p.add_argument("--only", type=draws_of, help="these draws instead: 3, 0..9 or 1,4,7")
+    p.add_argument("--draws", type=positive_int, default=20,
+                   help="how many draws (0 .. draws-1)")
+    p.add_argument("--only", type=seed_range, help="these draws instead: 3, 0..9 or 1,4,7")
     p.add_argument("--seed", type=int, default=0, help="the draws' seed")
     p.add_argument("--derivatives", default="exact,frames",
                    help="exact (the video's derivatives), frames (none given), or both")
-    p.add_argument("--workers", type=int, default=1, help="fits at a time (one torch thread each)")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="fits at a time (one torch thread each)")
     p.add_argument("--out", type=Path, help="append one JSON line per fit; skip those there")
     p.add_argument("--save", help="save each fitted model under this folder")
     p.add_argument("--smoke", action="store_true", help="one tiny draw, two epochs (tests)")
@@ -125,11 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     modes = args.derivatives.split(",")
     if not modes or any(m not in MODES for m in modes):
         p.error(f"--derivatives {args.derivatives!r}: use exact, frames or exact,frames")
-    if args.workers < 1 or args.draws < 1:
-        p.error("--workers and --draws take a whole number >= 1")
-    if args.out is not None and (args.out.is_dir() or not os.access(
-            args.out.parent if args.out.parent != Path("") else Path("."), os.W_OK)):
-        p.error(f"--out {args.out}: give a writable file path")
+    check_output_file(p, args.out, "--out")
     indices = [0] if args.smoke else (args.only or list(range(args.draws)))
     if args.derivative_error:
         for i in indices:

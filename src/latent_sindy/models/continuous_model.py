@@ -125,6 +125,14 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         d2 = (-z[:, 0] + 16 * z[:, 1] - 30 * z[:, 2] + 16 * z[:, 3] - z[:, 4]) / (12 * h * h)
         return (z[:, 2], d1, d2)[: self.dynamics.derivative_order + 1]
 
+    def stencil_encode(self, x: torch.Tensor, h: float, coords: bool = False
+                       ) -> tuple[torch.Tensor, ...]:
+        """The latent and its k derivatives (:meth:`stencil_latents`) of five frames ``h``
+        apart around each sample, x (B, 5, C, h, w), or with ``coords`` their coordinates on
+        the front (B, 5, K), through the encoder without it."""
+        net = self.autoencoder.encoder.net[1:] if coords else self.autoencoder.encoder
+        return self.stencil_latents(net(x.flatten(0, 1)).view(len(x), 5, -1), h)
+
     def stencil_loss(self, x: torch.Tensor, u: torch.Tensor, h: float,
                      weights: LossWeights | None = None) -> dict[str, torch.Tensor]:
         """The loss on frames without derivatives: x (B, 5, C, h, w), five frames ``h`` apart
@@ -136,13 +144,10 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
         if x.ndim != 5 or x.shape[1] != 5 or u.shape != (x.shape[0], self.dynamics.nu):
             raise ValueError(f"a stencil loss expects x (B, 5, C, h, w) and u (B, nu), got "
                              f"{tuple(x.shape)} and {tuple(u.shape)}")
-        ae = self.autoencoder
-        b = x.shape[0]
-        z = ae.encoder(x.flatten(0, 1)).view(b, 5, -1)
-        zs = self.stencil_latents(z, h)
+        zs = self.stencil_encode(x, h)
         k = self.dynamics.derivative_order
         top = self.dynamics.derivative(torch.cat(zs[:k], -1), u)
-        recon = (ae.decoder(zs[0]) - x[:, 2]).square().mean()
+        recon = (self.autoencoder.decoder(zs[0]) - x[:, 2]).square().mean()
         return self._terms(recon, recon.new_zeros(()), top, zs[k], weights or DEFAULT_WEIGHTS)
 
     def front(self) -> tuple[LinearMap, LinearMap] | None:
@@ -192,9 +197,7 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
             if dec is None or c.ndim != 3 or c.shape[1:] != (5, dec.weight.shape[1]):
                 raise ValueError(f"a stencil's coordinate_loss expects coordinates (B, 5, K) "
                                  f"on the model's front, got {tuple(c.shape)}")
-            b = c.shape[0]
-            z = self.autoencoder.encoder.net[1:](c.flatten(0, 1)).view(b, 5, -1)
-            zs = self.stencil_latents(z, stencil)
+            zs = self.stencil_encode(c, stencil, coords=True)
             top = self.dynamics.derivative(torch.cat(zs[:k], -1), u)
             c_hat = self.autoencoder.decoder.net[:-1](zs[0])
             column = dec.weight.square().sum(0)

@@ -194,6 +194,7 @@ def select_law(theta: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tens
         raise UserError("select_law: the library or target holds NaN or inf")
     p, m = start.shape
     coef = np.zeros((p, m))
+    start_coef = np.zeros((p, m))
     compared = 0
     for j in range(m):
         now = tuple(np.flatnonzero(start[:, j]))
@@ -207,11 +208,10 @@ def select_law(theta: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tens
             c = _lstsq(th, y[:, j], law)
             scored.append((law, c, held_out_fvu(thv, yv[:, j:j + 1], c[:, None])))
         compared += len(scored)
+        start_coef[:, j] = next(c for law, c, _ in scored if law == now)
         best = min(f for _, _, f in scored)
         ok = [s for s in scored if s[2] <= (1 + tolerance) * best + floor]
         _, coef[:, j], _ = min(ok, key=lambda s: (len(s[0]), s[2]))
     mask = coef != 0
-    start_coef = np.stack([_lstsq(th, y[:, j], tuple(np.flatnonzero(start[:, j])))
-                           for j in range(m)], axis=1)
     return LawChoice(coef, mask, held_out_fvu(thv, yv, coef),
                      held_out_fvu(thv, yv, start_coef), compared)

@@ -46,9 +46,8 @@ def latent_derivatives(model: LatentModel, samples: CoordinateSamples | Derivati
         piece = part.pick(slice(lo, lo + chunk))
         coords = isinstance(piece, CoordinateSamples)
         if piece.stencil:  # five frames around each: their latents differentiated
-            x = piece.coords if coords else piece.frames
-            net = model.autoencoder.encoder.net[1:] if coords else model.autoencoder.encoder
-            z = model.stencil_latents(net(x.flatten(0, 1)).view(len(x), 5, -1), piece.stencil)
+            z = model.stencil_encode(piece.coords if coords else piece.frames, piece.stencil,
+                                     coords)
         elif coords:
             z = along_layers(model.autoencoder.encoder.net[1:], *piece.coords.unbind(1))
         else:
