@@ -29,7 +29,8 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 
-__all__ = ["MODELS", "LoopScale", "loop_wall", "mean_interval", "run_loop", "run_study"]
+__all__ = ["MODELS", "LoopScale", "loop_wall", "mean_interval", "pick_scale", "run_loop",
+           "run_study", "sized_config"]
 
 Say = Callable[[str], None]
 
@@ -118,6 +119,29 @@ class _Say:
         self.say(f"{self.name}: {text}")
 
     def close(self) -> None: ...
+
+
+def pick_scale(scales: dict[str, Any], scale: str, seeds: tuple[int, ...] | None,
+               world: str) -> Any:
+    """The scale named ``scale`` of a world's ``scales`` (UserError naming ``world``'s
+    scales otherwise), with ``seeds`` in place of its own where given."""
+    if scale not in scales:
+        raise UserError(f"--scale {scale}: the {world} world's scales are {', '.join(scales)}")
+    s = scales[scale]
+    return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
+
+
+def sized_config(config: Any, default: Any, s: LoopScale,
+                 given: Any = None) -> Any:
+    """A world's settings ``config`` (with ``size`` and ``frames`` fields) with the scale's
+    image size and frames, except those ``given`` (the fields a --world-config set, whatever
+    their value); ``given`` None (a Python caller's config): a size or frames other than
+    ``default``'s wins."""
+    if given is None:
+        given = [k for k in ("size", "frames") if getattr(config, k) != getattr(default, k)]
+    size = config.size if "size" in given else s.size
+    frames = config.frames if "frames" in given else s.frames
+    return dataclasses.replace(config, size=size, frames=frames)
 
 
 def _check_folder(out: Path, settings: dict[str, Any], name: str) -> None:

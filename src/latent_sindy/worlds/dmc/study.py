@@ -15,15 +15,19 @@ settings are in ``OUT/dmc_study.json``; a folder of other settings is refused.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Collection
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-from latent_sindy.errors import UserError
 from latent_sindy.study import model_based as study
-from latent_sindy.study.model_based import MODELS, LoopScale, mean_interval
+from latent_sindy.study.model_based import (
+    MODELS,
+    LoopScale,
+    mean_interval,
+    pick_scale,
+    sized_config,
+)
 from latent_sindy.worlds.dmc.config import DmcConfig
 
 __all__ = ["MODELS", "SCALES", "DmcScale", "mean_interval", "run_dmc_study", "run_loop",
@@ -93,23 +97,7 @@ REFERENCE_TASK, REFERENCE_STEPS = "cartpole-swingup", 100_000
 
 
 def study_scale(scale: str, seeds: tuple[int, ...] | None) -> DmcScale:
-    if scale not in SCALES:
-        raise UserError(f"--scale {scale}: the dmc world's scales are {', '.join(SCALES)}")
-    s = SCALES[scale]
-    return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
-
-
-def _world_config(config: DmcConfig, s: DmcScale,
-                  given: Collection[str] | None = None) -> DmcConfig:
-    """The world's settings with the scale's image size and frames, except those ``given``
-    (the fields a --world-config set, whatever their value); ``given`` None (a Python
-    caller's config): a size or frames other than the defaults wins."""
-    if given is None:
-        default = DmcConfig(task=config.task)
-        given = [k for k in ("size", "frames") if getattr(config, k) != getattr(default, k)]
-    size = config.size if "size" in given else s.size
-    frames = config.frames if "frames" in given else s.frames
-    return dataclasses.replace(config, size=size, frames=frames)
+    return pick_scale(SCALES, scale, seeds, "dmc")
 
 
 def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
@@ -120,11 +108,11 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     end with this one, each loop's numbers the same as in this process): the study's
     settings and, per model and seed, the log of its loop and its wall time
     (:func:`latent_sindy.study.model_based.run_study`). ``given``: the fields of ``config``
-    a user set (:func:`_world_config`)."""
+    a user set (:func:`~latent_sindy.study.model_based.sized_config`)."""
     from latent_sindy.worlds.dmc.world import DmcWorld
 
     s = study_scale(scale, seeds)
-    world = _world_config(config, s, given)
+    world = sized_config(config, DmcConfig(task=config.task), s, given)
     header = (f"dmc {world.task}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
     result = study.run_study(DmcWorld(world), s, scale, out, device, threads, say, workers,

@@ -11,12 +11,10 @@ settings are in ``OUT/gym_study.json`` and a folder of other settings is refused
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Collection
 from pathlib import Path
 
-from latent_sindy.errors import UserError
-from latent_sindy.study.model_based import LoopScale, run_study
+from latent_sindy.study.model_based import LoopScale, pick_scale, run_study, sized_config
 from latent_sindy.study.model_based_report import model_based_study
 from latent_sindy.world_study import WorldStudy
 from latent_sindy.worlds.gym.config import GymConfig
@@ -41,23 +39,7 @@ SCALES: dict[str, LoopScale] = {
 
 
 def study_scale(scale: str, seeds: tuple[int, ...] | None) -> LoopScale:
-    if scale not in SCALES:
-        raise UserError(f"--scale {scale}: the gym world's scales are {', '.join(SCALES)}")
-    s = SCALES[scale]
-    return dataclasses.replace(s, seeds=tuple(seeds)) if seeds else s
-
-
-def _world_config(config: GymConfig, s: LoopScale,
-                  given: Collection[str] | None = None) -> GymConfig:
-    """The world's settings with the scale's image size and frames, except those ``given``
-    (the fields a --world-config set, whatever their value); ``given`` None (a Python
-    caller's config): a size or frames other than the defaults wins."""
-    if given is None:
-        default = GymConfig(id=config.id)
-        given = [k for k in ("size", "frames") if getattr(config, k) != getattr(default, k)]
-    size = config.size if "size" in given else s.size
-    frames = config.frames if "frames" in given else s.frames
-    return dataclasses.replace(config, size=size, frames=frames)
+    return pick_scale(SCALES, scale, seeds, "gym")
 
 
 def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
@@ -66,11 +48,11 @@ def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ..
     """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
     time), as a WorldStudy; the environment is made first (nothing is written for an id
     gymnasium cannot make or a renderer that is missing); ``given``: the fields of ``config``
-    a user set (:func:`_world_config`)."""
+    a user set (:func:`~latent_sindy.study.model_based.sized_config`)."""
     from latent_sindy.worlds.gym.world import GymWorld, describe
 
     s = study_scale(scale, seeds)
-    world = _world_config(config, s, given)
+    world = sized_config(config, GymConfig(id=config.id), s, given)
     describe(world)
     header = (f"gym {world.id}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
