@@ -1,9 +1,10 @@
 """RESULTS.md, generated from the tracked result files (:mod:`latent_sindy.result_files`): per
 world one "Current" section, a table per benchmark (a row per model: the mean over its seeds
-with a 95 % t interval, or one seed's figure with its own interval; whether its latent is
-learned or read by a hand-made reader; the published baselines beside), the command and
-where it ran, then the world's known limits. What the figures mean comes from each world's
-``results/<world>/world.json``; nothing here knows a world.
+with the range they span, pooled counts with a Wilson interval, or one seed's figure with its
+own interval; whether its latent is learned or read by a hand-made reader; the published
+baselines beside), the command and where it ran, then the world's known limits. What the
+figures mean comes from each world's ``results/<world>/world.json``; nothing here knows a
+world.
 
     python -m latent_sindy.results_page            # write RESULTS.md from results/
     python -m latent_sindy.results_page --check    # exit 1 when RESULTS.md is stale
@@ -27,7 +28,7 @@ from typing import Any
 
 from latent_sindy.errors import UserError
 from latent_sindy.result_files import read_rows
-from latent_sindy.stats import mean_interval
+from latent_sindy.stats import wilson_interval
 
 __all__ = ["cell", "main", "render", "render_world"]
 
@@ -41,8 +42,9 @@ limits). Do not edit by hand: change the files and run the command again
 (`--check` tells whether this page is stale; a test does too). A study adds its rows with
 `latent-sindy reproduce ... --record results`.
 
-Several seeds: their mean and, in brackets, the 95 % t interval of the mean. One seed: its
-figure and, where it has one, its own interval (95 % Wilson for success rates). How the
+Several seeds: their mean and, in brackets, the range the seeds span (lowest–highest);
+counts (k of n) pooled over seeds with their 95 % Wilson interval. One seed: its figure and,
+where it has one, its own interval (95 % Wilson for success rates). How the
 figures were reached, and every superseded one, is in the dated notes of `docs/notes/`
 (linked per world).
 """
@@ -54,14 +56,29 @@ def _format(value: Any, spec: str) -> str:
     if isinstance(value, int | float):
         if isinstance(value, float) and not math.isfinite(value):
             return "—"
+        if spec.endswith("d") and isinstance(value, float):  # a mean of counts
+            spec = spec[:-1] + ".0f"
         return format(value, spec) if spec else format(value, "g")
     return str(value)
 
 
 def cell(rows: Sequence[dict[str, Any]], column: str, spec: str) -> str:
-    """One model's figure over its rows: ``k of n`` for yes/no figures; one row's value with
-    its own interval (``column_low``/``column_high``) or sd (``column_sd``); several rows'
-    mean with its 95 % t interval; text as it is (distinct texts joined by " / ")."""
+    """One model's figure over its rows: ``k of n`` for yes/no figures; for a column named
+    ``a/b`` (counts, such as successes/episodes) the pooled rate Σa/Σb with its 95 % Wilson
+    interval; one row's value with its own interval (``column_low``/``column_high``) or sd
+    (``column_sd``); several rows' mean with the range they span (min–max); text as it is
+    (distinct texts joined by " / ")."""
+    if "/" in column:
+        num, den = column.split("/", 1)
+        pairs = [(r.get(num), r.get(den)) for r in rows]
+        pairs = [(a, b) for a, b in pairs if isinstance(a, int) and isinstance(b, int)]
+        if not pairs:
+            return ""
+        k = sum(a for a, _ in pairs)
+        n = sum(b for _, b in pairs)
+        lo, hi = wilson_interval(k, n)
+        return (f"{k} of {n}: {_format(k / n, spec or '.0%')} "
+                f"({_format(lo, spec or '.0%')}–{_format(hi, spec or '.0%')})") if n else ""
     values = [r.get(column) for r in rows if r.get(column) is not None]
     if not values:
         return ""
@@ -83,8 +100,12 @@ def cell(rows: Sequence[dict[str, Any]], column: str, spec: str) -> str:
         if isinstance(sd, int | float):
             return f"{text} (sd {_format(sd, spec)})"
         return text
-    mean, half, _ = mean_interval([float(v) for v in values])
-    return f"{_format(mean, spec)} ({_format(mean - half, spec)}–{_format(mean + half, spec)})"
+    mean = sum(values) / len(values)
+    low, high = _format(min(values), spec), _format(max(values), spec)
+    if low == high:
+        return _format(mean, spec)
+    dash = " to " if min(values) < 0 else "–"
+    return f"{_format(mean, spec)} ({low}{dash}{high})"
 
 
 def _seeds(rows: Sequence[dict[str, Any]]) -> str:
@@ -94,7 +115,7 @@ def _seeds(rows: Sequence[dict[str, Any]]) -> str:
         if s not in (None, "") and s not in seeds:
             seeds.append(s)
     numbers = sorted(s for s in seeds if isinstance(s, int))
-    texts = [str(s) for s in seeds if not isinstance(s, int)]
+    texts = [str(s).replace("..", "–") for s in seeds if not isinstance(s, int)]
     if len(numbers) > 2 and numbers == list(range(numbers[0], numbers[-1] + 1)):
         shown = [f"{numbers[0]}–{numbers[-1]}"]
     else:

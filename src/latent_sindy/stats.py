@@ -12,7 +12,7 @@ import math
 
 from latent_sindy.errors import UserError
 
-__all__ = ["Z95", "mean_interval", "wilson_interval"]
+__all__ = ["Z95", "wilson_interval"]
 
 Z95 = 1.959964
 """The standard normal quantile of 0.975 (a two-sided 95 % interval)."""
@@ -34,18 +34,3 @@ def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, floa
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def mean_interval(values: list[float]) -> tuple[float, float | None, float | None]:
-    """Mean, and the half-width of its 95% t-interval and the sd over seeds (None for one)."""
-    n = len(values)
-    mean = sum(values) / n
-    if n < 2:
-        return mean, None, None
-    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1))
-    return mean, _T975.get(n - 1, 1.96 + 2.5 / (n - 1)) * sd / math.sqrt(n), sd
-
-
-#: Student's t at 0.975 by degrees of freedom (beyond 10: 1.96 + 2.5/df, within 0.002).
-_T975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
-         9: 2.262, 10: 2.228}
