@@ -223,6 +223,9 @@ def _world_meta(folder: Path) -> dict[str, Any]:
 def render(root: Path) -> str:
     """RESULTS.md's text from the result files under ``root`` (one folder per world)."""
     root = Path(root)
+    if not root.is_dir():
+        raise UserError(f"{root}: no such folder; give --results the folder of the tracked "
+                        "result files")
     folders = sorted((p for p in root.iterdir() if p.is_dir() and (p / "world.json").exists()),
                      key=lambda p: (_world_meta(p).get("order", 99), p.name))
     if not folders:

@@ -42,3 +42,6 @@ class WorldStudy:
     """PNGs already written inside the study's folder, with captions."""
     equations: dict[str, str] = field(default_factory=dict)
     """Name -> text, written as equations_<name>.txt."""
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    """One per model and seed (``model``, ``seed``, then its figures): what ``reproduce
+    --record`` writes into the tracked result files (:mod:`latent_sindy.result_files`)."""

@@ -137,6 +137,23 @@ def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[f
     return path
 
 
+def _rows(runs: dict[str, dict[int, dict[str, Any]]]) -> list[dict[str, Any]]:
+    """A row per model and seed: the mean test return of its last fit with test episodes,
+    the environment steps that fit saw, its active terms, the loop's wall seconds."""
+    rows = []
+    for model, by_seed in runs.items():
+        for seed, run in sorted(by_seed.items()):
+            tested = [it for it in run["log"]["iterations"] if it.get("evaluation")]
+            last = tested[-1] if tested else None
+            rows.append({"model": model, "seed": seed,
+                         "test_return": None if last is None
+                         else sum(last["evaluation"]) / len(last["evaluation"]),
+                         "env_steps": None if last is None else last["fit_env_steps"],
+                         "active_terms": None if last is None else last["active_terms"],
+                         "wall_s": run["wall_s"]})
+    return rows
+
+
 def model_based_study(result: dict[str, Any], scale: str, out: Path, title: str, task: str,
                       reference: Reference | None = None) -> WorldStudy:
     """The WorldStudy of a model-based study's ``result`` (:func:`.model_based.run_study`)
@@ -230,4 +247,4 @@ def model_based_study(result: dict[str, Any], scale: str, out: Path, title: str,
         findings=findings, tables=tables, figures=[(figure, "Mean return per model against "
                                                     "environment steps (band: 95% interval "
                                                     "over seeds)")],
-        equations=equations)
+        equations=equations, rows=_rows(runs))

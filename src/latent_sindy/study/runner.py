@@ -29,8 +29,9 @@ from latent_sindy.atomic import check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
-from latent_sindy.plugins import get_world, hook, world_names
+from latent_sindy.plugins import CONFIG_GIVEN, get_world, hook, world_names
 from latent_sindy.progress import say_stderr
+from latent_sindy.result_files import record_rows
 from latent_sindy.study.report import Report
 from latent_sindy.world_study import WorldStudy
 
@@ -196,6 +197,14 @@ def write_world_study(world: Any, settings: Any, say: Say, t_start: float | None
     r.preformatted(json.dumps({k: summary[k] for k in ("config", "study", "versions",
                                                        "machine", "timings_s")}, indent=1))
     report = r.write(out / "report.html")
+    if getattr(settings, "record", None) is not None and study.rows:
+        given = getattr(world, CONFIG_GIVEN, ())
+        name = "_".join([settings.scale, *(f"{k}={getattr(world.config, k)}" for k in given)])
+        cuda = _device()["cuda_device"]
+        device = "cpu" if cuda is None or getattr(settings, "device", "auto") == "cpu" \
+            else f"cuda ({cuda})"
+        path = record_rows(settings.record, settings.world, name, study.rows, device=device)
+        say(f"recorded {len(study.rows)} row(s) in {path}")
     say(f"report: {report} (this run took {time.perf_counter() - t_start:.0f} s)")
     return report, study, summary
 

@@ -177,7 +177,12 @@ def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
         figures=[(figure, "Per seed: the test FVU of z̈ (log scale, the published and "
                           "replicated lines) and the coefficients of z''")],
         equations={"pendulum-video": "\n".join(f"seed {r['seed']}: {r['equation']}"
-                                               for r in result.rows)})
+                                               for r in result.rows)},
+        rows=[{"model": cfg.schedule, "seed": r["seed"], "recovered": r["recovered"],
+               "exact_sin": r["exact_sin"], "coefficient": r["coefficient"],
+               "equation": r["equation"], "fvu_x": r["fvu_x"], "fvu_ddx": r["fvu_ddx"],
+               "fvu_ddz": r["fvu_ddz"], "starts": r.get("starts"), "time_s": r["time_s"]}
+              for r in result.rows])
 
 
 # ----------------------------------------------------------------------------- the pendulum
@@ -296,9 +301,7 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
             per_seed[seed], data_s[seed] = record["rows"], record["data_s"]
             tables.append(Table(f"Seed {seed}", record["header"], record["table"]))
             for r in record["rows"]:
-                name = ("state_sindy" if r["model"].startswith("state")
-                        else r["model"].split(" ")[0]
-                        + ("_centroid" if "centroid" in r["model"] else ""))
+                name = _model_id(r["model"])
                 equations[name] = (equations.get(name, "") + f"seed {seed}:\n  "
                                    + "\n  ".join(r["equations"]) + "\n")
     finally:
@@ -330,4 +333,17 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
         figures=[(figure, "Swing-up success per model (upright within 10° over the last "
                           f"{first.last} of {first.episode_steps} steps), 95 % Wilson "
                           "intervals, a bar per seed")],
-        equations=equations)
+        equations=equations,
+        rows=[{"model": _model_id(r["model"]), "seed": seed, "successes": r["successes"],
+               "episodes": r["episodes"], "upright": r["upright_fraction"],
+               "upright_low": r["upright_95"][0], "upright_high": r["upright_95"][1],
+               "sparsity": r["sparsity"], "fit_s": r["fit_s"], "control_s": r["control_s"]}
+              for seed, rows in per_seed.items() for r in rows])
+
+
+def _model_id(label: str) -> str:
+    """A row's name for its label: ``state_sindy``, or the model and ``_centroid`` when it
+    plans on the centroid latent (``sindy_centroid``)."""
+    if label.startswith("state"):
+        return "state_sindy"
+    return label.split(" ")[0] + ("_centroid" if "centroid" in label else "")

@@ -81,6 +81,11 @@ class ReproduceConfig:
     scale: Annotated[str, tyro.conf.arg(help=_scale_help(), metavar="SCALE")] = "demo"
     out: Path = Path("results")
     """Folder for everything (data, runs, tables, figures, report.html); re-runs reuse it."""
+    record: Path | None = None
+    """Also write the study's rows (a row per model and seed, with the commit, date, machine,
+    device and this command) into RECORD/<world>/<scale>.csv, replacing the rows of the same
+    model and seed: the tracked result files RESULTS.md is generated from (`--record
+    results`, then `python -m latent_sindy.results_page`)."""
     seeds: Seeds | None = None
     """Training and control seeds; several give mean ± std: 0 1 2, 0,1,2 or a range 0..9.
     Default: the scale's (the push study: 0; a world with a study of its own: as its

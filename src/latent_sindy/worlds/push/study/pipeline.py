@@ -63,6 +63,7 @@ from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.executors import ExecutorOptions, make_executor
 from latent_sindy.progress import say_stderr
+from latent_sindy.result_files import record_rows
 from latent_sindy.study.evaluation import BASELINES, Stat
 from latent_sindy.study.runner import json_safe, machine, reproduce_world, study_folder, versions
 from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
@@ -76,7 +77,7 @@ from latent_sindy.worlds.push.study.stages import (
 )
 from latent_sindy.worlds.push.study.study_report import write_report
 
-__all__ = ["reproduce", "summary_record"]
+__all__ = ["record_name", "record_of", "reproduce", "summary_record"]
 
 Say = Callable[[str], None]
 
@@ -112,6 +113,43 @@ def summary_record(study: Study, data: SequenceData, data_path: Path) -> dict[st
         "losses_per_seed": {str(s): {m: r.losses for m, r in v.items()}
                             for s, v in study.results.items()},
     })
+
+
+def record_name(config: ReproduceConfig) -> str:
+    """The study's result file name: its scale, then its world and image size where they
+    are not the default's (``round-one_textured``, ``demo_64px``)."""
+    parts = [config.scale]
+    if config.world != "symmetric":
+        parts.append(config.world)
+    if config.image_size is not None:
+        parts.append(f"{config.image_size}px")
+    return "_".join(parts)
+
+
+def record_of(study: Study) -> list[dict[str, Any]]:
+    """Table I's headline figures as result rows, one per model and seed: the random goals'
+    strict and course successes in latent MPPI (counts), active terms, validation loss, the
+    final distance and the block's position error after 10 pushes."""
+    rows = []
+    for seed in study.config.seeds:
+        for model, m in study.per_seed.get(seed, {}).items():
+            key = "control/random/latent/"
+            n = m.get(key + "episodes")
+            n = None if n is None or n != n else int(n)
+
+            def count(rate: float | None, n: int | None = n) -> int | None:
+                return None if rate is None or n is None or rate != rate else round(rate * n)
+
+            rows.append({"model": model, "seed": seed,
+                         "validation_loss": m.get("loss/val"),
+                         "active_terms": m.get("sindy/active"),
+                         "strict_successes": count(m.get(key + "strict_success_rate")),
+                         "strict_episodes": n,
+                         "course_successes": count(m.get(key + "success_rate")),
+                         "course_episodes": n,
+                         "final_distance_m": m.get(key + "final_distance_mean"),
+                         "block_error_10_cm": m.get("pos_err/h10")})
+    return rows
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -173,6 +211,10 @@ def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path
         text = json.dumps(summary, indent=1, allow_nan=False)
         write_atomic(out / "summary.json", lambda f: f.write(text), binary=False)
         report = write_report(study, files, summary, out / "report.html")
+        if config.record is not None:
+            rows = record_of(study)
+            path = record_rows(config.record, "push", record_name(config), rows)
+            say(f"recorded {len(rows)} row(s) in {path}")
     finally:
         torch.set_num_threads(threads)
     say(f"[4/4] report: {report} (this run took {time.perf_counter() - t_start:.0f} s)")
