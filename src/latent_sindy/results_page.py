@@ -46,7 +46,8 @@ Several seeds: their mean and, in brackets, the range the seeds span (lowest–h
 counts (k of n) pooled over seeds with their 95 % Wilson interval. One seed: its figure and,
 where it has one, its own interval (95 % Wilson for success rates). How the
 figures were reached, and every superseded one, is in the dated notes of `docs/notes/`
-(linked per world).
+(linked per world); a section cited elsewhere as RESULTS.md, "<heading>", keeps its heading
+there.
 """
 
 
