@@ -49,6 +49,17 @@ def test_rows_are_written_by_key_and_read_back_as_they_were(tmp_path):
     assert read_rows(tmp_path / "none.csv") == []
 
 
+def test_numpy_scalars_are_written_as_plain_numbers(tmp_path):
+    import numpy as np
+
+    path = tmp_path / "n.csv"
+    write_rows(path, [{"model": "m", "seed": np.int64(3), "x": np.float64(0.25),
+                       "k": np.int32(7), "ok": np.bool_(True)}])
+    assert "np." not in path.read_text()
+    row = read_rows(path)[0]
+    assert (row["seed"], row["x"], row["k"], row["ok"]) == (3, 0.25, 7, True)
+
+
 def test_a_case_keeps_rows_of_one_model_and_seed_apart(tmp_path):
     path = tmp_path / "draws.csv"
     write_rows(path, [{"model": "default", "seed": 0, "case": f"draw {i}", "recovered": i == 1}

@@ -55,6 +55,8 @@ def result_path(root: Path, world: str, benchmark: str) -> Path:
 
 
 def _cell(value: Any) -> str:
+    if hasattr(value, "item") and not isinstance(value, str | bytes):
+        value = value.item()  # a NumPy or torch scalar as the Python number it holds
     if value is None:
         return ""
     if isinstance(value, bool):
