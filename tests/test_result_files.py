@@ -136,7 +136,7 @@ def test_the_page_has_a_current_table_a_world_with_its_limits(tmp_path):
     assert (f"| SINDy | hand-made reader: the toy's position | 0, 1 | 810.0 (800.0–820.0) | "
             f"19 of 20: 95% ({100 * lo:.0f}%–{100 * hi:.0f}%) |") in text
     assert "| published: someone | learned |  | 700 ± 10 |  |" in text
-    assert "Command: `toy`." in text and "Also: `toy --seed`." in text
+    assert "To run it again: `toy`." in text and "As run: `toy --seed`." in text
     assert "Commit (date): abc1234 (2026-12-06)." in text
     assert "### Known limits\n\n- It is a toy." in text
     assert "[toy](docs/notes/toy.md)" in text

@@ -134,8 +134,8 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
 
 
 def _provenance(rows: Sequence[dict[str, Any]], command: str) -> list[str]:
-    """Where the rows come from: their commits and dates, machines, devices and sources,
-    each distinct value once, and the commands that differ from the benchmark's."""
+    """Where the rows come from: the benchmark's command, then the rows' own commands,
+    commits and dates, machines, devices and sources, each distinct value once."""
     def distinct(name: str) -> list[str]:
         out: list[str] = []
         for r in rows:
@@ -149,10 +149,10 @@ def _provenance(rows: Sequence[dict[str, Any]], command: str) -> list[str]:
         w = f"{r.get('commit') or '?'} ({r.get('date') or '?'})"
         if w not in when:
             when.append(w)
-    lines = [f"Command: `{command}`." if command else ""]
-    others = [c for c in distinct("command") if c != command]
-    if others:
-        lines.append("Also: " + "; ".join(f"`{c}`" for c in others) + ".")
+    lines = [f"To run it again: `{command}`." if command else ""]
+    ran = distinct("command")
+    if ran:
+        lines.append("As run: " + "; ".join(f"`{c}`" for c in ran) + ".")
     lines.append(f"Commit (date): {', '.join(when)}. Machine: {'; '.join(distinct('machine'))}."
                  f" Device: {', '.join(distinct('device'))}.")
     sources = distinct("source")
