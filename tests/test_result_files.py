@@ -242,7 +242,8 @@ def test_the_push_study_records_table_one_headline_figures(tmp_path):
 
     study, _, _ = fake_study(tmp_path, seeds=(0, 1))
     rows = record_of(study)
-    assert len(rows) == 2 * len(study.specs)
+    assert [(r["seed"], r["model"]) for r in rows] == [
+        (s, spec.name) for s in (0, 1) for spec in study.specs]
     for row in rows:
         m = study.per_seed[row["seed"]][row["model"]]
         n = m["control/random/latent/episodes"]

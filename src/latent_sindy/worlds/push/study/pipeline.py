@@ -132,7 +132,8 @@ def record_of(study: Study) -> list[dict[str, Any]]:
     final distance and the block's position error after 10 pushes."""
     rows = []
     for seed in study.config.seeds:
-        for model, m in study.per_seed.get(seed, {}).items():
+        done = study.per_seed.get(seed, {})
+        for model, m in ((s.name, done[s.name]) for s in study.specs if s.name in done):
             key = "control/random/latent/"
             n = m.get(key + "episodes")
             n = None if n is None or n != n else int(n)
