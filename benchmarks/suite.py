@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cli_args import check_output_file, positive_float, positive_int, seed_range
+from latent_sindy.script_args import check_output_file, positive_float, positive_int, seed_range
 
 SEQUENCES, STEPS = 60, 8
 

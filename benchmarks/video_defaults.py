@@ -19,7 +19,7 @@ import json
 import time
 from pathlib import Path
 
-from cli_args import check_output_file, positive_float, seed_range
+from latent_sindy.script_args import check_output_file, positive_float, seed_range
 
 
 def one_seed(omega2: float, seed: int, starts: str) -> dict:

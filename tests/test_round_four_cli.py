@@ -158,12 +158,11 @@ def test_4_the_largest_seed_collects(tmp_path):
 
 # ------------------------------------------------------------------ 8: the benchmark scripts
 def _script(name: str, monkeypatch):
-    """The benchmark script ``benchmarks/NAME.py`` as a module (its folder importable)."""
+    """The benchmark script ``benchmarks/NAME.py`` as a module."""
     import importlib.util
     from pathlib import Path
 
     folder = Path(__file__).resolve().parents[1] / "benchmarks"
-    monkeypatch.syspath_prepend(str(folder))
     spec = importlib.util.spec_from_file_location(f"bench_{name}", folder / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, spec.name, module)  # (its dataclasses look it up)
