@@ -22,15 +22,17 @@ import json
 import statistics
 import time
 
+from latent_sindy.script_args import parse_with_smoke
 
-def main() -> None:
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--train", type=int, default=100, help="training trajectories (paper 100)")
     ap.add_argument("--batch", type=int, default=1000, help="frames per step (paper 1000)")
     ap.add_argument("--steps", type=int, default=10, help="timed steps")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--device", default="cpu", help="cpu or cuda")
-    args = ap.parse_args()
+    args = parse_with_smoke(ap, argv, {"train": 1, "batch": 50, "steps": 2})
 
     import torch
 

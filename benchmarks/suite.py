@@ -38,7 +38,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from latent_sindy.script_args import check_output_file, positive_float, positive_int, seed_range
+from latent_sindy.script_args import (
+    check_output_file,
+    parse_with_smoke,
+    positive_float,
+    positive_int,
+    seed_range,
+)
 
 SEQUENCES, STEPS = 60, 8
 
@@ -295,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--omega2", type=positive_float, default=OMEGA2[0],
                    help="ω² of the pendulum video (the video system)")
-    args = p.parse_args(argv)
+    args = parse_with_smoke(p, argv, {"systems": ["lorenz"], "seeds": [[0]],
+                                      "set": [("epochs", 1)], "workers": 1})
     # every mistake is refused here, before the first fit (argparse's line, exit status 2)
     settings = _check_settings(p, args.set)
     check_output_file(p, args.json, "--json")
