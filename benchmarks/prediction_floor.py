@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import math
-
 import tempfile
 from pathlib import Path
 

@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--timeout", type=float, default=600, help="seconds per subprocess")
     p.add_argument("--child", nargs=3, metavar=("CASE", "H", "VARIANT"), help=argparse.SUPPRESS)
     args = parse_with_smoke(p, argv, {"threads": 1, "repeats": 1, "batch": 8, "horizons": [1],
-                                      "cases": ["sindy2", "mlp"]})
+                                      "cases": ["sindy2"]})
     if args.child:
         case, h, variant = args.child
         print(json.dumps(measure(case, int(h), args.batch, args.repeats, args.threads, variant)))

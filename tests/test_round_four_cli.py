@@ -210,30 +210,6 @@ def test_8_suite_refuses_bad_arguments_before_any_fit(tmp_path, capsys, monkeypa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["FILE"]
 
 
-@pytest.mark.parametrize(("argv", "needle"), [
-    (["--seeds", "abc"], "give seeds as integers"),
-    (["--seeds", "5..2"], "the range 5..2 holds no seed"),
-    (["--omega2", "-1"], "--omega2: -1: use a finite number > 0"),
-    (["--omega2", "0.5", "--starts", "benchmark"], "use --omega2 >= 1"),
-    (["--out", "FOLDER"], "is a folder"),
-    (["--out", "FILE/rows.jsonl"], "is not an existing folder"),
-    (["--out", "FILE"], "line 1 is not a row this script wrote"),
-])
-def test_8_video_defaults_refuses_bad_arguments_before_any_fit(tmp_path, capsys, monkeypatch,
-                                                               argv, needle):
-    video = _script("video_defaults", monkeypatch)
-
-    def no_fit(*args, **kwargs):
-        raise AssertionError("a fit ran")
-
-    monkeypatch.setattr(video, "one_seed", no_fit)
-    (tmp_path / "FILE").write_text("x")
-    argv = [a.replace("FOLDER", str(tmp_path)).replace("FILE", str(tmp_path / "FILE"))
-            for a in argv]
-    assert needle in _usage_error(capsys, video, argv)
-    assert (tmp_path / "FILE").read_text() == "x"
-
-
 # ------------------------------------------------------------------ 9: advice and limits
 TINY = ["--latent-dim", "3", "--encoder-hidden", "8", "--decoder-hidden", "16"]
 
