@@ -28,6 +28,7 @@ MPPI several updates a command.
     python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action
     python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action \
         --position-noise 0 0.01 --window 5 --order 3
+    python benchmarks/dmc_states.py --smoke          # one seed, 2 episodes, tiny MPPI (the tests)
 """
 
 from __future__ import annotations

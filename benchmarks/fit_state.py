@@ -17,6 +17,7 @@ matrix Θ(Z, U) (our library, float64) and the same target Znext − Z. Printed 
 
     PYTHONPATH=src .venv/bin/python benchmarks/fit_state.py [--seeds 5] [--repeats 5] \
         [--noise 0.01] [--window 10]
+    PYTHONPATH=src .venv/bin/python benchmarks/fit_state.py --smoke   # Duffing, one seed (tests)
 """
 
 from __future__ import annotations

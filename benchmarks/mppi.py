@@ -19,6 +19,7 @@ Times are the best over ``--rounds`` interleaved rounds of the mean ms per comma
 (robust to other jobs on a shared machine).
 
     .venv/bin/python benchmarks/mppi.py --threads 2 [--runs results/demo/runs/seed0]
+    .venv/bin/python benchmarks/mppi.py --smoke          # tiny K and H, one round (the tests)
 """
 
 from __future__ import annotations

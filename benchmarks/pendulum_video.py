@@ -13,6 +13,7 @@ would take at the median (the published run: 5001 + 1001 epochs).
 
     .venv/bin/python benchmarks/pendulum_video.py --train 100 --steps 10 --threads 1
     .venv/bin/python benchmarks/pendulum_video.py --train 20 --steps 5 --device cuda
+    .venv/bin/python benchmarks/pendulum_video.py --smoke     # one trajectory, batch 50 (the tests)
 """
 
 from __future__ import annotations

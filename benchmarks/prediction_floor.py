@@ -30,6 +30,7 @@ Prints the position error (cm) and the orientation error (degrees, modulo the bl
 symmetry) per horizon. Uses the uniform block's world (pushes in world directions).
 
     .venv/bin/python benchmarks/prediction_floor.py --data results/demo/data.h5
+    .venv/bin/python benchmarks/prediction_floor.py --smoke   # a tiny collection, 10 trees
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ earlier ones.
 
     PYTHONPATH=src python benchmarks/reach.py --world symmetric --pushes 300 --seed 0
     PYTHONPATH=src python benchmarks/reach.py --hand-tilts 0 0.15    # the arm before issue 24
+    PYTHONPATH=src python benchmarks/reach.py --smoke   # 12 pushes a region (the tests)
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ the test sequences:
     python benchmarks/suite.py --set batch_size=500 prune=absolute   # another setting, A/B
     python benchmarks/suite.py --systems dmc --seeds 0     # where dm_control is installed
     python benchmarks/suite.py --systems video --seeds 0..9 --omega2 1.44   # 20-60 min a seed
+    python benchmarks/suite.py --smoke                     # lorenz, one seed, one epoch (tests)
 
 The video row fits in continuous time (``time="continuous", derivative_order=2``) and is
 judged by the law it recovers: z̈ = c sin z with c within 2 % of −ω².

@@ -13,6 +13,7 @@ background| falls on the block (pixels within 3 of its centre): 100 % is a block
 isolated. An orientation read at random errs by 22.5 degrees on average (modulo 90).
 
     .venv/bin/python benchmarks/textured_world.py --poses 400 --seed 0
+    .venv/bin/python benchmarks/textured_world.py --smoke     # 12 poses (the tests)
 """
 
 from __future__ import annotations

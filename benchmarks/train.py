@@ -16,6 +16,7 @@ Every (model, H) runs in a fresh subprocess so its memory figure is its own:
 
     .venv/bin/python benchmarks/train.py --threads 2 --repeats 5
     .venv/bin/python benchmarks/train.py --cases sindy2 linear --horizons 1 --wins
+    .venv/bin/python benchmarks/train.py --smoke         # SINDy-2, batch 8, one step (the tests)
 """
 
 from __future__ import annotations

@@ -181,3 +181,26 @@ def test_dmc_reader_accuracy(monkeypatch, capsys):
     assert len(seen) == 4 and all(0 < v <= 1 for v in seen), out
     errors = re.findall(r"sweep: seen \S+; angle error (\S+)°", out)
     assert len(errors) == 2 and all(float(e) < 20 for e in errors), out
+
+
+# ------------------------------------------------------------------ the smoke flag itself
+def test_smoke_changes_defaults_and_a_given_flag_still_wins():
+    import argparse
+
+    from latent_sindy.errors import UserError
+    from latent_sindy.script_args import parse_with_smoke
+
+    def parser() -> argparse.ArgumentParser:
+        p = argparse.ArgumentParser(prog="bench")
+        p.add_argument("--episodes", type=int, default=30)
+        p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+        return p
+
+    full = parse_with_smoke(parser(), [], {"episodes": 2, "seeds": [0]})
+    assert (full.smoke, full.episodes, full.seeds) == (False, 30, [0, 1, 2])
+    smoke = parse_with_smoke(parser(), ["--smoke"], {"episodes": 2, "seeds": [0]})
+    assert (smoke.smoke, smoke.episodes, smoke.seeds) == (True, 2, [0])
+    given = parse_with_smoke(parser(), ["--smoke", "--episodes", "5"], {"episodes": 2})
+    assert given.episodes == 5
+    with pytest.raises(UserError, match="'epochs' is no option of bench"):
+        parse_with_smoke(parser(), ["--smoke"], {"epochs": 1})
