@@ -9,6 +9,7 @@ Prints, for this machine:
     visual meshes loaded (as before) against without them (as now), interleaved.
 
     .venv/bin/python benchmarks/collect.py --trajectories 12 --steps 10
+    .venv/bin/python benchmarks/collect.py --smoke      # tiny sizes, seconds (the tests)
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 from latent_sindy.worlds.push.panda_push import PandaPushEnv
 from latent_sindy.worlds.push.world import PushWorld
@@ -85,21 +87,24 @@ def time_pushes(n: int) -> tuple[float, float, float]:
     return 1e3 * float(np.mean(pushes)), 1e3 * float(np.mean(resets)), float(np.mean(steps))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trajectories", type=int, default=12)
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--render-repeats", type=int, default=400)
-    args = ap.parse_args()
+    ap.add_argument("--pushes", type=int, default=20, help="timed pushes and world rebuilds")
+    args = parse_with_smoke(ap, argv, {"trajectories": 2, "steps": 2, "workers": [1],
+                                       "render_repeats": 20, "pushes": 2})
 
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
-    push_ms, reset_ms, sim_steps = time_pushes(20)
+    push_ms, reset_ms, sim_steps = time_pushes(args.pushes)
     print(f"one push: {push_ms:.1f} ms ({sim_steps:.0f} simulation steps at 240 Hz); "
           f"one episode reset (world rebuilt): {reset_ms:.1f} ms")
-    with_meshes, without = time_rebuilds(20)
+    with_meshes, without = time_rebuilds(args.pushes)
     print(f"world rebuild: {with_meshes:.1f} ms with the arm's visual meshes, {without:.1f} ms "
-          f"without (x{with_meshes / without:.1f} faster; median of 20, interleaved)")
+          f"without (x{with_meshes / without:.1f} faster; median of {args.pushes}, "
+          "interleaved)")
     fast, full = time_renders(args.render_repeats)
     print(f"observation render: {fast:.2f} ms camera world vs {full:.2f} ms full scene "
           f"(x{full / fast:.0f} faster)")

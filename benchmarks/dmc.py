@@ -7,6 +7,7 @@ a second.
 
     python benchmarks/dmc.py                              # cartpole-swingup
     python benchmarks/dmc.py --task reacher-easy --sequences 5 --steps 20
+    python benchmarks/dmc.py --smoke                      # tiny sizes, seconds (the tests)
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import time
 
 import numpy as np
 
+from latent_sindy.script_args import parse_with_smoke
+
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -25,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=50, help="renders timed per size")
     p.add_argument("--sequences", type=int, default=10)
     p.add_argument("--steps", type=int, default=20)
-    args = p.parse_args(argv)
+    args = parse_with_smoke(p, argv, {"sizes": [32], "frames": 2, "sequences": 1, "steps": 3})
 
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.env import DmcPixelEnv

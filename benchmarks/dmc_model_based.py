@@ -6,6 +6,7 @@ the wall time of every fit and planned episode; with ``--out`` the run is resuma
 
     python benchmarks/dmc_model_based.py                     # cartpole-swingup, SINDy, tiny
     python benchmarks/dmc_model_based.py --dynamics linear --iterations 3 --out runs/mb
+    python benchmarks/dmc_model_based.py --smoke          # tiny sizes, seconds (the tests)
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import argparse
 import time
 
 import numpy as np
+
+from latent_sindy.script_args import parse_with_smoke
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,7 +42,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="test episodes after each fit, without exploration noise")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None)
-    args = p.parse_args(argv)
+    args = parse_with_smoke(p, argv, {"size": 16, "seed_episodes": 1, "iterations": 1,
+                                      "steps": 4, "epochs": 1, "window": 2, "samples": 8,
+                                      "horizon": 2, "warm_updates": 0})
 
     import torch
 

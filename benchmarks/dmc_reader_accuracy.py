@@ -13,6 +13,7 @@ upright at each cart place (what varies with the cart is what a model must fit).
 
     python benchmarks/dmc_reader_accuracy.py
     python benchmarks/dmc_reader_accuracy.py --episodes 30 --seed 0
+    python benchmarks/dmc_reader_accuracy.py --smoke      # tiny sizes, seconds (the tests)
 """
 
 from __future__ import annotations
@@ -23,16 +24,19 @@ import math
 import numpy as np
 import torch
 
+from latent_sindy.script_args import parse_with_smoke
+
 PLACES = (-0.83, -0.31, 0.0, 0.17, 0.64)
 
 
-def _sweep(world) -> tuple[torch.Tensor, np.ndarray]:
-    """Frames (N, 3, S, S) of the cart at PLACES and the pole at every degree; (N, 2) x, θ."""
+def _sweep(world, step: int = 1) -> tuple[torch.Tensor, np.ndarray]:
+    """Frames (N, 3, S, S) of the cart at PLACES and the pole at every ``step`` degrees;
+    (N, 2) x, θ."""
     env = world.make_env()
     env.reset(seed=0)
     frames, poses = [], []
     for x in PLACES:
-        for deg in range(-180, 180):
+        for deg in range(-180, 180, step):
             state = env.state()
             state[:2] = (x, math.radians(deg))
             frames.append(env.picture_of(state)[-3:])
@@ -52,7 +56,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=10, help="random episodes")
     p.add_argument("--seed", type=int, default=3)
     p.add_argument("--size", type=int, default=64)
-    args = p.parse_args(argv)
+    p.add_argument("--sweep-step", type=int, default=1, metavar="DEGREES",
+                   help="the sweep's pole angles this many degrees apart")
+    args = parse_with_smoke(p, argv, {"episodes": 1, "sweep_step": 30})
     torch.set_num_threads(1)
 
     from latent_sindy.worlds.dmc.config import DmcConfig
@@ -64,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     E, T1 = data.images.shape[:2]
     frames = torch.from_numpy(data.images[:, :, 3:]).reshape(-1, 3, args.size, args.size)
     states = data.states.reshape(-1, data.states.shape[-1])
-    sweep, poses = _sweep(world)
+    sweep, poses = _sweep(world, args.sweep_step)
     print(f"cartpole-swingup, {args.size}x{args.size}: {len(frames)} frames of {E} random "
           f"episodes (seed {args.seed}); a sweep of {len(sweep)} poses")
     readers = {"edges (the default)": ColourPoseReader(args.size).fit(frames),

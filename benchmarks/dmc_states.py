@@ -28,6 +28,7 @@ MPPI several updates a command.
     python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action
     python benchmarks/dmc_states.py --episodes 10 --velocity difference --previous-action \
         --position-noise 0 0.01 --window 5 --order 3
+    python benchmarks/dmc_states.py --smoke          # one seed, 2 episodes, tiny MPPI (the tests)
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ import time
 
 import numpy as np
 import torch
+
+from latent_sindy.script_args import parse_with_smoke
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean ± std over seeds):
 #: CURL's Table 1, and DrQ's paper.
@@ -266,7 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gain", default="1", help="the planner's filter gain: a number in "
                    "(0, 1] (1, the default: each reading as it is), or auto: chosen on the "
                    "training episodes as the library's ReadLatent does (filter_gain)")
-    args = p.parse_args(argv)
+    args = parse_with_smoke(p, argv, {"seeds": [0], "episodes": 2, "evaluations": 1,
+                                      "order": 2, "samples": 16, "horizon": 2,
+                                      "reward_updates": 20})
     torch.set_num_threads(1)
 
     from latent_sindy.control.mppi import MPPIConfig

@@ -17,6 +17,7 @@ matrix Θ(Z, U) (our library, float64) and the same target Znext − Z. Printed 
 
     PYTHONPATH=src .venv/bin/python benchmarks/fit_state.py [--seeds 5] [--repeats 5] \
         [--noise 0.01] [--window 10]
+    PYTHONPATH=src .venv/bin/python benchmarks/fit_state.py --smoke   # Duffing, one seed (tests)
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import pysindy as ps
 import torch
 from scipy.signal import savgol_filter
 
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.sindy import STLSQ, EnsembleSTLSQ
 from latent_sindy.sindy.fit import (
     fit_trajectory_data,
@@ -83,7 +85,7 @@ def clean_table(args: argparse.Namespace) -> None:
     counts = {"ours": 0, "ps": 0, "ps_tuned": 0}
     ratios: dict[str, list[float]] = {"ps": [], "ps_tuned": []}
     rows = 0
-    for name, make in SYSTEMS.items():
+    for name, make in ((n, SYSTEMS[n]) for n in args.systems):
         for seed in range(args.seeds):
             system = make(seed=seed)
             true = system.true_coefficients().numpy()
@@ -142,11 +144,11 @@ def _noisy(make: Callable[..., KnownSystem], seed: int, noise: float):
     return system, X, system.U.view(10, 500, nu)
 
 
-def _ps_ensemble(threshold: float, library: bool) -> Fit:
+def _ps_ensemble(threshold: float, library: bool, n_models: int) -> Fit:
     def fit(th: np.ndarray, tg: np.ndarray, seed: int) -> np.ndarray:
         np.random.seed(seed)  # noqa: NPY002 (pysindy draws from numpy's global generator)
         opt = ps.EnsembleOptimizer(ps.STLSQ(threshold=threshold), bagging=True,
-                                   library_ensemble=library)  # fmt: skip
+                                   library_ensemble=library, n_models=n_models)  # fmt: skip
         return opt.fit(th, tg).coef_.T
 
     return fit
@@ -180,17 +182,17 @@ def noisy_table(args: argparse.Namespace) -> None:
         methods[f"ps STLSQ({t:g})"] = (
             "pairs", lambda th, tg, s, t=t: ps.STLSQ(threshold=t).fit(th, tg).coef_.T)  # fmt: skip
     t = args.ps_threshold
-    methods[f"ps Ensemble(STLSQ({t:g}), bagging)"] = ("pairs", _ps_ensemble(t, False))
-    methods[f"ps Ensemble(STLSQ({t:g}), bagging+library)"] = ("pairs", _ps_ensemble(t, True))
+    methods[f"ps Ensemble(STLSQ({t:g}), bagging)"] = ("pairs", _ps_ensemble(t, False, k))
+    methods[f"ps Ensemble(STLSQ({t:g}), bagging+library)"] = ("pairs", _ps_ensemble(t, True, k))
     methods[f"ps STLSQ({t:g}), windows"] = (
         "windows", lambda th, tg, s: ps.STLSQ(threshold=t).fit(th, tg).coef_.T)  # fmt: skip
-    methods[f"ps Ensemble(STLSQ({t:g}), bagging), windows"] = ("windows", _ps_ensemble(t, False))
+    methods[f"ps Ensemble(STLSQ({t:g}), bagging), windows"] = ("windows", _ps_ensemble(t, False, k))
     print(
         f"\nnoisy: {args.noise:g} x each state's std on every measurement, "
         f"{args.seeds} seeds, windows of {w} steps"
     )
     print(f"{'system':8} {'method':50} {'exact':>5} {'worst err':>9} {'terms':>5} {'ms':>7}")
-    for name, make in SYSTEMS.items():
+    for name, make in ((n, SYSTEMS[n]) for n in args.systems):
         results: dict[str, list[tuple[bool, float, int, float]]] = {m: [] for m in methods}
         for seed in range(args.seeds):
             system, X, U = _noisy(make, seed, args.noise)
@@ -226,7 +228,7 @@ def _missed_error(coef: np.ndarray, true: np.ndarray) -> float:
     return float(np.max(np.abs(coef[active] - true[active]) / np.abs(true[active])))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="data seeds per system")
     ap.add_argument("--repeats", type=int, default=5, help="timed fits per row (best kept)")
@@ -241,7 +243,9 @@ def main() -> None:
     ap.add_argument("--window", type=int, default=10, help="noisy table: steps per window")
     ap.add_argument("--models", type=int, default=20, help="noisy table: models per ensemble")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
-    args = ap.parse_args()
+    ap.add_argument("--systems", nargs="+", default=list(SYSTEMS), choices=list(SYSTEMS))
+    args = parse_with_smoke(ap, argv, {"seeds": 1, "repeats": 1, "models": 2,
+                                       "systems": ["duffing"]})
     torch.set_num_threads(args.threads)
     clean_table(args)
     if args.noise > 0:

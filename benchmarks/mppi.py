@@ -19,6 +19,7 @@ Times are the best over ``--rounds`` interleaved rounds of the mean ms per comma
 (robust to other jobs on a shared machine).
 
     .venv/bin/python benchmarks/mppi.py --threads 2 [--runs results/demo/runs/seed0]
+    .venv/bin/python benchmarks/mppi.py --smoke          # tiny K and H, one round (the tests)
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import torch
 
 from latent_sindy.control import MPPI, LatentCost, MPPIConfig, latent_step
 from latent_sindy.models import LatentDynamics, SindyDynamics, make_dynamics
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.training import load_run
 from latent_sindy.worlds.push.config import PushEnvConfig
 
@@ -161,7 +163,19 @@ def make_cases(models: dict[str, LatentDynamics], cfg: MPPIConfig, z: torch.Tens
     return cases
 
 
-def main() -> None:
+def setting(text: str) -> tuple[int, int]:
+    """``K,H``: MPPI's samples and horizon."""
+    k, comma, h = text.partition(",")
+    try:
+        pair = int(k), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give K,H, e.g. 1000,15") from None
+    if not comma or min(pair) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give K,H, both 1 or more, e.g. 1000,15")
+    return pair
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2, help="torch.set_num_threads")
     ap.add_argument("--keep", type=float, default=0.04, help="fraction of SINDy coefficients kept")
@@ -169,7 +183,10 @@ def main() -> None:
                     help="folder of trained runs sindy1..sindy4, linear, mlp (default: random)")
     ap.add_argument("--rounds", type=int, default=8)
     ap.add_argument("--min-time", type=float, default=0.1, help="seconds per case per round")
-    args = ap.parse_args()
+    ap.add_argument("--settings", type=setting, nargs="+", default=list(SETTINGS),
+                    metavar="K,H", help="MPPI samples and horizon (default 1000,15 100,10)")
+    args = parse_with_smoke(ap, argv, {"threads": 1, "rounds": 1, "min_time": 0.0,
+                                       "settings": [(16, 3), (8, 2)]})
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
 
@@ -192,7 +209,7 @@ def main() -> None:
     z = 0.1 * torch.randn(NZ)
     goal = torch.zeros(NZ)
     results = {}
-    for K, H in SETTINGS:
+    for K, H in args.settings:
         cfg = MPPIConfig(samples=K, horizon=H, sigma=0.1, lambda_=0.01, Q=1.0)
         cases = make_cases(models, cfg, z, goal)
         results[(K, H)] = time_cases(cases, args.rounds, args.min_time)
@@ -212,13 +229,13 @@ def main() -> None:
 
     print("\nWhat each optimisation bought (SINDy order 2; ms per command; in brackets the "
           "speed-up over the row above, and over the first row)")
-    print(f"{'':<44}" + "".join(f"{f'K={K} H={H}':>26}" for K, H in SETTINGS))
+    print(f"{'':<44}" + "".join(f"{f'K={K} H={H}':>26}" for K, H in args.settings))
     first_key, prev = OPTIMISATIONS[0][1], None
     for label, key in OPTIMISATIONS:
-        if key not in results[SETTINGS[0]]:
+        if key not in results[args.settings[0]]:
             continue
         cells = []
-        for s in SETTINGS:
+        for s in args.settings:
             ms = results[s][key]
             up = f"{results[s][prev] / ms:.2f}x" if prev and "linear" not in key else "-"
             cells.append(f"{ms:>8.2f} ({up:>6}, {results[s][first_key] / ms:>5.1f}x)")

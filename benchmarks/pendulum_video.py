@@ -13,6 +13,7 @@ would take at the median (the published run: 5001 + 1001 epochs).
 
     .venv/bin/python benchmarks/pendulum_video.py --train 100 --steps 10 --threads 1
     .venv/bin/python benchmarks/pendulum_video.py --train 20 --steps 5 --device cuda
+    .venv/bin/python benchmarks/pendulum_video.py --smoke     # one trajectory, batch 50 (the tests)
 """
 
 from __future__ import annotations
@@ -22,15 +23,17 @@ import json
 import statistics
 import time
 
+from latent_sindy.script_args import parse_with_smoke
 
-def main() -> None:
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--train", type=int, default=100, help="training trajectories (paper 100)")
     ap.add_argument("--batch", type=int, default=1000, help="frames per step (paper 1000)")
     ap.add_argument("--steps", type=int, default=10, help="timed steps")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     ap.add_argument("--device", default="cpu", help="cpu or cuda")
-    args = ap.parse_args()
+    args = parse_with_smoke(ap, argv, {"train": 1, "batch": 50, "steps": 2})
 
     import torch
 

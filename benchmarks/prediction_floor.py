@@ -30,12 +30,15 @@ Prints the position error (cm) and the orientation error (degrees, modulo the bl
 symmetry) per horizon. Uses the uniform block's world (pushes in world directions).
 
     .venv/bin/python benchmarks/prediction_floor.py --data results/demo/data.h5
+    .venv/bin/python benchmarks/prediction_floor.py --smoke   # a tiny collection, 10 trees
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -44,6 +47,7 @@ from latent_sindy.data import read_sequences
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.models import SindyConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig, MomentEncoder
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.sindy import STLSQ
 from latent_sindy.worlds.push.library import face_variables
 
@@ -78,7 +82,8 @@ def _deg(poses: np.ndarray, true: np.ndarray, period: float) -> float:
     return float(np.degrees(np.abs(turn)).mean())
 
 
-def _fit_trees(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, seed: int):
+def _fit_trees(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, seed: int,
+               n_trees: int = 400):
     """A step of extra trees on (p, a, ℓ) -> the displacement in the pushed face's frame and
     the turn, fitted on the training pushes ``mask`` (N, T)."""
     from sklearn.ensemble import ExtraTreesRegressor
@@ -90,7 +95,7 @@ def _fit_trees(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, seed: i
     across = -d[..., 0] * np.sin(n) + d[..., 1] * np.cos(n)
     X = np.stack([p, a, length], -1)[mask]
     Y = np.stack([along, across, d[..., 2]], -1)[mask]
-    trees = ExtraTreesRegressor(400, min_samples_leaf=2, random_state=seed).fit(X, Y)
+    trees = ExtraTreesRegressor(n_trees, min_samples_leaf=2, random_state=seed).fit(X, Y)
 
     def step(pose: np.ndarray, u: np.ndarray) -> np.ndarray:
         p, a, length, n = _face_frame(pose, u, f)
@@ -201,17 +206,35 @@ def _rollout_errors(step, poses: np.ndarray, actions: np.ndarray, period: float,
     return pos / count, ang / count
 
 
-def main() -> None:
+def tiny_data(folder: Path) -> Path:
+    """A tiny trajectory file of the default world (the smoke run's, when no --data)."""
+    from latent_sindy.worlds.push.collect import CollectionPlan, collect
+
+    return collect(folder / "data.h5", CollectionPlan(trajectories=8, steps=3,
+                                                      val_fraction=0.25, test_fraction=0.25),
+                   workers=1)
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", required=True)
+    ap.add_argument("--data", help="a trajectory file (required, but with --smoke: a tiny "
+                                   "one is collected)")
+    ap.add_argument("--trees", type=int, default=400, help="extra trees in the regression")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--replay", type=int, default=0, metavar="N",
                     help="replay N random test pushes in the simulator (about 0.5 s each)")
-    args = ap.parse_args()
+    args = parse_with_smoke(ap, argv, {"trees": 10})
+    if args.data is None and not args.smoke:
+        ap.error("--data is required: a trajectory file, e.g. results/demo/data.h5")
+    with tempfile.TemporaryDirectory() as folder:
+        floor(args.data or tiny_data(Path(folder)), args)
 
-    data = read_sequences(args.data)
+
+def floor(path: str | Path, args: argparse.Namespace) -> None:
+    """The reference's tables for the trajectory file at ``path``."""
+    data = read_sequences(path)
     if data.env_config.push != "symmetric":
-        raise SystemExit(f"{args.data}: pushes relative to the block; this reference is for "
+        raise SystemExit(f"{path}: pushes relative to the block; this reference is for "
                          "the symmetric world's world-direction pushes")
     period = data.env_config.angle_period
     f = 2 * math.pi / period
@@ -219,13 +242,13 @@ def main() -> None:
     P, U = train.poses.astype(np.float64), train.actions.astype(np.float64)
     moved = ~_unchanged(train.images)
     fits = {"": np.ones_like(moved), "moved": moved}
-    trees = {k: _fit_trees(P, U, f, m, args.seed) for k, m in fits.items()}
+    trees = {k: _fit_trees(P, U, f, m, args.seed, args.trees) for k, m in fits.items()}
     frame = {k: _fit_frame(P, U, f, m) for k, m in fits.items()}
 
     Pt, Ut = test.poses.astype(np.float64), test.actions.astype(np.float64)
     still = _unchanged(test.images)
     reading_train, reading = _moment_reading(train, test)
-    print(f"{args.data}: {train.n} training and {test.n} test trajectories of {test.steps} "
+    print(f"{path}: {train.n} training and {test.n} test trajectories of {test.steps} "
           f"pushes; errors after h pushes, mean over every start (position cm / angle deg)")
     print(f"pushes that left the image unchanged: {(~moved).sum()} of {moved.size} (training), "
           f"{still.sum()} of {still.size} (test); "

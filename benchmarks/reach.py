@@ -9,6 +9,7 @@ earlier ones.
 
     PYTHONPATH=src python benchmarks/reach.py --world symmetric --pushes 300 --seed 0
     PYTHONPATH=src python benchmarks/reach.py --hand-tilts 0 0.15    # the arm before issue 24
+    PYTHONPATH=src python benchmarks/reach.py --smoke   # 12 pushes a region (the tests)
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import time
 
 import numpy as np
 
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.worlds.push import arm
 from latent_sindy.worlds.push import world as world_module
 from latent_sindy.worlds.push.config import PushEnvConfig
@@ -30,7 +32,7 @@ def rate(k: int, n: int) -> str:
     return f"{100 * k / n:5.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] ({k}/{n})" if n else "n/a"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--world", default="symmetric", choices=["symmetric", "paper", "marked"])
     ap.add_argument("--pushes", type=int, default=300)
@@ -38,7 +40,7 @@ def main() -> None:
     ap.add_argument("--hand-tilts", type=float, nargs="+", default=None)
     ap.add_argument("--max-start-distance", type=float, default=None,
                     help="try starts up to this far from the base (default: the arm's)")
-    args = ap.parse_args()
+    args = parse_with_smoke(ap, argv, {"pushes": 12})
     if args.hand_tilts is not None:
         arm.HAND_TILTS = tuple(args.hand_tilts)
     if args.max_start_distance is not None:

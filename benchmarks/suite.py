@@ -17,6 +17,7 @@ the test sequences:
     python benchmarks/suite.py --set batch_size=500 prune=absolute   # another setting, A/B
     python benchmarks/suite.py --systems dmc --seeds 0     # where dm_control is installed
     python benchmarks/suite.py --systems video --seeds 0..9 --omega2 1.44   # 20-60 min a seed
+    python benchmarks/suite.py --smoke                     # lorenz, one seed, one epoch (tests)
 
 The video row fits in continuous time (``time="continuous", derivative_order=2``) and is
 judged by the law it recovers: z̈ = c sin z with c within 2 % of −ω².
@@ -38,7 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cli_args import check_output_file, positive_float, positive_int, seed_range
+from latent_sindy.script_args import (
+    check_output_file,
+    parse_with_smoke,
+    positive_float,
+    positive_int,
+    seed_range,
+)
 
 SEQUENCES, STEPS = 60, 8
 
@@ -295,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", help="also write the rows to this file")
     p.add_argument("--omega2", type=positive_float, default=OMEGA2[0],
                    help="ω² of the pendulum video (the video system)")
-    args = p.parse_args(argv)
+    args = parse_with_smoke(p, argv, {"systems": ["lorenz"], "seeds": [[0]],
+                                      "set": [("epochs", 1)], "workers": 1})
     # every mistake is refused here, before the first fit (argparse's line, exit status 2)
     settings = _check_settings(p, args.set)
     check_output_file(p, args.json, "--json")

@@ -13,6 +13,7 @@ background| falls on the block (pixels within 3 of its centre): 100 % is a block
 isolated. An orientation read at random errs by 22.5 degrees on average (modulo 90).
 
     .venv/bin/python benchmarks/textured_world.py --poses 400 --seed 0
+    .venv/bin/python benchmarks/textured_world.py --smoke     # 12 poses (the tests)
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import torch
 
 from latent_sindy.models.autoencoder import MomentEncoder
 from latent_sindy.models.autoencoder_parts import MomentEncoderConfig
+from latent_sindy.script_args import parse_with_smoke
 from latent_sindy.worlds.push.config import BLOCK_SIZE, PushEnvConfig
 from latent_sindy.worlds.push.scene import CameraView, draw_look
 
@@ -89,12 +91,12 @@ def score(cfg: PushEnvConfig, images: np.ndarray, poses: np.ndarray) -> dict[str
             "weight on the block (%)": 100 * share.mean()}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--poses", type=int, default=400, help="pictures per world (half fit)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the poses and the looks")
     ap.add_argument("--channels", type=int, default=1, choices=(1, 3))
-    args = ap.parse_args()
+    args = parse_with_smoke(ap, argv, {"poses": 12})
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
     low, high = np.array(TEXTURED.workspace_low), np.array(TEXTURED.workspace_high)

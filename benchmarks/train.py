@@ -16,6 +16,7 @@ Every (model, H) runs in a fresh subprocess so its memory figure is its own:
 
     .venv/bin/python benchmarks/train.py --threads 2 --repeats 5
     .venv/bin/python benchmarks/train.py --cases sindy2 linear --horizons 1 --wins
+    .venv/bin/python benchmarks/train.py --smoke         # SINDy-2, batch 8, one step (the tests)
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import statistics
 import subprocess
 import sys
 import time
+
+from latent_sindy.script_args import parse_with_smoke
 
 CASES = ("sindy1", "sindy2", "sindy3", "sindy4", "linear", "mlp")
 VARIANTS = ("default", "nchw", "compile")
@@ -121,7 +124,7 @@ def run_child(
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
     p.add_argument("--repeats", type=int, default=5, help="timed steps per model (median)")
@@ -131,7 +134,8 @@ def main() -> None:
     p.add_argument("--wins", action="store_true", help="also try threads, layout, compile")
     p.add_argument("--timeout", type=float, default=600, help="seconds per subprocess")
     p.add_argument("--child", nargs=3, metavar=("CASE", "H", "VARIANT"), help=argparse.SUPPRESS)
-    args = p.parse_args()
+    args = parse_with_smoke(p, argv, {"threads": 1, "repeats": 1, "batch": 8, "horizons": [1],
+                                      "cases": ["sindy2"]})
     if args.child:
         case, h, variant = args.child
         print(json.dumps(measure(case, int(h), args.batch, args.repeats, args.threads, variant)))

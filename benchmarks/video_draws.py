@@ -27,7 +27,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from cli_args import check_output_file, positive_int, seed_range
+from latent_sindy.script_args import check_output_file, positive_int, seed_range
 
 MODES = ("exact", "frames")
 

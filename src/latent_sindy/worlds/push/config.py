@@ -31,7 +31,8 @@ Named worlds (:data:`ENV_PRESETS`, :meth:`PushEnvConfig.named`):
   the symmetric world, to 16 cm and 22 degrees (chance: 22.5) here; the table alone costs
   little (0.69 cm, 5.5 degrees), the light alone or the distractor alone breaks it.
 
-Why "symmetric" is the default, measured by ``benchmarks/world_designs.py`` (BENCHMARKS.md):
+Why "symmetric" is the default, measured by the retired ``benchmarks/world_designs.py``
+(docs/notes/2026-12-06-benchmarks-retired.md):
 in the symmetric world 0 of 30 look-alike pairs pushed alike gave different next images
 (paper: 27 of 30), 300 of 300 random pushes executed in every direction (paper and marked:
 90 %, worst pushing towards the base), and MPPI with a perfect-information reference model

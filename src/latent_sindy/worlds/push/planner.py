@@ -2,9 +2,9 @@
 
 The paper's push (an angle in the block's frame) keeps the course's MPPI settings; pushes in
 any world direction (the symmetric world) need more exploration of the angle: a variance of
-1.0 on ψ reached 12 of 12 goals with a state model where 0.3 reached 4
-(benchmarks/world_designs.py). The study and ``latent-sindy control`` both plan with
-:func:`world_planner` unless told otherwise.
+1.0 on ψ reached 12 of 12 goals with a state model where 0.3 reached 4 (the retired
+benchmarks/world_designs.py, docs/notes/2026-12-06-benchmarks-retired.md). The study and
+``latent-sindy control`` both plan with :func:`world_planner` unless told otherwise.
 
     world_planner(PushEnvConfig.named("symmetric")).samples  # 300
 """

@@ -1,5 +1,8 @@
-"""Argument types and checks the benchmark scripts share: every mistake is refused before
-any work starts, as argparse refuses its own (one ``PROG: error: ...`` line, exit status 2).
+"""Argument types and checks for command-line scripts built on argparse (the benchmarks in
+``benchmarks/`` use them): every mistake is refused before any work starts, as argparse
+refuses its own (one ``PROG: error: ...`` line, exit status 2).
+
+    from latent_sindy.script_args import check_output_file, positive_int, seed_range
 
     p.add_argument("--seeds", nargs="+", type=seed_range, default=[[0, 1, 2]])
     p.add_argument("--workers", type=positive_int, default=2)
@@ -14,9 +17,10 @@ import math
 import os
 from pathlib import Path
 
-from latent_sindy.errors import MAX_SEED
+from latent_sindy.errors import MAX_SEED, UserError
 
-__all__ = ["check_output_file", "positive_float", "positive_int", "seed_range"]
+__all__ = ["check_output_file", "parse_with_smoke", "positive_float", "positive_int",
+           "seed_range"]
 
 
 def seed_range(text: str) -> list[int]:
@@ -77,3 +81,21 @@ def check_output_file(parser: argparse.ArgumentParser, path: str | os.PathLike |
                                                      and not os.access(path, os.W_OK)):
         parser.error(f"{flag} {path}: cannot write there (permission denied); choose "
                      "another path")
+
+
+def parse_with_smoke(parser: argparse.ArgumentParser, argv: list[str] | None,
+                     smoke: dict[str, object]) -> argparse.Namespace:
+    """``parser.parse_args(argv)`` with a ``--smoke`` flag added: with it, ``smoke``'s values
+    (by destination, e.g. ``{"seeds": [[0]], "epochs": 1}``) become the defaults, so a smoke
+    run is tiny yet still runs the real code path; a flag given on the line still wins."""
+    for key in smoke:
+        if not any(a.dest == key for a in parser._actions):
+            raise UserError(f"parse_with_smoke: {key!r} is no option of {parser.prog}")
+    parser.add_argument("--smoke", action="store_true",
+                        help="tiny sizes that run in seconds (the tests run it): the real "
+                             "code path, figures that mean nothing")
+    args = parser.parse_args(argv)
+    if args.smoke:
+        parser.set_defaults(**smoke)
+        args = parser.parse_args(argv)
+    return args

@@ -1,0 +1,206 @@
+"""Every kept benchmark's ``--smoke`` run: tiny sizes through the real code path, and the
+figures it prints have the rows and the finite numbers its full run would print.
+
+Each script runs in this process (``main(argv)``), so the suite pays no extra interpreter or
+torch start-up per benchmark. ``benchmarks/video_draws.py --smoke`` is run (twice, with its
+resume) by tests/test_video_draws.py. Benchmarks of an optional extra (dm-control, pysindy,
+scikit-learn) skip where it is not installed.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+NUMBER = r"[-+]?(?:\d+\.?\d*(?:e[-+]?\d+)?|nan|inf)"
+
+
+def _run(name: str, monkeypatch, capsys, *argv: str) -> str:
+    """``benchmarks/NAME.py --smoke ARGV`` in this process; its stdout."""
+    import torch
+
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "benchmarks" /
+                                                  f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)  # (its dataclasses look it up)
+    spec.loader.exec_module(module)
+    threads = torch.get_num_threads()
+    try:
+        status = module.main(["--smoke", *argv])
+    finally:
+        torch.set_num_threads(threads)
+    assert status in (None, 0), status
+    return capsys.readouterr().out
+
+
+def _numbers(line: str) -> list[float]:
+    return [float(v) for v in re.findall(NUMBER, line.split(None, 1)[1] if " " in line
+                                         else line)]
+
+
+def _row(out: str, start: str) -> str:
+    rows = [ln for ln in out.splitlines() if ln.startswith(start)]
+    assert rows, f"no line starts with {start!r}:\n{out}"
+    return rows[0]
+
+
+def _finite_positive(values: list[float]) -> bool:
+    return bool(values) and all(math.isfinite(v) and v > 0 for v in values)
+
+
+def test_collect(monkeypatch, capsys):
+    out = _run("collect", monkeypatch, capsys)
+    push = re.search(r"one push: (\S+) ms \((\d+) simulation steps", out)
+    assert push and float(push[1]) > 0 and int(push[2]) > 0, out
+    render = re.search(r"observation render: (\S+) ms camera world vs (\S+) ms full scene", out)
+    assert render and 0 < float(render[1]) < float(render[2]), out
+    rate = _row(out, "       1 ").split()
+    assert float(rate[1]) > 0 and float(rate[2]) >= 1.0, out  # transitions/s, attempts
+
+
+def test_mppi(monkeypatch, capsys):
+    pytest.importorskip("pytorch_mppi")
+    out = _run("mppi", monkeypatch, capsys)
+    for setting in ("K=16, H=3", "K=8, H=2"):
+        table = out.split(setting + ":", 1)[1].split("\n\n", 1)[0]
+        for model in ("sindy1", "sindy2", "sindy3", "sindy4", "linear", "mlp"):
+            cells = _row(table.split("\n", 2)[2], model).split()
+            assert _finite_positive([float(cells[1]), float(cells[2])]), table
+    assert "ours SINDy-2 / ours linear" in out and out.count("target") == 4
+
+
+def test_train(monkeypatch, capsys):
+    out = _run("train", monkeypatch, capsys)
+    sindy = _row(out, "sindy2").split()
+    assert sindy[1] == "1" and sindy[2] == "226", out  # H, library terms of order 2 (nz 16)
+    assert _finite_positive([float(v) for v in sindy[3:7]]), out
+
+
+def test_reach(monkeypatch, capsys):
+    out = _run("reach", monkeypatch, capsys)
+    for region in ("workspace", "bounds", "far"):
+        made = re.search(rf"^{region}\s+made\s+(\S+) % \[\S+, \S+\] \((\d+)/12\)", out, re.M)
+        assert made and 0 <= float(made[1]) <= 100, out
+    # the sampling workspace is within reach (BENCHMARKS.md: 300 of 300)
+    assert "(12/12)" in _row(out, "workspace"), out
+
+
+def test_fit_state(monkeypatch, capsys):
+    pytest.importorskip("pysindy")
+    out = _run("fit_state", monkeypatch, capsys)
+    clean = _row(out, "duffing     0").split("|")
+    assert clean[1].split()[0] == "yes", out  # our STLSQ recovers the noise-free law
+    assert "exact recovery: ours 1/1" in out, out
+    noisy = [ln for ln in out.split("noisy:", 1)[1].splitlines() if ln.startswith("duffing")]
+    assert len(noisy) == 13 and all(math.isfinite(float(ln.split()[-1])) for ln in noisy), out
+
+
+def test_prediction_floor(monkeypatch, capsys):
+    pytest.importorskip("sklearn")
+    out = _run("prediction_floor", monkeypatch, capsys)
+    rows = [ln for ln in out.split("h=10", 1)[1].splitlines() if ln.strip()]
+    assert len(rows) == 8, out
+    for ln in rows:
+        cells = [float(v) for v in re.findall(r"(\d+\.\d+) /\s*(\d+\.\d+)", ln)[0]]
+        assert all(math.isfinite(v) and v >= 0 for v in cells), ln
+    def one_push(model: str) -> float:  # position error (cm) after one push
+        return float(re.findall(r"(\d+\.\d+) /", _row(out, model))[0])
+
+    # the true pose and the push tell more than "nothing moves" (the data is seeded)
+    assert one_push("extra-trees (true pose") < one_push("nothing moves"), out
+
+
+def test_textured_world(monkeypatch, capsys):
+    out = _run("textured_world", monkeypatch, capsys)
+    for name in ("position mean (cm)", "orientation mean (deg)", "weight on the block (%)"):
+        values = [float(v) for v in _row(out, name)[len(name):].split()]
+        assert len(values) == 5 and all(math.isfinite(v) and v >= 0 for v in values), out
+    # the symmetric world's plain table isolates the block: all the weight falls on it
+    assert float(_row(out, "weight on the block (%)").split()[-5]) > 90, out
+
+
+def test_pendulum_video(monkeypatch, capsys):
+    out = _run("pendulum_video", monkeypatch, capsys)
+    row = json.loads(out.strip().splitlines()[-1])
+    assert row["train_frames"] == 500 and row["batch"] == 50 and row["steps_per_epoch"] == 10
+    assert 0 < row["step_best_s"] <= row["step_median_s"] and math.isfinite(
+        row["published_run_h"])
+
+
+def test_suite(monkeypatch, capsys, tmp_path):
+    out = _run("suite", monkeypatch, capsys, "--json", str(tmp_path / "rows.json"))
+    row = _row(out, "| lorenz |")
+    assert "failed" not in row and row.split("|")[2].strip() == "1", out
+    rows = json.loads((tmp_path / "rows.json").read_text())["rows"]
+    assert len(rows) == 1 and math.isfinite(rows[0]["one_step"]) and rows[0]["terms"] > 0
+
+
+# ------------------------------------------------------------------ the dmc extra
+def _dm_control():
+    pytest.importorskip("dm_control", reason="the dmc extra is not installed")
+
+
+def test_dmc(monkeypatch, capsys):
+    _dm_control()
+    out = _run("dmc", monkeypatch, capsys)
+    frame = re.search(r"32x32: (\S+) ms a frame rendered, (\S+) ms a control step", out)
+    assert frame and _finite_positive([float(frame[1]), float(frame[2])]), out
+    assert re.search(r"collect 1 x 3 .* actions/s", out), out
+
+
+def test_dmc_model_based(monkeypatch, capsys):
+    _dm_control()
+    out = _run("dmc_model_based", monkeypatch, capsys)
+    kinds = re.findall(r"^\s+\d+\s+(random|planned)\s+(\S+)", out, re.M)
+    assert [k for k, _ in kinds] == ["random", "planned"], out
+    assert all(math.isfinite(float(r)) for _, r in kinds), out
+    assert re.search(r"iteration 1: fit \S+ s", out), out
+
+
+def test_dmc_states(monkeypatch, capsys):
+    _dm_control()
+    out = _run("dmc_states", monkeypatch, capsys)
+    for fit in ("plain", "trimmed"):
+        mean = re.search(rf"^{fit}\s*: mean return over 1 seeds (\S+)", out, re.M)
+        assert mean and math.isfinite(float(mean[1])) and float(mean[1]) >= 0, out
+    assert "z4[t+1] = " in out, out  # the first seed's equations
+
+
+def test_dmc_reader_accuracy(monkeypatch, capsys):
+    _dm_control()
+    out = _run("dmc_reader_accuracy", monkeypatch, capsys)
+    assert "a sweep of 60 poses" in out, out
+    seen = [float(v) for v in re.findall(r"seen (\d\.\d+)", out)]
+    assert len(seen) == 4 and all(0 < v <= 1 for v in seen), out
+    errors = re.findall(r"sweep: seen \S+; angle error (\S+)°", out)
+    assert len(errors) == 2 and all(float(e) < 20 for e in errors), out
+
+
+# ------------------------------------------------------------------ the smoke flag itself
+def test_smoke_changes_defaults_and_a_given_flag_still_wins():
+    import argparse
+
+    from latent_sindy.errors import UserError
+    from latent_sindy.script_args import parse_with_smoke
+
+    def parser() -> argparse.ArgumentParser:
+        p = argparse.ArgumentParser(prog="bench")
+        p.add_argument("--episodes", type=int, default=30)
+        p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+        return p
+
+    full = parse_with_smoke(parser(), [], {"episodes": 2, "seeds": [0]})
+    assert (full.smoke, full.episodes, full.seeds) == (False, 30, [0, 1, 2])
+    smoke = parse_with_smoke(parser(), ["--smoke"], {"episodes": 2, "seeds": [0]})
+    assert (smoke.smoke, smoke.episodes, smoke.seeds) == (True, 2, [0])
+    given = parse_with_smoke(parser(), ["--smoke", "--episodes", "5"], {"episodes": 2})
+    assert given.episodes == 5
+    with pytest.raises(UserError, match="'epochs' is no option of bench"):
+        parse_with_smoke(parser(), ["--smoke"], {"epochs": 1})
