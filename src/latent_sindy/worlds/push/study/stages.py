@@ -80,9 +80,7 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
     otherwise. A file without a readable plan is left to :func:`collect`, which refuses it."""
     try:
         recorded = read_sequences(path).record.get("collection", {}).get("plan")
-        # a world recorded before the push style existed is the paper's (PushEnvConfig)
-        env = {"push": "paper", **recorded.get("env", {})}
-        old = from_json(CollectionPlan, {**recorded, "env": env}, str(path))
+        old = from_json(CollectionPlan, recorded, str(path))
     except (UserError, AttributeError, TypeError, ValueError):
         return
     if old == plan:
