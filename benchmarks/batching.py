@@ -41,7 +41,7 @@ def main() -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
     p.add_argument("--epochs", type=int, default=60)
     p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--prune-every", "--threshold-every", type=int, default=6)
+    p.add_argument("--prune-every", type=int, default=6)
     p.add_argument("--eval-every", type=int, default=1)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--batchings", nargs="+", default=["windows", "trajectories"])
@@ -58,7 +58,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:
             for batching in args.batchings:
-                model = ModelConfig(encoder=AutoencoderConfig(decoder="conv"),
+                model = ModelConfig(observation=AutoencoderConfig(decoder_kind="conv"),
                                     dynamics=SindyConfig(order=2))
                 cfg = TrainConfig(data=args.data, out=Path(tmp) / f"{batching}{seed}",
                                   model=model, epochs=args.epochs, batch_size=args.batch_size,

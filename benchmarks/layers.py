@@ -29,7 +29,7 @@ from latent_sindy.training import core as fit
 
 def last_layer(channels: int) -> tuple[nn.Module, nn.Module, torch.Tensor]:
     torch.manual_seed(0)
-    new = Autoencoder(AutoencoderConfig(channels=channels, image_size=32, decoder="conv")
+    new = Autoencoder(AutoencoderConfig(channels=channels, image_size=32, decoder_kind="conv")
                       ).decoder.conv[2]
     old = nn.ConvTranspose2d(16, channels, 4, stride=2, padding=1)
     old.load_state_dict(new.state_dict())
@@ -56,7 +56,7 @@ class Step(nn.Module):
         from latent_sindy.models import LatentModel, ModelConfig, SindyConfig
 
         torch.manual_seed(0)
-        cfg = ModelConfig(encoder=AutoencoderConfig(decoder="conv"),
+        cfg = ModelConfig(observation=AutoencoderConfig(decoder_kind="conv"),
                           dynamics=SindyConfig(order=2)).resolve(1, 32, 3)
         self.model = LatentModel(cfg)
         if old:

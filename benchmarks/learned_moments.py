@@ -194,7 +194,7 @@ def main() -> None:
     ap.add_argument("--refine", type=int, default=3,
                     help="the mask_moments encoder's --mask-refine (mean-shift steps; 0: the "
                          "masked weights' own pose, as first measured)")
-    ap.add_argument("--min-share", "--threshold", type=float, default=0.2,
+    ap.add_argument("--min-share", type=float, default=0.2,
                     help="STLSQ's min_share")
     ap.add_argument("--seed", type=int, default=0, help="seed of the weights, batches, probes")
     args = ap.parse_args()

@@ -124,7 +124,8 @@ def _moment_reading(train, test) -> tuple[np.ndarray, np.ndarray]:
     the training images (an affine map; the sense and offset of the angle that fit best)."""
     period = test.env_config.angle_period
     n = round(2 * math.pi / period)
-    cfg = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite", moment_order=n,
+    cfg = AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite",
+                            moment_order=n,
                             channels=train.images.shape[2], image_size=train.images.shape[-1])
     encoder = MomentEncoder(cfg.encoder_part(), cfg.image_shape)
     norm = Normalizer.from_trajectories(train)

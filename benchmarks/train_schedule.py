@@ -177,7 +177,7 @@ def run_variant(v: Variant, args: argparse.Namespace, data: Path, out: Path) -> 
     if not v.keep_memory:  # the trainer as it was: glibc's default malloc thresholds
         loop.keep_freed_memory = lambda: None
     old_layers(v.native_last, v.pool_first)
-    model = ModelConfig(encoder=AutoencoderConfig(decoder=args.decoder),
+    model = ModelConfig(observation=AutoencoderConfig(decoder_kind=args.decoder),
                         dynamics=SindyConfig(order=2))
     cfg = TrainConfig(data=data, out=out, model=model, epochs=2 * args.epochs,
                       batch_size=500, prune_every=300, prune_below=1e-3,

@@ -62,7 +62,7 @@ def config(data: Path, out: Path, kind: str = "sindy", **kw) -> TrainConfig:
     """A tiny model; ``autoencoder={...}`` and ``dynamics={...}`` override its parts."""
     dyn = {"mlp": {"hidden": 16}}.get(kind, {}) | kw.pop("dynamics", {})
     auto = AutoencoderConfig(**{**TINY_AE, **kw.pop("autoencoder", {})})
-    model = ModelConfig(encoder=auto, dynamics=DYNAMICS_KINDS[kind](**dyn))
+    model = ModelConfig(observation=auto, dynamics=DYNAMICS_KINDS[kind](**dyn))
     kw = {"epochs": 4, "batch_size": 5, "lr": 3e-3, "prune_every": 0, "starts": 1, **kw}
     return TrainConfig(data=data, out=out, model=model, **kw)
 
@@ -385,7 +385,7 @@ def test_same_seed_same_model_on_cpu(data: Path, tmp_path: Path, threads: int,
                                      batching: str) -> None:
     """Two trainings of the conv decoder (the CPU's own kernels included) from one seed give
     the same weights, bit for bit; another seed does not."""
-    kw = {"autoencoder": {"decoder": "conv"}, "epochs": 3, "prune_below": 3e-3,
+    kw = {"autoencoder": {"decoder_kind": "conv"}, "epochs": 3, "prune_below": 3e-3,
           "prune_every": 2, "dynamics": {"init_scale": 3e-3}, "batching": batching}
     torch.set_num_threads(threads)
     try:
@@ -682,7 +682,7 @@ def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
     from latent_sindy.training.core import Sequences
 
     torch.manual_seed(0)
-    cfg = ModelConfig(encoder=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),
+    cfg = ModelConfig(observation=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),
                       pose_head="linear").resolve(1, 32, 3)
     model = LatentModel(cfg)
     g = torch.Generator().manual_seed(1)
