@@ -311,9 +311,8 @@ class RunDir:
 
         def flat(r: Mapping[str, Any]) -> dict[str, Any]:
             data = {k: v for k, v in r["data"].items() if k != "path"}
-            # through the dataclass: a setting added since the run was recorded takes its
-            # default (which keeps the old behaviour) on both sides; "auto" batching as what
-            # it batched
+            # through the dataclass, so both sides are written alike; "auto" batching as
+            # what it batched
             tc = dataclasses.replace(self.train_config(r), batching=self.batching(r))
             train = json.loads(json.dumps(to_json(tc)))
             out = _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
