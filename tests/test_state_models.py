@@ -344,20 +344,6 @@ def test_sindy_init_settings_that_would_be_ignored_are_refused(data: Path, tmp_p
         TrainConfig(sindy_init="regresion")  # type: ignore[arg-type]
 
 
-def test_a_run_recorded_before_regression_starts_reads_as_random(data: Path,
-                                                                 tmp_path: Path) -> None:
-    import json
-
-    out = tmp_path / "old"
-    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "1",
-                 "--sindy-init", "random", "--no-progress", "sindy", "--order", "1",
-                 "state"]) == 0
-    config = json.loads((out / "config.json").read_text())
-    del config["train"]["sindy_init"], config["train"]["sindy_init_share"]
-    (out / "config.json").write_text(json.dumps(config))
-    assert RunDir(out).train_config().sindy_init == "random"
-
-
 def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
         data: Path, tmp_path: Path, capsys) -> None:
     from latent_sindy.errors import UserError
