@@ -144,7 +144,7 @@ def world(path: Path, args: argparse.Namespace) -> tuple[dict[str, dict[str, flo
     chosen."""
     data = read_sequences(path)
     norm = Normalizer.from_trajectories(data.split("train"))
-    block_order = round(2 * math.pi / data.env_config.angle_period)
+    block_order = round(2 * math.pi / data.world_config.angle_period)
     rows = {"moments": measure(moments_model(data, norm, block_order), data, norm,
                                block_order, args.min_share, args.seed)}
     obs = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,

@@ -28,7 +28,7 @@ def main() -> None:
     ap.add_argument("--data", required=True)
     args = ap.parse_args()
     data = read_sequences(args.data)
-    order = round(2 * math.pi / data.env_config.angle_period)
+    order = round(2 * math.pi / data.world_config.angle_period)
     _, _, c, s, _ = data.images.shape
     enc = MomentEncoder(MomentEncoderConfig(order=order), (c, s, s))
     norm = Normalizer.from_trajectories(data)

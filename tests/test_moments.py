@@ -180,7 +180,7 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"
     write_sequences(data, d)
-    sense, offset = moment_frame(d.env_config)
+    sense, offset = moment_frame(d.world_config)
     train = ["train", "--data", str(data), "--epochs", "1", "--batch-size", "4",
              "--no-progress"]
     sindy = ["sindy", "--order", "1", "--library", "frame", "--no-include-sine"]

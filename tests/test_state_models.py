@@ -128,7 +128,7 @@ def symmetric_pushes(tmp_path_factory) -> tuple:
 
     def transitions(split: str):
         s = d.split(split)
-        f = pose_features(s.poses, s.env_config.angle_period).double()  # (N, T+1, 4)
+        f = pose_features(s.poses, s.world_config.angle_period).double()  # (N, T+1, 4)
         u = torch.as_tensor(s.actions).double().reshape(-1, 3)
         return f[:, :-1].reshape(-1, 4), u, f[:, 1:].reshape(-1, 4)
 

@@ -23,7 +23,7 @@ def test_round_trip(tmp_path, channels):
     for name in ("images", "actions", "poses", "split_ids"):
         assert np.array_equal(getattr(back, name), getattr(data, name)), name
     assert back.images.dtype == np.uint8 and back.actions.dtype == np.float32
-    assert back.env_config == data.env_config and back.seed == data.seed
+    assert back.world_config == data.world_config and back.seed == data.seed
     with h5py.File(path) as f:
         assert f.attrs["format"] == FORMAT
         assert f.attrs["pixel_mean"] == pytest.approx(data.pixel_stats()[0])
@@ -100,7 +100,7 @@ def write_version_1(path, t) -> None:
         f["images"], f["actions"], f["poses"] = t.images, t.actions, t.poses
         f["split"] = t.split_ids
         f.attrs.update(format="latent-sindy-trajectories", format_version=1, seed=0,
-                       env_config=json.dumps(to_json(t.env_config)), collection="{}")
+                       env_config=json.dumps(to_json(t.world_config)), collection="{}")
 
 
 def test_version_1_files_are_refused_with_one_line_to_re_collect(tmp_path, trajectories):
@@ -165,7 +165,7 @@ def test_a_world_record_with_an_unknown_setting_is_refused(tmp_path, trajectorie
 
     path = tmp_path / "edited.h5"
     write_sequences(path, trajectories)
-    assert read_sequences(path).env_config == trajectories.env_config
+    assert read_sequences(path).world_config == trajectories.world_config
     with h5py.File(path, "a") as f:
         record = json.loads(f.attrs["world_record"])
         record["env_config"]["gravity"] = 3

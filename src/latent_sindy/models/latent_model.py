@@ -187,8 +187,6 @@ class ModelConfig:
         """The dynamics kind ("sindy", "linear", "mlp")."""
         return self.dynamics.kind
 
-    kind = dynamics_kind  # its former name
-
     def resolve(self, channels: int, image_size: ImageSize, action_dim: int,
                 source: str = "the data") -> ModelConfig:
         """This config with the data's shapes filled in (``image_size``: the side S of square

@@ -98,8 +98,6 @@ class Run(NamedTuple):
                             "settings (plan with the estimator's planner instead)")
         return get_world(self.world).config_from_record(self.world_record, "the run's record")
 
-    env_config = world_config
-
 
 class RunDir:
     """A run folder and its files. Construct it for any path; nothing is touched until asked."""
