@@ -127,9 +127,10 @@ def _moment_reading(train, test) -> tuple[np.ndarray, np.ndarray]:
     """(N, T+1, 3) the training and test images' poses as the image moments read them: the moments
     encoder's centroid mapped to the world's (x, y) and its angle to θ by least squares on
     the training images (an affine map; the sense and offset of the angle that fit best)."""
-    period = test.env_config.angle_period
+    period = test.world_config.angle_period
     n = round(2 * math.pi / period)
-    cfg = AutoencoderConfig(encoder="moments", latent_dim=4, decoder="sprite", moment_order=n,
+    cfg = AutoencoderConfig(encoder_kind="moments", latent_dim=4, decoder_kind="sprite",
+                            moment_order=n,
                             channels=train.images.shape[2], image_size=train.images.shape[-1])
     encoder = MomentEncoder(cfg.encoder_part(), cfg.image_shape)
     norm = Normalizer.from_trajectories(train)
@@ -164,7 +165,7 @@ def _foresee_unchanged(train, test, reading_train, reading_test, seed: int) -> s
     reading and the push) fitted on the training pushes, scored on the test pushes."""
     from sklearn.neural_network import MLPClassifier
 
-    f = 2 * math.pi / train.env_config.angle_period
+    f = 2 * math.pi / train.world_config.angle_period
 
     def inputs(reading: np.ndarray, split) -> np.ndarray:
         u, pose = split.actions.astype(np.float64), reading[:, :-1]
@@ -233,10 +234,10 @@ def main(argv: list[str] | None = None) -> None:
 def floor(path: str | Path, args: argparse.Namespace) -> None:
     """The reference's tables for the trajectory file at ``path``."""
     data = read_sequences(path)
-    if data.env_config.push != "symmetric":
+    if data.world_config.push != "symmetric":
         raise SystemExit(f"{path}: pushes relative to the block; this reference is for "
                          "the symmetric world's world-direction pushes")
-    period = data.env_config.angle_period
+    period = data.world_config.angle_period
     f = 2 * math.pi / period
     train, test = data.split("train"), data.split("test")
     P, U = train.poses.astype(np.float64), train.actions.astype(np.float64)
@@ -279,11 +280,11 @@ def _replay(test, n: int, seed: int) -> tuple[float, float]:
     pushes replayed from a fresh reset at the recorded pose."""
     from latent_sindy.worlds.push import PandaPushEnv
 
-    env = PandaPushEnv(test.env_config)
+    env = PandaPushEnv(test.world_config)
     rng = np.random.default_rng(seed)
     pairs = [(i, t) for i in range(test.n) for t in range(test.steps)]
     pos, ang = [], []
-    period = test.env_config.angle_period
+    period = test.world_config.angle_period
     try:
         for k in rng.choice(len(pairs), size=min(n, len(pairs)), replace=False):
             i, t = pairs[k]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import pytest
 import torch
@@ -23,11 +22,6 @@ from latent_sindy.models import (
     SindyConfig,
 )
 from latent_sindy.models.autoencoder_parts import (
-    ConvDecoderConfig,
-    KeypointEncoderConfig,
-    MaskMomentEncoderConfig,
-    MlpDecoderConfig,
-    MlpEncoderConfig,
     MomentEncoderConfig,
     SpriteDecoderConfig,
 )
@@ -485,12 +479,10 @@ def test_keypoints_run_across_each_side_of_a_non_square_image() -> None:
     torch.testing.assert_close(enc(x)[0], torch.tensor([0.5, -0.5]), atol=1e-3, rtol=0)
 
 
-# ----------------------------------------------------------------------------- renamed settings
-def test_settings_written_under_their_old_names_still_load() -> None:
-    """Run folders written before the renames (ModelConfig.encoder, AutoencoderConfig.encoder /
-    .decoder as kind names) and before the nested config (flat ``encoder_kind``, ...) load as
-    the same config; the old keywords and attributes still work; records are written nested,
-    each part with its ``kind``."""
+# ----------------------------------------------------------------------------- records
+def test_a_model_record_is_nested_and_reads_back() -> None:
+    """config.json's model: the observation with one settings group per part, each with its
+    ``kind``; it reads back as the same config, and a bad value is named by its path."""
     new = ModelConfig(observation=AutoencoderConfig(encoder=MomentEncoderConfig(), latent_dim=4,
                                                     decoder=SpriteDecoderConfig()),
                       dynamics=SindyConfig(order=1, library="face"))
@@ -498,59 +490,15 @@ def test_settings_written_under_their_old_names_still_load() -> None:
     assert "observation" in record and "encoder" not in record
     assert record["observation"]["encoder"] == {"kind": "moments", "order": 4}
     assert from_json(ModelConfig, record, "model") == new
-    old = json.loads(json.dumps(record))
-    old["encoder"] = old.pop("observation")
-    auto = old["encoder"]
-    auto["encoder"], auto["decoder"] = "moments", "sprite"
-    assert from_json(ModelConfig, old, "model") == new
+    assert new.observation.encoder_kind == "moments" and new.observation.decoder_kind == "sprite"
+    bad = json.loads(json.dumps(record))
+    bad["observation"]["encoder"]["order"] = "many"
+    with pytest.raises(UserError, match=r"config\.json: model\.observation\.encoder\.order"):
+        from_json(ModelConfig, bad, "config.json: model")
+    # the flat form is the command line's and the constructor's, not a record's
     flat = {**record["observation"], "encoder_kind": "moments", "decoder_kind": "sprite"}
     del flat["encoder"], flat["decoder"]
-    assert from_json(AutoencoderConfig, flat, "model") == new.observation
-    # both forms in one record: the flat reading refuses the nested part, not silently dropped
-    with pytest.raises(UserError, match=r"unknown settings \['decoder', 'encoder'\]"):
-        from_json(AutoencoderConfig, {**record["observation"], "moment_order": 2}, "model")
-    # keywords, dataclasses.replace and attributes under the old names
-    legacy = ModelConfig(encoder=AutoencoderConfig(encoder="moments", latent_dim=4,
-                                                   decoder="sprite"),
-                         dynamics=SindyConfig(order=1, library="face"))
-    assert legacy == new
-    assert new.encoder is new.observation and new.observation.encoder_kind == "moments"
-    assert new.observation.decoder_kind == "sprite" and new.kind == new.dynamics_kind == "sindy"
-    conv = dataclasses.replace(new.observation, encoder="conv", decoder="conv", latent_dim=6)
-    assert (conv.encoder_kind, conv.decoder_kind) == ("conv", "conv")
+    with pytest.raises(UserError, match=r"unknown settings \['decoder_kind', 'encoder_kind'\]"):
+        from_json(AutoencoderConfig, flat, "model")
     with pytest.raises(dataclasses.FrozenInstanceError):
         new.observation.encoder_kind = "conv"  # type: ignore[misc]
-
-
-FLAT_RECORDS = Path(__file__).parent / "data" / "flat_model_records.json"
-#: The nested configs of the flat records (written by the version before the nested config).
-NESTED = {
-    "mask_moments_sprite": AutoencoderConfig(
-        channels=1, image_size=32, latent_dim=4,
-        encoder=MaskMomentEncoderConfig(order=2, channels=5, window=2.0),
-        decoder=SpriteDecoderConfig(size=11)),
-    "mlp_pca": AutoencoderConfig(channels=2, image_size=(16, 20), latent_dim=3,
-                                 encoder=MlpEncoderConfig((9, 5), "tanh"),
-                                 decoder=MlpDecoderConfig((9, 5), "tanh"), pca_components=4),
-    "keypoints_conv": AutoencoderConfig(channels=3, image_size=32, latent_dim=6,
-                                        encoder=KeypointEncoderConfig(channels=5),
-                                        decoder=ConvDecoderConfig(channels=7)),
-}
-
-
-@pytest.mark.parametrize("name", sorted(NESTED))
-def test_a_flat_model_record_loads_as_the_nested_config_and_the_same_weights(name) -> None:
-    record = json.loads(FLAT_RECORDS.read_text())[name]
-    assert "encoder_kind" in record["observation"]
-    cfg = from_json(ModelConfig, record, "config.json: model")
-    assert cfg.observation == NESTED[name] and cfg.resolved
-    assert from_json(ModelConfig, to_json(cfg), "again") == cfg
-    torch.manual_seed(0)
-    a = cfg.observation.build().state_dict()
-    torch.manual_seed(0)
-    b = NESTED[name].build().state_dict()
-    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
-    bad = json.loads(json.dumps(record))
-    bad["observation"]["mask_channels"] = "many"
-    with pytest.raises(UserError, match=r"config\.json: model\.observation\.mask_channels"):
-        from_json(ModelConfig, bad, "config.json: model")

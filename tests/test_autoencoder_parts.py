@@ -40,9 +40,9 @@ ENCODER_SETTINGS = {
 DECODER_SETTINGS = {
     "fc": dict(decoder_hidden=(11, 13)),
     "conv": dict(decoder_channels=5),
-    "sprite": dict(encoder="moments", latent_dim=4, moment_order=3, sprite_size=7,
+    "sprite": dict(encoder_kind="moments", latent_dim=4, moment_order=3, sprite_size=7,
                    sprite_supersample=3),
-    "mlp": dict(encoder="mlp", latent_dim=3, mlp_widths=(9, 5), mlp_activation="elu",
+    "mlp": dict(encoder_kind="mlp", latent_dim=3, mlp_widths=(9, 5), mlp_activation="elu",
                 pca_components=4),
 }
 
@@ -57,7 +57,7 @@ def test_every_kind_has_its_settings_and_each_names_a_flat_setting() -> None:
 
 @pytest.mark.parametrize("kind", sorted(ENCODER_SETTINGS))
 def test_an_encoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str) -> None:
-    cfg = AutoencoderConfig(encoder=kind, decoder="mlp" if kind == "mlp" else "fc",
+    cfg = AutoencoderConfig(encoder_kind=kind, decoder_kind="mlp" if kind == "mlp" else "fc",
                             **ENCODER_SETTINGS[kind]).resolve(2, (16, 20))
     part = cfg.encoder_part()
     assert type(part) is ENCODER_PARTS[kind]
@@ -76,7 +76,7 @@ def test_an_encoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str
 
 @pytest.mark.parametrize("kind", sorted(DECODER_SETTINGS))
 def test_a_decoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str) -> None:
-    cfg = AutoencoderConfig(decoder=kind, **DECODER_SETTINGS[kind]).resolve(2, (16, 20))
+    cfg = AutoencoderConfig(decoder_kind=kind, **DECODER_SETTINGS[kind]).resolve(2, (16, 20))
     part = cfg.decoder_part()
     assert type(part) is DECODER_PARTS[kind]
     for name, setting in part.flat.items():
@@ -89,7 +89,7 @@ def test_a_decoder_is_built_from_its_own_settings_as_the_autoencoders(kind: str)
 
 
 def test_the_sprite_takes_the_encoders_order_and_the_resolved_side() -> None:
-    cfg = AutoencoderConfig(encoder="mask_moments", decoder="sprite", latent_dim=4,
+    cfg = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,
                             moment_order=2).resolve(1, 64)
     assert cfg.decoder == SpriteDecoderConfig(size=23, supersample=2)
     assert cfg.encoder == MaskMomentEncoderConfig(order=2)
@@ -106,14 +106,14 @@ def test_the_flat_keywords_build_the_parts_and_read_back() -> None:
                                decoder=MlpDecoderConfig((9, 5), "tanh"), pca_components=4)
     assert flat == nested and flat.mlp_widths == (9, 5) and flat.mask_channels == 16
     assert (flat.encoder_kind, flat.decoder_kind, flat.moment_order) == ("mlp", "mlp", 4)
-    mask = AutoencoderConfig(encoder="mask_moments", decoder="sprite", latent_dim=4,
+    mask = AutoencoderConfig(encoder_kind="mask_moments", decoder_kind="sprite", latent_dim=4,
                              moment_order=0)
     assert mask.order_from_data and mask.encoder == MaskMomentEncoderConfig(order=0)
     two = dataclasses.replace(mask, moment_order=2)
     assert two.encoder == MaskMomentEncoderConfig(order=2) and two.decoder == mask.decoder
     assert dataclasses.replace(mask, decoder_kind="conv").decoder_kind == "conv"
     with pytest.raises(UserError, match="encoder 'vit' is unknown"):
-        AutoencoderConfig(encoder="vit")
+        AutoencoderConfig(encoder_kind="vit")
     with pytest.raises(dataclasses.FrozenInstanceError):
         mask.moment_order = 3  # type: ignore[misc]
 

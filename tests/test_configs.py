@@ -1,28 +1,23 @@
-"""One serializer for every config: round trips, one-line errors, tagged unions, old run folders."""
+"""One serializer for every config: round trips, one-line errors, tagged unions."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 from pathlib import Path
 
 import pytest
-import torch
 
 from latent_sindy.configs import from_json, to_json
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.equations import equations_report
 from latent_sindy.errors import UserError
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
-from latent_sindy.training import RunDir, TrainConfig, load_run
+from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
 from latent_sindy.worlds.push.study.config import ReproduceConfig
 from latent_sindy.worlds.push.study.scales import ROUND_ONE, SCALES, Scale
-
-DATA = Path(__file__).parent / "data"
 
 CONFIGS = [
     PushEnvConfig(channels=3, image_size=48),
@@ -83,26 +78,3 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
     assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == ROUND_ONE
     assert (ROUND_ONE.epochs, ROUND_ONE.lr) == (2 * base.epochs, base.lr / 2)
     assert SCALES["large"].trajectories == 10 * SCALES["paper"].trajectories
-
-
-@pytest.mark.parametrize("kind", ["sindy", "linear", "mlp"])
-def test_a_run_folder_of_format_1_loads_and_predicts_as_before(kind: str, tmp_path: Path) -> None:
-    """Run folders written before the config redesign (format 1: flat model settings,
-    ``horizon``) load and give the predictions that code computed."""
-    run = tmp_path / "run"
-    shutil.copytree(DATA / f"run_v1_{kind}", run)
-    assert json.loads((run / "config.json").read_text())["format_version"] == 1
-    loaded = load_run(run)
-    assert loaded.config.window == 1 and loaded.config.model.kind == kind
-    assert loaded.model.config.action_dim == 3 and loaded.model.config.encoder.latent_dim == 3
-    expected = json.loads((DATA / "run_v1_expected.json").read_text())["predict_every_97th"]
-    g = torch.Generator().manual_seed(0)
-    x, u = torch.randn(2, 1, 32, 32, generator=g), torch.rand(2, 2, 3, generator=g)
-    with torch.no_grad():
-        got = loaded.model.predict(x, u).flatten()[::97]
-    # Recorded with the default thread count; another count sums the convolutions in another
-    # order (float32 rounding), so equal within rounding, not bit for bit.
-    torch.testing.assert_close(got, torch.tensor(expected[kind]), rtol=1e-5, atol=1e-6)
-    text = equations_report(run, export=False)
-    assert ("z0[t+1] = " in text) == (kind != "mlp")
-    assert RunDir(run).train_config() == loaded.config

@@ -260,13 +260,11 @@ def test_named_worlds_and_records():
         PushEnvConfig.named("nope")
     with pytest.raises(UserError, match="push='sideways'"):
         PushEnvConfig(push="sideways")
-    # a record written before the push style existed means the paper's world
-    old = to_json(PushEnvConfig())
-    del old["push"], old["block_look"]
-    assert PushEnvConfig.from_record(old, "f.h5") == PushEnvConfig.named("paper")
+    record = to_json(PushEnvConfig.named("paper"))
+    assert PushEnvConfig.from_record(record, "f.h5") == PushEnvConfig.named("paper")
     assert PushEnvConfig.from_record(to_json(PushEnvConfig()), "f.h5") == PushEnvConfig()
     with pytest.raises(UserError, match=r"f\.h5: unknown settings \['colour'\]") as e:
-        PushEnvConfig.from_record({**old, "colour": "red"}, "f.h5")
+        PushEnvConfig.from_record({**record, "colour": "red"}, "f.h5")
     assert "\n" not in str(e.value)
 
 

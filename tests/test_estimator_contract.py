@@ -9,7 +9,6 @@ autonomous model (no actions) fits and simulates; resume refuses changed data co
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -196,14 +195,6 @@ def test_an_autoencoder_that_cannot_fit_in_memory_is_refused_before_anything(
 
 
 # ------------------------------------------------------------------ resume and the data
-def _strip_context(run: Path) -> None:
-    """config.json as a run recorded before the data's context was."""
-    record = json.loads((run / "config.json").read_text())
-    for key in ("dt", "action_low", "action_high", "extras_fingerprint"):
-        del record["data"][key]
-    (run / "config.json").write_text(json.dumps(record))
-
-
 @pytest.mark.parametrize("change", ["dt", "box", "executed", "images_dot"])
 def test_resume_refuses_a_changed_data_context(tmp_path: Path, change: str) -> None:
     data = _data(dt=0.1)
@@ -215,23 +206,10 @@ def test_resume_refuses_a_changed_data_context(tmp_path: Path, change: str) -> N
                "images_dot": data.replace(images_dot=np.zeros(data.images.shape, np.float32)),
                }[change]
     before = _snapshot(run)
-    with pytest.raises(UserError, match="cannot resume"):
+    named = {"dt": r"data\.dt \(run 0\.1, now 0\.2\)", "box": r"data\.action_low"}
+    with pytest.raises(UserError, match="cannot resume .*" + named.get(change, "")):
         LatentSINDy(2, seed=0, **SMALL).fit(changed, epochs=2, out=run, resume=True)
     assert _snapshot(run) == before
-
-
-def test_a_run_recorded_before_the_context_still_resumes_and_checks_dt(tmp_path: Path) -> None:
-    data = _data(dt=0.1)
-    run = tmp_path / "run"
-    LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=1, out=run)
-    _strip_context(run)
-    old = tmp_path / "old"
-    shutil.copytree(run, old)
-    with pytest.raises(UserError, match=r"data\.dt \(run 0\.1, now 0\.2\)"):
-        LatentSINDy(2, seed=0, **SMALL).fit(data.replace(dt=0.2), epochs=2, out=old,
-                                            resume=True)
-    model = LatentSINDy(2, seed=0, **SMALL).fit(data, epochs=2, out=run, resume=True)
-    assert len(model.metrics_) == 2
 
 
 # ------------------------------------------------------------------ edited run folders

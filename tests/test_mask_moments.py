@@ -53,7 +53,7 @@ def poses(n: int, seed: int, low: float = 8, high: float = 24) -> np.ndarray:
 
 def config(**kw) -> AutoencoderConfig:
     return AutoencoderConfig(**{"channels": 1, "image_size": SIDE, "latent_dim": 4,
-                                "encoder": "mask_moments", "decoder": "sprite", **kw})
+                                "encoder_kind": "mask_moments", "decoder_kind": "sprite", **kw})
 
 
 def mask_encoder(**kw) -> MaskMomentEncoder:
@@ -220,4 +220,4 @@ def test_bad_settings_name_the_value_and_the_fix(kw, match) -> None:
 
 def test_the_sprite_decoder_names_both_moments_encoders() -> None:
     with pytest.raises(UserError, match="--encoder moments or mask_moments"):
-        AutoencoderConfig(encoder="conv", decoder="sprite", latent_dim=4)
+        AutoencoderConfig(encoder_kind="conv", decoder_kind="sprite", latent_dim=4)

@@ -42,7 +42,7 @@ def draw(px: float, py: float, theta: float, half: float = 2.5, marked: bool = F
 def encoder(order: int = 4):
     from latent_sindy.models.autoencoder import MomentEncoder
 
-    cfg = AutoencoderConfig(channels=1, image_size=SIDE, latent_dim=4, encoder="moments",
+    cfg = AutoencoderConfig(channels=1, image_size=SIDE, latent_dim=4, encoder_kind="moments",
                             moment_order=order)
     return MomentEncoder(cfg.encoder_part(), cfg.image_shape)
 
@@ -105,14 +105,14 @@ def test_an_image_of_the_empty_table_reads_the_centre_and_no_orientation() -> No
 
 def test_the_moments_latent_has_four_coordinates_and_takes_the_face_library() -> None:
     with pytest.raises(UserError, match="--latent-dim 4"):
-        AutoencoderConfig(encoder="moments", latent_dim=16)
+        AutoencoderConfig(encoder_kind="moments", latent_dim=16)
     with pytest.raises(UserError, match="--moment-order"):
-        AutoencoderConfig(encoder="moments", latent_dim=4, moment_order=0)
+        AutoencoderConfig(encoder_kind="moments", latent_dim=4, moment_order=0)
     face = SindyConfig(order=1, library="face", include_sine=False)
-    assert ModelConfig(encoder=AutoencoderConfig(encoder="moments", latent_dim=4),
-                       dynamics=face).encoder.pose_latent
+    assert ModelConfig(observation=AutoencoderConfig(encoder_kind="moments", latent_dim=4),
+                       dynamics=face).observation.pose_latent
     with pytest.raises(UserError, match="moments encoder"):
-        ModelConfig(encoder=AutoencoderConfig(latent_dim=4), dynamics=face)
+        ModelConfig(observation=AutoencoderConfig(latent_dim=4), dynamics=face)
 
 
 def test_the_moments_cost_weighs_a_pixel_and_ten_degrees_alike() -> None:
@@ -160,13 +160,13 @@ def test_the_study_reads_the_pose_from_moments_of_the_worlds_symmetry() -> None:
         w = PushEnvConfig.named(world)
         spec = {s.name: s for s in model_specs(SCALES["tiny"], angle_period=w.angle_period,
                                                push=w.push)}["sindy_moments"]
-        assert spec.model.encoder.encoder_kind == "moments"
-        assert spec.model.encoder.moment_order == order
+        assert spec.model.observation.encoder_kind == "moments"
+        assert spec.model.observation.moment_order == order
         assert spec.model.dynamics.library == library
         assert spec.loss.lambda_pred_x == 0
         # fitted by sparse regression on its fixed latents, then kept as fitted
         assert spec.init_share > 0 and spec.loss.lambda_l1 == 0 and spec.prune_below == 0
-        assert spec.model.encoder.decoder_kind == "sprite"
+        assert spec.model.observation.decoder_kind == "sprite"
 
 
 def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path,
@@ -180,7 +180,7 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
     d = make_trajectories(n=6, steps=3)
     data = tmp_path / "d.h5"
     write_sequences(data, d)
-    sense, offset = moment_frame(d.env_config)
+    sense, offset = moment_frame(d.world_config)
     train = ["train", "--data", str(data), "--epochs", "1", "--batch-size", "4",
              "--no-progress"]
     sindy = ["sindy", "--order", "1", "--library", "frame", "--no-include-sine"]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from latent_sindy.control.world import World
-from latent_sindy.plugins import HOOKS, WorldPlugin, get_world, hook, legacy_world, world_names
+from latent_sindy.plugins import HOOKS, WorldPlugin, get_world, hook, world_names
 
 DECLARED = (set(HOOKS) | {n for n in vars(World) if not n.startswith("_")}
             | set(WorldPlugin.__annotations__) | set(World.__annotations__))
@@ -24,10 +24,6 @@ def test_an_undeclared_hook_is_refused_and_a_missing_one_is_none() -> None:
     world = get_world("pendulum")
     with pytest.raises(KeyError, match="not a declared world hook"):
         hook(world, "something_new")
-    assert hook(world, "read_legacy") is None
+    assert hook(world, "feasible") is None
     assert callable(hook(world, "collect"))
 
-
-def test_the_formats_before_plug_ins_belong_to_the_one_world_that_reads_them() -> None:
-    world = legacy_world()
-    assert callable(hook(world, "read_legacy")) and callable(hook(world, "config_from_record"))

@@ -147,7 +147,7 @@ def indexed_trajectories(n: int = 30, steps: int = 4, seed: int = 0) -> Sequence
 def test_probe_finds_a_latent_that_holds_the_pose(noise):
     data = indexed_trajectories()
     frames = data.n * (data.steps + 1)
-    features = pose_features(data.poses, data.env_config.angle_period).numpy().reshape(frames, 4)
+    features = pose_features(data.poses, data.world_config.angle_period).numpy().reshape(frames, 4)
     rng = np.random.default_rng(1)
     mixing = rng.normal(size=(4, 16))  # the pose, linearly mixed into 16 latent coordinates
     z = features @ mixing + noise * rng.normal(size=(frames, 16))
@@ -331,7 +331,7 @@ def test_state_position_errors_of_a_perfect_and_a_still_predictor(moving):
     are off by the distance travelled, and a diverged one counts as infinitely far."""
     from latent_sindy.data.windows import pose_features
 
-    s = pose_features(moving.poses, moving.env_config.angle_period)  # (N, T+1, 4)
+    s = pose_features(moving.poses, moving.world_config.angle_period)  # (N, T+1, 4)
     steps = moving.steps
     perfect = [s[:, t:] for t in range(steps)]
     still = [s[:, t:t + 1].expand(-1, steps - t + 1, -1) for t in range(steps)]

@@ -28,8 +28,8 @@ def _data(seed: int = 0) -> SequenceData:
 
 def _cfg(**changes) -> TrainConfig:
     model = ModelConfig(dynamics=SindyConfig(order=1, include_sine=False),
-                        encoder=AutoencoderConfig(latent_dim=2, encoder_kind="mlp",
-                                                  decoder_kind="mlp"))
+                        observation=AutoencoderConfig(latent_dim=2, encoder_kind="mlp",
+                                                      decoder_kind="mlp"))
     return replace(TrainConfig(model=model, epochs=6, starts=1, prune_below=1e-3,
                                prune_every=2, refine_epochs=1, lr=1e-3), **changes)
 

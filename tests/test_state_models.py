@@ -128,7 +128,7 @@ def symmetric_pushes(tmp_path_factory) -> tuple:
 
     def transitions(split: str):
         s = d.split(split)
-        f = pose_features(s.poses, s.env_config.angle_period).double()  # (N, T+1, 4)
+        f = pose_features(s.poses, s.world_config.angle_period).double()  # (N, T+1, 4)
         u = torch.as_tensor(s.actions).double().reshape(-1, 3)
         return f[:, :-1].reshape(-1, 4), u, f[:, 1:].reshape(-1, 4)
 
@@ -342,20 +342,6 @@ def test_sindy_init_settings_that_would_be_ignored_are_refused(data: Path, tmp_p
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     with pytest.raises(UserError, match="--sindy-init 'regresion'"):
         TrainConfig(sindy_init="regresion")  # type: ignore[arg-type]
-
-
-def test_a_run_recorded_before_regression_starts_reads_as_random(data: Path,
-                                                                 tmp_path: Path) -> None:
-    import json
-
-    out = tmp_path / "old"
-    assert main(["train", "--data", str(data), "--out", str(out), "--epochs", "1",
-                 "--sindy-init", "random", "--no-progress", "sindy", "--order", "1",
-                 "state"]) == 0
-    config = json.loads((out / "config.json").read_text())
-    del config["train"]["sindy_init"], config["train"]["sindy_init_share"]
-    (out / "config.json").write_text(json.dumps(config))
-    assert RunDir(out).train_config().sindy_init == "random"
 
 
 def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(

@@ -23,7 +23,7 @@ def test_round_trip(tmp_path, channels):
     for name in ("images", "actions", "poses", "split_ids"):
         assert np.array_equal(getattr(back, name), getattr(data, name)), name
     assert back.images.dtype == np.uint8 and back.actions.dtype == np.float32
-    assert back.env_config == data.env_config and back.seed == data.seed
+    assert back.world_config == data.world_config and back.seed == data.seed
     with h5py.File(path) as f:
         assert f.attrs["format"] == FORMAT
         assert f.attrs["pixel_mean"] == pytest.approx(data.pixel_stats()[0])
@@ -89,7 +89,7 @@ def test_foreign_and_truncated_files(tmp_path, trajectories):
     assert "re-collect" in msg or "not an HDF5" in msg
 
 
-def write_legacy(path, t) -> None:
+def write_version_1(path, t) -> None:
     """A pushing-world file as version 1 wrote it: block poses in /poses, the world's
     settings in the attribute env_config."""
     import json
@@ -100,20 +100,18 @@ def write_legacy(path, t) -> None:
         f["images"], f["actions"], f["poses"] = t.images, t.actions, t.poses
         f["split"] = t.split_ids
         f.attrs.update(format="latent-sindy-trajectories", format_version=1, seed=0,
-                       env_config=json.dumps(to_json(t.env_config)), collection="{}")
+                       env_config=json.dumps(to_json(t.world_config)), collection="{}")
 
 
-def test_version_1_files_still_load(tmp_path, trajectories):
-    """The pushing world's files of format version 1 load: poses become states x, y, θ."""
+def test_version_1_files_are_refused_with_one_line_to_re_collect(tmp_path, trajectories):
+    """The pushing world's files of format version 1 (earlier versions read them as the
+    same data) get one line naming the file: re-collect it."""
     path = tmp_path / "v1.h5"
-    write_legacy(path, trajectories)
-    back = read_sequences(path)
-    assert back.world == "push" and back.state_names == ("x", "y", "θ")
-    assert back.fingerprint() == trajectories.fingerprint()
-    assert back.env_config == trajectories.env_config
-    with h5py.File(path, "a") as f:
-        del f["poses"]
-    assert "lacks dataset(s) poses" in _error(path)
+    write_version_1(path, trajectories)
+    msg = _error(path)
+    assert msg == (f"{path} was written by another version of latent-sindy "
+                   "(latent-sindy-trajectories version 1; this one reads "
+                   "latent-sindy-sequences version 3): re-collect it")
 
 
 def _tamper(path, **datasets):
@@ -151,7 +149,8 @@ def test_missing_dataset_and_version(tmp_path, trajectories):
     write_sequences(path, trajectories)
     with h5py.File(path, "a") as f:
         f.attrs["format_version"] = 99
-    assert "format version 99" in _error(path)
+    assert "latent-sindy-sequences version 99" in _error(path)
+    assert _error(path).endswith("re-collect it")
 
 
 def test_channels_must_match_recorded_environment():
@@ -161,21 +160,16 @@ def test_channels_must_match_recorded_environment():
 
 
 # ---------------------------------------------------------------- the world owns the action box
-def test_file_without_push_setting_reads_as_the_paper_world(tmp_path, trajectories):
-    """Files written before the env config had `push` were collected in the paper's world."""
+def test_a_world_record_with_an_unknown_setting_is_refused(tmp_path, trajectories):
     import json
 
-    path = tmp_path / "old.h5"
-    write_legacy(path, trajectories)
+    path = tmp_path / "edited.h5"
+    write_sequences(path, trajectories)
+    assert read_sequences(path).world_config == trajectories.world_config
     with h5py.File(path, "a") as f:
-        old = json.loads(f.attrs["env_config"])
-        del old["push"], old["block_look"]
-        f.attrs["env_config"] = json.dumps(old)
-    back = read_sequences(path)
-    assert back.env_config.push == "paper"
-    assert back.env_config == PushEnvConfig.named("paper")
-    with h5py.File(path, "a") as f:
-        f.attrs["env_config"] = json.dumps({**old, "gravity": 3})
+        record = json.loads(f.attrs["world_record"])
+        record["env_config"]["gravity"] = 3
+        f.attrs["world_record"] = json.dumps(record)
     assert "env_config: unknown settings ['gravity']" in _error(path)
 
 

@@ -104,7 +104,7 @@ def test_an_order_sweep_skips_the_libraries_of_fixed_order(tmp_path):
 
 
 # ----------------------------------------------------------------------------- D11, D12: values
-BAD_SWEEPS = ["prune_below=-1", "threshold=nan", "init_share=-0.5", "window=100",
+BAD_SWEEPS = ["prune_below=-1", "prune_below=nan", "init_share=-0.5", "window=100",
               "lambda_l1=nan", "lambda_pred_x=inf", "lambda_pred_z=-1", "order=0", "window=0"]
 
 

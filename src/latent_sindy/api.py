@@ -147,11 +147,11 @@ class LatentSINDy:
         if self.time == "discrete":
             dyn = DYNAMICS_KINDS[self.dynamics](**extra)
         return ModelConfig(dynamics=dyn,
-                           encoder=AutoencoderConfig(latent_dim=self.latent_dim,
-                                                     encoder_kind=self.encoder,
-                                                     decoder_kind=self.decoder,
-                                                     pca_components=self.pca_components
-                                                     or 0))
+                           observation=AutoencoderConfig(latent_dim=self.latent_dim,
+                                                         encoder_kind=self.encoder,
+                                                         decoder_kind=self.decoder,
+                                                         pca_components=self.pca_components
+                                                         or 0))
 
     def train_config(self, **overrides: Any) -> TrainConfig:
         """The training settings of a fit (``overrides``: any TrainConfig field)."""
@@ -212,10 +212,9 @@ class LatentSINDy:
         self.description_, self.world_record_ = run.description, run.world_record
         record = folder.read_record()
         kept = record.get("kept")
-        if kept is None:  # recorded before the record named the kept epoch: model.pt does
-            payload = folder.load_torch(folder.MODEL)
-            kept = {"epoch": payload.get("epoch"),
-                    "selection": payload.get("selection", "last epoch")}
+        if not isinstance(kept, dict):
+            raise UserError(f"{folder / folder.CONFIG} names no kept epoch (the file was "
+                            "edited): retrain the run")
         self.record_, self.kept_ = {**record, "kept": kept}, kept
         try:
             self.metrics_: list[dict[str, Any]] | None = folder.read_metrics()

@@ -34,7 +34,6 @@ import tyro
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
 from latent_sindy.models.autoencoder_flags import CLI_REGISTRY
-from latent_sindy.models.renamed import one_flag_each
 from latent_sindy.plugins import get_world, hook
 from latent_sindy.progress import bar
 from latent_sindy.study.commands import configured_world
@@ -353,9 +352,6 @@ COMMANDS = {"collect": Collect, "info": Info, "preview": Preview, "train": Train
 
 def main(argv: list[str] | None = None) -> int:
     try:
-        args = sys.argv[1:] if argv is None else argv
-        if args and args[0] in COMMANDS:  # an old flag with its new one: neither is guessed
-            one_flag_each(COMMANDS[args[0]], args, f"latent-sindy {args[0]}")
         # settings are validated while tyro builds them, so parsing is inside the try
         with carried_through_parsers():
             cmd = tyro.extras.subcommand_cli_from_dict(

@@ -6,8 +6,7 @@ plain JSON values; :func:`from_json` rebuilds it from them, checking every key a
 against the dataclass, so a hand-edited or foreign file fails with one line naming the key.
 A field typed as a union of dataclasses that carry a ``kind`` class variable (a *tagged
 union*, like the latent dynamics configs) is written with its ``kind`` and read back as the
-class of that kind. A dataclass with an ``upgrade_record(data, where)`` reads its records of
-an older layout through it first.
+class of that kind.
 
     >>> from latent_sindy.training.config import TrainConfig
     >>> d = to_json(TrainConfig(epochs=60))
@@ -33,8 +32,7 @@ from typing import Any, Literal, Union
 
 from latent_sindy.errors import UserError
 
-__all__ = ["check_field_types", "checked_value", "from_json", "from_pairs", "one_name_each",
-           "to_json"]
+__all__ = ["check_field_types", "checked_value", "from_json", "from_pairs", "to_json"]
 
 
 def to_json(obj: Any) -> Any:
@@ -91,15 +89,6 @@ def from_pairs(cls: type, pairs: Sequence[str], where: str) -> Any:
         except json.JSONDecodeError:
             given[key.strip()] = text
     return from_json(cls, given, where)
-
-
-def one_name_each(old_to_new: dict[str, str], given: Any, where: str) -> None:
-    """UserError where ``given`` (keywords, record keys or flags) holds an old name and its
-    new one together: until the old names are removed, which one is meant is not guessed."""
-    for old, new in old_to_new.items():
-        if old in given and new in given:
-            raise UserError(f"{where}: {old} and {new} are the same setting ({old} is its old "
-                            f"name) and both are given: keep {new} only")
 
 
 def checked_value(tp: Any, value: Any, name: str) -> Any:
@@ -192,15 +181,6 @@ def _dataclass(cls: type, data: Any, where: str) -> Any:
     hints = typing.get_type_hints(cls, include_extras=True)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     data = dict(data)
-    # settings renamed since the record was written: old key -> new (models/renamed.py)
-    old_to_new = getattr(cls, "renamed_settings", {})
-    one_name_each(old_to_new, data, where)
-    for old, new in old_to_new.items():
-        if old in data:
-            data[new] = data.pop(old)
-    # a record of an older layout that the class reads itself (a flat autoencoder config)
-    if (upgrade := getattr(cls, "upgrade_record", None)) is not None:
-        data = dict(upgrade(data, where))
     kind = data.pop("kind", None)
     own_kind = getattr(cls, "kind", None)
     if kind is not None and kind != own_kind:

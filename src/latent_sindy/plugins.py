@@ -29,7 +29,7 @@ from latent_sindy.errors import UserError
 GROUP = "latent_sindy.worlds"
 
 __all__ = ["CONFIG_GIVEN", "GROUP", "HOOKS", "Command", "WorldPlugin", "get_world", "hook",
-           "legacy_world", "load_plugins", "world_names"]
+           "load_plugins", "world_names"]
 
 
 class WorldPlugin(Protocol):
@@ -63,8 +63,6 @@ HOOKS: dict[str, str] = {
     "config_from_record": "(record, where) -> the world's settings, from the record its data "
                           "or runs carry [no settings: data and runs of the world are refused]",
     "check_data": "(data) -> None: UserError unless the data fit the world [any data]",
-    "read_legacy": "(h5 file, path) -> SequenceData of the world's data files older than the "
-                   "generic format [none]",
     "prepare_model": "(model config, data) -> the model config the world adjusts to its data, "
                      "e.g. a library preset's parameters [as given]",
     "feasible": "(states, actions) -> bool per action: which the world can carry out [all]",
@@ -97,16 +95,6 @@ class Command:
 
     settings: type
     run: Callable[..., Any]
-
-
-def legacy_world() -> Any:
-    """The world whose data files and runs predate the generic formats (they name no world):
-    the one installed plug-in with a ``read_legacy`` hook. UserError where there is none."""
-    found = [w for w in (get_world(n) for n in world_names()) if hook(w, "read_legacy")]
-    if len(found) != 1:
-        raise UserError("a data file or run of the format before worlds were plug-ins needs "
-                        "the world that wrote it: install it (it reads them: read_legacy)")
-    return found[0]
 
 
 def hook(world: Any, name: str) -> Any | None:

@@ -32,7 +32,7 @@ from latent_sindy.control.read_latent import (
     ReadLatentConfig,
     ReadLatentPlanner,
 )
-from latent_sindy.control.sindy_step import SindyKernelStep, SparseSindyStep
+from latent_sindy.control.sindy_step import SindyKernelStep
 from latent_sindy.control.world import Task, World
 
 __all__ = [
@@ -56,7 +56,6 @@ __all__ = [
     "ReadLatentPlanner",
     "RewardCost",
     "SindyKernelStep",
-    "SparseSindyStep",
     "StateCost",
     "Task",
     "World",

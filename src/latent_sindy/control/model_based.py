@@ -378,10 +378,7 @@ def _resume(folder: Path, settings: dict[str, Any]
         count = len(log["episodes"])
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise UserError(f"{path} is damaged ({e}): delete {folder} to start again") from e
-    # (a log of before a setting existed: the behaviour it had then)
-    was = {"warm_updates": 0, "batch_size": None, "prune_rate": 0.0, "prune_to": 0,
-           "eval_episodes": 0} | {
-        k: v for k, v in log["settings"].items() if k != "iterations"}
+    was = {k: v for k, v in log["settings"].items() if k != "iterations"}
     now = {k: v for k, v in settings.items() if k != "iterations"}
     if was != now:
         changed = sorted(k for k in set(was) | set(now) if was.get(k) != now.get(k))

@@ -43,7 +43,7 @@ from torch import Tensor
 
 from latent_sindy.models.dynamics import CompiledSindy, SindyDynamics
 
-__all__ = ["SindyKernelStep", "SparseSindyStep"]
+__all__ = ["SindyKernelStep"]
 
 _FLOATS = (torch.float32, torch.float64)
 
@@ -217,6 +217,3 @@ class SindyKernelStep:
                 "[z, u, derived, 1, trig...] or the step's circle projection has changed; update "
                 "latent_sindy/control/sindy_step.py"
             )
-
-
-SparseSindyStep = SindyKernelStep  # old name

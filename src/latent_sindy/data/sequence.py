@@ -353,8 +353,6 @@ class SequenceData:
 
         return get_world(self.world).config_from_record(self.record, self.source)
 
-    env_config = world_config
-
 
 #: The optional per-sequence arrays, which every part of a concatenation has or none does.
 _OPTIONAL = ("states", "images_dot", "images_ddot", "executed", "rewards")

@@ -14,9 +14,8 @@ Layout (what a user writes; docs/data.md)::
 A file without ``actions`` is an autonomous system (nu = 0). What latent-sindy writes adds
 ``format`` (``latent-sindy-sequences``), ``format_version``, ``package_version``, ``created``,
 ``seed``, ``world`` and ``world_record`` (the world's own JSON record, read by its plug-in),
-``pixel_mean`` and ``pixel_std`` (training split). The pushing world's files of format
-``latent-sindy-trajectories`` version 1 (block poses in ``/poses``) still load: the poses become
-states named x, y, θ and the world's record travels along.
+``pixel_mean`` and ``pixel_std`` (training split). A file that latent-sindy wrote in another
+format or format version is refused with one line: re-collect it (docs/compatibility.md).
 
 A file is only ever written whole, to a temporary name that is renamed into place, so a
 reader sees either nothing or a complete file.
@@ -42,12 +41,10 @@ from latent_sindy.atomic import atomic_path, check_memory
 from latent_sindy.data.sequence import SPLITS, SequenceData
 from latent_sindy.errors import UserError
 
-__all__ = ["DATASETS", "FORMAT", "FORMAT_VERSION", "LEGACY_FORMAT", "read_sequences",
-           "write_sequences"]
+__all__ = ["DATASETS", "FORMAT", "FORMAT_VERSION", "read_sequences", "write_sequences"]
 
 FORMAT = "latent-sindy-sequences"
-FORMAT_VERSION = 2
-LEGACY_FORMAT = "latent-sindy-trajectories"  # the pushing world's files, version 1
+FORMAT_VERSION = 3
 
 
 def write_sequences(path: str | os.PathLike, data: SequenceData) -> None:
@@ -160,21 +157,16 @@ def _executed(f: h5py.File, path: Path) -> np.ndarray | None:
 
 def _read(f: h5py.File, path: Path) -> SequenceData:
     fmt = f.attrs.get("format")
-    if fmt == LEGACY_FORMAT:
-        version = int(f.attrs.get("format_version", -1))
-        if version != 1:
-            raise UserError(f"{path} has format version {version}; this latent-sindy reads "
-                            f"{LEGACY_FORMAT} version 1: re-collect it")
-        from latent_sindy.plugins import legacy_world
-
-        return legacy_world().read_legacy(f, str(path))
+    version = f.attrs.get("format_version", FORMAT_VERSION if fmt == FORMAT else None)
+    if isinstance(fmt, str) and fmt.startswith("latent-sindy-") and (
+            fmt != FORMAT or version != FORMAT_VERSION):
+        shown = version.item() if isinstance(version, np.generic) else version
+        raise UserError(f"{path} was written by another version of latent-sindy ({fmt} "
+                        f"version {shown}; this one reads {FORMAT} version {FORMAT_VERSION}): "
+                        "re-collect it")
     if fmt is not None and fmt != FORMAT:
         raise UserError(f"{path} is an HDF5 file but not a latent-sindy data file (format "
                         f"attribute {fmt!r}); see docs/data.md for the layout")
-    version = int(f.attrs.get("format_version", FORMAT_VERSION))
-    if version != FORMAT_VERSION:
-        raise UserError(f"{path} has format version {version}; this latent-sindy reads "
-                        f"version {FORMAT_VERSION}")
     if "images" not in f:
         raise UserError(f"{path} lacks the dataset 'images' (N, T+1, C, H, W); see "
                         "docs/data.md for the layout")

@@ -6,10 +6,10 @@ loss. Nothing here knows a world: what a latent coordinate means comes from the 
     encoders.py   conv, keypoints, moments          decoders.py   fc, conv, sprite
     autoencoder.py  AutoencoderConfig + Autoencoder  state.py      the true state as latent
     autoencoder_parts.py  each encoder and decoder kind's own settings (tagged by kind)
-    autoencoder_flags.py  the same settings flat: the command line's, older records'
+    autoencoder_flags.py  the same settings flat: the command line's
     pose_head.py  a readout of the pose features     latent_model.py  ModelConfig, the loss
     continuous_model.py  the continuous-time model: its loss on frames and their derivatives
-    costs.py      weights of a quadratic latent cost renamed.py    old setting names
+    costs.py      weights of a quadratic latent cost
     reward_head.py  r̂(z, u), a reward predicted along the latent rollout
 
 >>> from latent_sindy.models import LinearConfig
@@ -33,14 +33,11 @@ from latent_sindy.models.dynamics import (
     SindyConfig,
     SindyDynamics,
     SparseDynamics,
-    SparseSindyDynamics,
     make_dynamics,
 )
 from latent_sindy.models.latent_model import (
-    ENCODER_CONFIGS,
     LOSS_TERMS,
     OBSERVATION_CONFIGS,
-    EncoderConfig,
     LatentModel,
     LossWeights,
     ModelConfig,
@@ -51,7 +48,6 @@ from latent_sindy.models.state import StateConfig
 __all__ = [
     "DYNAMICS_CONFIGS",
     "DYNAMICS_KINDS",
-    "ENCODER_CONFIGS",
     "LOSS_TERMS",
     "OBSERVATION_CONFIGS",
     "Autoencoder",
@@ -59,7 +55,6 @@ __all__ = [
     "CompiledSindy",
     "ContinuousLatentModel",
     "DynamicsConfig",
-    "EncoderConfig",
     "LatentDynamics",
     "LatentModel",
     "LinearConfig",
@@ -72,7 +67,6 @@ __all__ = [
     "SindyConfig",
     "SindyDynamics",
     "SparseDynamics",
-    "SparseSindyDynamics",
     "StateConfig",
     "cost_weights",
     "make_dynamics",

@@ -1,17 +1,14 @@
 """The autoencoder's settings in their flat form: one setting per name, the kinds' own
-prefixed (``moment_order``, ``mlp_widths``, ...), as the command line shows them and run
-records before the nested config were written.
+prefixed (``moment_order``, ``mlp_widths``, ...), as the command line shows them.
 
 :class:`~latent_sindy.models.autoencoder.AutoencoderConfig` holds one settings dataclass per
 part (``encoder``, ``decoder``: :mod:`.autoencoder_parts`); :func:`flat_settings` lets it
 take the flat form too, from one place, each part kind's ``flat`` map:
 
 * the constructor and ``dataclasses.replace`` take the flat keywords (``encoder_kind=``,
-  ``moment_order=``, ...; ``encoder=``/``decoder=`` a kind's name, as before);
+  ``moment_order=``, ...);
 * each flat setting reads, read-only, as an attribute (the part's value, or the flat
   default where the part has no such setting);
-* :func:`latent_sindy.configs.from_json` reads a flat record as the nested config
-  (``upgrade_record``);
 * the command line builds the config from the flat options (:data:`CLI_REGISTRY`, given to
   tyro), so its flags are the flat settings.
 
@@ -25,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import sys
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, TypeVar
 
@@ -33,7 +31,6 @@ from tyro.constructors import ConstructorRegistry, StructConstructorSpec, Struct
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder_parts import DECODER_PARTS, ENCODER_PARTS
-from latent_sindy.models.renamed import replaced_from
 
 __all__ = ["CLI_REGISTRY", "AutoencoderFlags", "ImageSize", "flat_settings"]
 
@@ -142,23 +139,37 @@ def _flat_of(part: Any) -> dict[str, Any]:
     return {flat: getattr(part, name) for name, flat in part.flat.items()}
 
 
+def replaced_from() -> Any:
+    """The dataclass that ``dataclasses.replace`` is copying, where the constructor runs inside
+    it (it passes every field it is not given, so the part beside a flat setting the caller
+    gave); else None. For a decorated ``__init__``'s helper: the frames are this function,
+    the helper, the decorated ``__init__``, then its caller."""
+    frame = sys._getframe(3)
+    if frame.f_code is dataclasses.replace.__code__ or (
+            frame.f_code.co_name == "_replace" and frame.f_globals is vars(dataclasses)):
+        return frame.f_locals.get("obj")
+    return None
+
+
 def _nested(kwargs: dict[str, Any], own: set[str]) -> dict[str, Any]:
     """Constructor keywords with the flat ones (names outside ``own``, the nested config's
-    fields; ``encoder``/``decoder`` given as a kind's name) turned into the parts; a flat
-    setting wins over the part's (``dataclasses.replace(cfg, moment_order=n)`` passes both)."""
+    fields) turned into the parts; a flat setting wins over the part's
+    (``dataclasses.replace(cfg, moment_order=n)`` passes both)."""
+    for which, (kind_flag, parts) in _KINDS.items():
+        part = kwargs.get(which)
+        if part is not None and not isinstance(part, tuple(parts.values())):
+            names = ", ".join(c.__name__ for c in parts.values())
+            raise UserError(f"AutoencoderConfig(...): {which}={part!r} is none of the {which}'s "
+                            f"configs ({names}): give one, or its kind as {kind_flag}=")
     flat = {k: kwargs[k] for k in kwargs if k in FLAGS and k not in own}
-    named = {which: kwargs[which] for which in _KINDS if isinstance(kwargs.get(which), str)}
-    if not flat and not named:
+    if not flat:
         return kwargs
-    _one_form_each(kwargs, flat, named, replaced_from())
+    _one_form_each(kwargs, flat, replaced_from())
     out = {k: v for k, v in kwargs.items() if k not in flat}
     for which, (kind_flag, parts) in _KINDS.items():
         part = out.get(which)
-        base = {} if part is None or isinstance(part, str) else {
-            kind_flag: part.kind, **_flat_of(part)}
-        if which in named:
-            base[kind_flag] = named[which]
-        base.update({k: v for k, v in flat.items() if k != kind_flag or which not in named})
+        base = {} if part is None else {kind_flag: part.kind, **_flat_of(part)}
+        base.update(flat)
         kind = base.get(kind_flag, _DEFAULTS[kind_flag])
         if kind not in parts:
             raise UserError(f"{which} {kind!r} is unknown: use one of " + ", ".join(parts))
@@ -167,20 +178,13 @@ def _nested(kwargs: dict[str, Any], own: set[str]) -> dict[str, Any]:
     return out
 
 
-def _one_form_each(kwargs: dict[str, Any], flat: dict[str, Any], named: dict[str, str],
-                   copied: Any) -> None:
-    """UserError where a setting is given twice: ``encoder``/``decoder`` as a kind's name
-    with ``encoder_kind``/``decoder_kind``, or a part (``encoder=MomentEncoderConfig(...)``)
+def _one_form_each(kwargs: dict[str, Any], flat: dict[str, Any], copied: Any) -> None:
+    """UserError where a setting is given twice: a part (``encoder=MomentEncoderConfig(...)``)
     with a flat setting of its own (``moment_order=``). ``dataclasses.replace(cfg,
     moment_order=n)`` passes the ``copied`` config's part too: that one is not counted."""
     for which, (kind_flag, _) in _KINDS.items():
-        if which in named and kind_flag in flat:
-            raise UserError(f"AutoencoderConfig(...): {which}={named[which]!r} and "
-                            f"{kind_flag}={flat[kind_flag]!r} are the same setting ({which} "
-                            f"as a name is its old form) and both are given: keep {kind_flag}")
         part = kwargs.get(which)
-        if part is None or which in named or (
-                copied is not None and part is getattr(copied, which, None)):
+        if part is None or (copied is not None and part is getattr(copied, which, None)):
             continue
         twice = [k for k in flat if k == kind_flag or k in part.flat.values()]
         if twice:
@@ -217,28 +221,6 @@ def flat_settings(cls: T) -> T:
     for name in FLAGS:
         if name not in own:
             setattr(cls, name, _flat_property(name))
-
-    def upgrade_record(data: dict[str, Any], where: str) -> dict[str, Any]:
-        """A record of the flat form (any flat-only key, or ``encoder``/``decoder`` a kind's
-        name) as the nested one's; others as they are."""
-        if not (set(data) & (set(FLAGS) - own)) and not any(
-                isinstance(data.get(k), str) for k in _KINDS):
-            return data
-        from latent_sindy.configs import from_json, one_name_each, to_json
-
-        flat = {k: v for k, v in data.items() if k != "kind"}
-        for which, (kind_flag, _) in _KINDS.items():
-            if isinstance(flat.get(which), str):
-                one_name_each({which: kind_flag}, flat, where)
-                flat[kind_flag] = flat.pop(which)
-        flags = from_json(AutoencoderFlags, flat, where)
-        try:
-            config = cls(**{k: getattr(flags, k) for k in FLAGS})
-        except UserError as e:
-            raise UserError(f"{where}: {e}") from e
-        return to_json(config)
-
-    cls.upgrade_record = staticmethod(upgrade_record)
 
     @CLI_REGISTRY.struct_rule
     def flat_options(info: StructTypeInfo) -> StructConstructorSpec | None:

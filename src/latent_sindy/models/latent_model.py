@@ -69,12 +69,11 @@ from latent_sindy.models.dynamics import (
 )
 from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, foreground, latent_error
 from latent_sindy.models.pose_head import POSE_HEADS, PoseHead
-from latent_sindy.models.renamed import renamed
 from latent_sindy.models.reward_head import RewardHead, Targets, reward_error
 from latent_sindy.models.state import ANGLE_FEATURES, StateConfig
 
-__all__ = ["ENCODER_CONFIGS", "LOSS_TERMS", "OBSERVATION_CONFIGS", "EncoderConfig",
-           "LatentModel", "LossWeights", "ModelConfig", "ObservationConfig"]
+__all__ = ["LOSS_TERMS", "OBSERVATION_CONFIGS", "LatentModel", "LossWeights", "ModelConfig",
+           "ObservationConfig"]
 
 #: The registry of observations: images (the autoencoder) or the true state.
 OBSERVATION_CONFIGS: tuple[type, ...] = (AutoencoderConfig, StateConfig)
@@ -82,14 +81,11 @@ OBSERVATION_CONFIGS: tuple[type, ...] = (AutoencoderConfig, StateConfig)
 #: (``latent-sindy train sindy state``); images are the default.
 ObservationConfig = Union[tuple(  # noqa: UP007  (built from the registry at import time)
     Annotated[c, tyro.conf.subcommand(c.kind)] for c in OBSERVATION_CONFIGS)]
-#: Their former names.
-ENCODER_CONFIGS, EncoderConfig = OBSERVATION_CONFIGS, ObservationConfig
 
 #: The names of the loss terms :meth:`LatentModel.loss` returns, in report order.
 LOSS_TERMS = ("total", "recon", "pred_x", "pred_z", "l1", "pose", "objective", "reward")
 
 
-@renamed(encoder="observation")
 @dataclass(frozen=True)
 class ModelConfig:
     """Everything that defines a latent model's architecture; it rebuilds the model alone.
@@ -190,8 +186,6 @@ class ModelConfig:
     def dynamics_kind(self) -> str:
         """The dynamics kind ("sindy", "linear", "mlp")."""
         return self.dynamics.kind
-
-    kind = dynamics_kind  # its former name
 
     def resolve(self, channels: int, image_size: ImageSize, action_dim: int,
                 source: str = "the data") -> ModelConfig:

@@ -25,7 +25,6 @@ The checked, normalised problem and the per-column solves (:func:`normalised_pro
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,8 +54,7 @@ class STLSQ:
         min_share: smallest relative contribution of an active term (see the module
             docstring): the default (None: 0.01) keeps the terms that explain at least 1 % of
             a target's RMS. 0 keeps every term (then it is a ridge / least-squares fit).
-            ``threshold=``, its old name, still reads (with a FutureWarning); both together
-            are refused.
+            A share of the target, not pysindy's absolute coefficient cut ``threshold``.
         alpha: ridge weight during thresholding, relative to the unit diagonal of the
             normalised Gram matrix ``theta_nᵀ theta_n / N``. Keep it below that matrix's
             smallest eigenvalue: a larger ridge moves weight between nearly collinear columns
@@ -85,18 +83,7 @@ class STLSQ:
         alpha: float = 1e-10,
         max_iter: int = 20,
         unbias: bool = True,
-        *,
-        threshold: float | None = None,
     ) -> None:
-        if threshold is not None:
-            if min_share is not None:
-                raise UserError("STLSQ(threshold=..., min_share=...): threshold is min_share's "
-                                "old name and both are given: keep min_share only")
-            warnings.warn(
-                "STLSQ(threshold=...) is now STLSQ(min_share=...): the smallest share of its "
-                "target's RMS a term must explain (on RMS-normalised columns), not pysindy's "
-                "absolute coefficient cut", FutureWarning, stacklevel=2)
-            min_share = threshold
         min_share = 1e-2 if min_share is None else min_share
         for name, value in (("min_share", min_share), ("alpha", alpha)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -113,11 +100,6 @@ class STLSQ:
             f"STLSQ(min_share={self.min_share:g}, alpha={self.alpha:g}, "
             f"max_iter={self.max_iter}, unbias={self.unbias})"
         )
-
-    @property
-    def threshold(self) -> float:
-        """:attr:`min_share` under its old name (read-only)."""
-        return self.min_share
 
     def fit(self, theta: ArrayLike, target: ArrayLike, mask: ArrayLike | None = None) -> STLSQ:
         """Fit ``target ≈ theta @ coef_``; returns ``self``.

@@ -16,7 +16,7 @@ import os
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 import torch
 import tyro
@@ -24,7 +24,6 @@ import tyro
 from latent_sindy.configs import check_field_types, checked_value
 from latent_sindy.errors import MAX_SEED, UserError
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
-from latent_sindy.models.renamed import one_name_each, renamed
 
 __all__ = ["BATCHINGS", "DEVICES", "PARALLELS", "PRUNINGS", "RESUMABLE", "TrainConfig",
            "auto_batch_size", "check_fit_settings", "default_threads", "resolve_batching",
@@ -78,8 +77,6 @@ def unknown_choice(name: str, value: Any) -> str | None:
     return choices[name][1]
 
 
-@renamed(threshold="prune_below", threshold_every="prune_every",
-         sindy_init_threshold="sindy_init_share")
 @dataclass(frozen=True)
 class TrainConfig:
     """Settings of one training run; with the data file they determine the final model."""
@@ -127,7 +124,7 @@ class TrainConfig:
     runs). 1: the seed's alone. Costs (starts - 1) x start-epochs more epochs."""
     start_epochs: int | None = None
     """Epochs each start trains before the choice (None: a fifth of --epochs)."""
-    prune_below: Annotated[float, tyro.conf.arg(aliases=("--threshold",))] = 1e-3
+    prune_below: float = 1e-3
     """SINDy: prune the coefficients below this, as --prune measures them (the paper: |Ψ|
     below 1e-3)."""
     prune: Literal["auto", "relative", "absolute"] = "auto"
@@ -136,7 +133,7 @@ class TrainConfig:
     same whatever the scales of the latent, the actions and the library's columns;
     "absolute": |Ψ_kj| (the paper), which prunes every term of a latent whose steps are
     small; "auto": relative for discrete-time SINDy, absolute for continuous time."""
-    prune_every: Annotated[int, tyro.conf.arg(aliases=("--threshold-every",))] = 30
+    prune_every: int = 30
     """SINDy: prune every this many epochs, the last included; 0 never (the paper: 300 of 3000)."""
     refine_epochs: int = 0
     """SINDy: the last this many of the epochs refine the coefficients: no pruning (the mask
@@ -156,7 +153,7 @@ class TrainConfig:
     which needs an encoder that learns nothing (state, moments: its latents are fixed data);
     "auto": regression where the encoder learns nothing, else random. Training then goes on
     from there (the L1 term and the pruning make it sparser)."""
-    sindy_init_share: Annotated[float, tyro.conf.arg(aliases=("--sindy-init-threshold",))] = 0.0
+    sindy_init_share: float = 0.0
     """SINDy, regression start: the sequentially thresholded least squares' cut, the
     smallest share a term may contribute (on RMS-normalised library columns); the terms it
     drops start pruned. 0: plain least squares, every term."""
@@ -320,20 +317,18 @@ def check_fit_settings(settings: dict[str, Any], out: Any) -> None:
     """UserError naming a keyword of ``fit`` that is no training setting, or one that the
     estimator or ``fit`` sets elsewhere."""
     fields = {f.name for f in dataclasses.fields(TrainConfig)}
-    old = TrainConfig.renamed_settings  # old names read as the new ones
-    one_name_each(old, settings, "fit")
     hints = typing.get_type_hints(TrainConfig, include_extras=True)
     for key in settings:
         if key in FIT_OWN_SETTINGS:
             raise UserError(f"fit(..., {key}=...): {key} is set by {FIT_OWN_SETTINGS[key]}, not "
                             "as a training setting")
-        if key not in fields and key not in old:
+        if key not in fields:
             close = difflib.get_close_matches(key, sorted(fields), n=1)
             raise UserError(f"fit(..., {key}=...): no such training setting"
                             + (f" (did you mean {close[0]}?)" if close else "")
                             + "; the settings are TrainConfig's fields")
         if key in ("resume", "overwrite") and out is None:
             raise UserError(f"fit(..., {key}=...) is for a run folder: add out=FOLDER")
-        if (message := unknown_choice(old.get(key, key), settings[key])) is not None:
+        if (message := unknown_choice(key, settings[key])) is not None:
             raise UserError(message)  # (as TrainConfig words it)
-        settings[key] = checked_value(hints[old.get(key, key)], settings[key], f"fit: {key}")
+        settings[key] = checked_value(hints[key], settings[key], f"fit: {key}")

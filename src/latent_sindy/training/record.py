@@ -25,24 +25,18 @@ from latent_sindy.models.latent_model import ModelConfig
 from latent_sindy.plugins import get_world, hook
 from latent_sindy.training.config import TrainConfig, resolve_batching
 
-__all__ = ["CONTEXT_KEYS", "PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
+__all__ = ["PIXEL_DTYPES", "RECORD_KEYS", "RUN_FORMAT", "RUN_FORMAT_VERSION",
            "action_box", "check_action_box", "check_derivatives", "check_description",
            "data_identity", "data_time", "resolve_model", "run_record"]
 
 RUN_FORMAT = "latent-sindy-run"
-RUN_FORMAT_VERSION = 2
+RUN_FORMAT_VERSION = 3
 
 
-#: What :func:`data_identity` records beyond the arrays' fingerprint; runs recorded before
-#: it lack these keys (see :meth:`~latent_sindy.training.runs.RunDir.differences`).
-CONTEXT_KEYS = ("dt", "action_low", "action_high", "extras_fingerprint")
-
-
-#: The keys config.json may hold at its top ("env": runs recorded before data were generic;
-#: "kept": a finished run's).
+#: The keys config.json may hold at its top ("kept": a finished run's).
 RECORD_KEYS = frozenset({"format", "format_version", "package_version", "created", "train",
                          "batching", "model", "normalizer", "data", "description", "world",
-                         "kept", "env"})
+                         "kept"})
 
 
 def data_identity(data: SequenceData, path: Path | None) -> dict[str, Any]:
@@ -190,25 +184,22 @@ def action_box(description: Mapping[str, Any]) -> list[list[float]]:
             [float(v) for v in description["action_high"]]]
 
 
-def check_action_box(description: Mapping[str, Any], record: Mapping[str, Any],
-                     payload: Mapping[str, Any], where: Path, name: str) -> None:
+def check_action_box(description: Mapping[str, Any], payload: Mapping[str, Any], where: Path,
+                     name: str) -> None:
     """UserError where the action box of a run's description (config.json, ``where``)
-    differs from the one the model was trained with: kept in its .pt file ``name``
-    (``payload``), or for a run saved before that, the data's in ``record``; neither: not
-    checked."""
-    data = record.get("data") if isinstance(record.get("data"), dict) else {}
-    trained, saved = payload.get("action_box"), f"kept in {name}"
-    if trained is None and "action_low" in data and "action_high" in data:
-        trained, saved = [data["action_low"], data["action_high"]], "the data's, in that file"
-    if trained is None:
-        return
+    differs from the one the model was trained with, kept in its .pt file ``name``
+    (``payload``)."""
+    trained = payload.get("action_box")
+    if not (isinstance(trained, list | tuple) and len(trained) == 2):
+        raise UserError(f"{where.parent / name} keeps no action box (the file was edited): "
+                        "retrain the run")
     if action_box(description) != [[float(v) for v in side] for side in trained]:
         low, high = trained
         raise UserError(f"{where}: the action box (action_low {description['action_low']}, "
                         f"action_high {description['action_high']}) is not the one the model "
                         f"was trained with (action_low {list(low)}, action_high {list(high)}, "
-                        f"{saved}): the file was edited; put that box back, or retrain the "
-                        "run on data with the box you want")
+                        f"kept in {name}): the file was edited; put that box back, or retrain "
+                        "the run on data with the box you want")
 
 
 #: The pixel types a model can have been trained on (SequenceData's images).

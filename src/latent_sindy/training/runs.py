@@ -18,7 +18,7 @@ A run folder describes itself; every later command needs only it::
 
 Files are written atomically (temporary file + rename); ``.pt`` files are read with
 ``torch.load(weights_only=True)`` only; config.json is checked (format, version, every key)
-when read, and records of format version 1 are migrated on read.
+when read. A run folder of another format version is refused with one line: retrain the run.
 
     run = RunDir("runs/sindy2")
     model, normalizer, config, description, world_record = run.load()
@@ -46,11 +46,9 @@ from latent_sindy.errors import UserError
 from latent_sindy.locks import holder
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.plugins import get_world
-from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig, resolve_batching
+from latent_sindy.training.config import BATCHINGS, RESUMABLE, TrainConfig
 from latent_sindy.training.metrics import METRIC_COLUMNS
-from latent_sindy.training.migrate import migrate_v1, run_description
 from latent_sindy.training.record import (
-    CONTEXT_KEYS,
     RECORD_KEYS,
     RUN_FORMAT,
     RUN_FORMAT_VERSION,
@@ -67,22 +65,14 @@ Task = Literal["paper", "random"]
 Space = Literal["latent", "image", "pose"]
 
 
-#: Model settings that training derives from the data where left unset, as (part, (key, its
-#: names in older records), the value runs recorded before it was derived were built with):
+#: Model settings that training derives from the data where left unset, as (part, key):
 #: runs are compared on what their model was built with (the record's resolved "model").
-DERIVED: tuple[tuple[str, tuple[str, ...], Any], ...] = (
-    ("observation", ("decoder.size", "sprite_size"), 11),
-    ("dynamics", ("frame_sense",), 1),
-    ("dynamics", ("frame_offset",), 0.0),
+DERIVED: tuple[tuple[str, str], ...] = (
+    ("observation", "decoder.size"),
+    ("dynamics", "frame_sense"),
+    ("dynamics", "frame_offset"),
 )
 
-
-#: Training settings added after runs were recorded, at the values those runs had: batches
-#: of windows, pruning by |Ψ|, one start.
-SINCE_ADDED = {"batching": "windows", "prune": "absolute", "starts": 1, "start_epochs": None}
-
-#: Parts of the model record under the names runs recorded before the renaming used.
-_OLD_PARTS = {"observation": "encoder"}
 
 class Run(NamedTuple):
     """What :meth:`RunDir.load` rebuilds from a run folder: the model, its normaliser, its
@@ -107,8 +97,6 @@ class Run(NamedTuple):
             raise UserError("this run was trained on data of no world: it has no world "
                             "settings (plan with the estimator's planner instead)")
         return get_world(self.world).config_from_record(self.world_record, "the run's record")
-
-    env_config = world_config
 
 
 class RunDir:
@@ -177,7 +165,7 @@ class RunDir:
 
     # ---------------------------------------------------------------- config.json
     def read_record(self) -> dict[str, Any]:
-        """config.json, checked and migrated to the current format version."""
+        """config.json, checked: its format, its version (the current one) and every key."""
         self.check_folder()
         path = self.path / self.CONFIG
         try:
@@ -186,19 +174,11 @@ class RunDir:
             raise UserError(f"{path} is damaged ({e}); retrain the run") from e
         if not isinstance(record, dict) or record.get("format") != RUN_FORMAT:
             raise UserError(f"{path} is not a latent-sindy run config")
+        check_version(record, path)
         unknown = sorted(set(record) - RECORD_KEYS)
         if unknown:
             raise UserError(f"{path}: unknown key {unknown[0]!r} at the top (the file was "
                             "edited): remove it, or retrain the run")
-        version = record.get("format_version")
-        if version == 1:
-            record = migrate_v1(record, str(path))
-        elif version != RUN_FORMAT_VERSION:
-            raise UserError(f"{path} has run format version {version}; this latent-sindy "
-                            f"reads versions 1 and {RUN_FORMAT_VERSION}: retrain the run")
-        train = record.get("train")
-        if isinstance(train, dict):  # settings older runs predate, as they were trained
-            record = {**record, "train": {**SINCE_ADDED, **train}}
         return record
 
     def write_record(self, record: Mapping[str, Any]) -> None:
@@ -207,18 +187,13 @@ class RunDir:
 
     def train_config(self, record: Mapping[str, Any] | None = None) -> TrainConfig:
         record = self.read_record() if record is None else record
-        train = dict(record["train"])
-        # recorded before SINDy could start from a regression: it started at random
-        train.setdefault("sindy_init", "random")
-        return from_json(TrainConfig, train, f"{self.path / self.CONFIG}: train")
+        return from_json(TrainConfig, record["train"], f"{self.path / self.CONFIG}: train")
 
     def batching(self, record: Mapping[str, Any] | None = None) -> str:
         """How the run batched its training: "trajectories" or "windows" (its --batching,
-        "auto" resolved as recorded; a record from before that was recorded resolves it)."""
+        "auto" resolved as recorded)."""
         record = self.read_record() if record is None else record
         recorded = record.get("batching")
-        if recorded is None:
-            return resolve_batching(self.train_config(record))
         if recorded not in BATCHINGS or recorded == "auto":
             raise UserError(f"{self.path / self.CONFIG}: batching {recorded!r} is not "
                             "trajectories or windows: the file was edited; retrain the run")
@@ -226,7 +201,8 @@ class RunDir:
 
     # ---------------------------------------------------------------- .pt files
     def save_torch(self, name: str, payload: dict[str, Any]) -> None:
-        write_atomic(self.path / name, lambda f: torch.save({"format": RUN_FORMAT, **payload}, f))
+        write_atomic(self.path / name, lambda f: torch.save(
+            {"format": RUN_FORMAT, "format_version": RUN_FORMAT_VERSION, **payload}, f))
 
     def load_torch(self, name: str) -> dict[str, Any]:
         path = self.path / name
@@ -239,6 +215,7 @@ class RunDir:
                             f"({type(e).__name__}); retrain the run") from e
         if not isinstance(obj, dict) or obj.get("format") != RUN_FORMAT:
             raise UserError(f"{path} is not a latent-sindy run file; retrain the run")
+        check_version(obj, path)
         return obj
 
     # ---------------------------------------------------------------- metrics.csv
@@ -286,7 +263,8 @@ class RunDir:
             config = self.train_config(record)
             model_cfg = from_json(ModelConfig, record["model"], f"{where}: model")
             norm = Normalizer.from_dict(record["normalizer"])
-            description, world_record = run_description(record, where)
+            description = dict(record["description"])
+            world_record = dict((record.get("world") or {}).get("record") or {})
         except (KeyError, TypeError, ValueError) as e:
             raise UserError(f"{where} is damaged ({type(e).__name__}: {e}); retrain the "
                             "run") from e
@@ -313,7 +291,7 @@ class RunDir:
                     f"{self.path}, or load its checkpoint)")
             raise UserError(f"{self.path} has no {name}{hint}")
         payload = self.load_torch(name)
-        check_action_box(description, record, payload, where, name)
+        check_action_box(description, payload, where, name)
         model = LatentModel(model_cfg)
         try:
             model.load_state_dict(payload["model"])
@@ -331,36 +309,31 @@ class RunDir:
 
         def flat(r: Mapping[str, Any]) -> dict[str, Any]:
             data = {k: v for k, v in r["data"].items() if k != "path"}
-            # through the dataclass: a setting added since the run was recorded takes its
-            # default (which keeps the old behaviour) on both sides; "auto" batching as what
-            # it batched
+            # through the dataclass, so both sides are written alike; "auto" batching as
+            # what it batched
             tc = dataclasses.replace(self.train_config(r), batching=self.batching(r))
             train = json.loads(json.dumps(to_json(tc)))
             out = _flatten({"train": train, "normalizer": r["normalizer"], "data": data})
             # settings derived at training when left unset: what the model was built with
-            for part, (key, *old), before in DERIVED:
-                built = _flatten(r["model"].get(part) or r["model"].get(_OLD_PARTS.get(part), {}))
+            for part, key in DERIVED:
                 if (name := f"train.model.{part}.{key}") in out:
-                    out[name] = next((built[k] for k in (key, *old) if k in built), before)
+                    out[name] = _flatten(r["model"][part]).get(key)
             return out
 
         was, now = flat(old), flat(record)
-        if "fingerprint" not in old["data"]:  # recorded before fingerprints existed
-            now.pop("data.fingerprint", None)
-        missing = [k for k in CONTEXT_KEYS if k not in old["data"]]
-        if missing:
-            # recorded before the data's context was: the time step and the action box are
-            # in the run's description; the exact derivatives and the executed flags were
-            # not recorded, so they go unchecked
-            described, _ = run_description(old, self.path / self.CONFIG)
-            for k in missing:
-                if k in described:
-                    was[f"data.{k}"] = described[k]
-                else:
-                    now.pop(f"data.{k}", None)
         return [f"{k.removeprefix('train.')} (run {was.get(k)!r}, now {now.get(k)!r})"
                 for k in sorted(set(was) | set(now))
                 if k.removeprefix("train.") not in ignore and was.get(k) != now.get(k)]
+
+
+def check_version(record: Mapping[str, Any], path: Path) -> None:
+    """UserError, one line naming ``path``, where a run file (config.json, a .pt file) was
+    written in another format version than this latent-sindy's."""
+    version = record.get("format_version")
+    if version != RUN_FORMAT_VERSION:
+        raise UserError(f"{path} was written by another version of latent-sindy (run format "
+                        f"version {version}; this one reads version {RUN_FORMAT_VERSION}): "
+                        "retrain the run")
 
 
 def load_run(run_dir: str | os.PathLike, checkpoint: bool = False) -> Run:

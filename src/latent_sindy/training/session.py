@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from latent_sindy.atomic import check_memory
-from latent_sindy.configs import from_json, one_name_each
+from latent_sindy.configs import from_json
 from latent_sindy.data import SequenceData
 from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
@@ -78,9 +78,7 @@ class Phase:
     def __post_init__(self) -> None:
         if self.epochs < 0:
             raise UserError(f"phase {self.name!r}: epochs {self.epochs}: use 0 or more")
-        old = TrainConfig.renamed_settings  # settings renamed since: read as the new names
-        one_name_each(old, self.changes, f"phase {self.name!r}")
-        object.__setattr__(self, "changes", {old.get(k, k): v for k, v in self.changes.items()})
+        object.__setattr__(self, "changes", dict(self.changes))
         unknown = set(self.changes) - {f.name for f in dataclasses.fields(TrainConfig)}
         if unknown or "epochs" in self.changes:
             raise UserError(f"phase {self.name!r} changes {sorted(unknown or {'epochs'})}: "

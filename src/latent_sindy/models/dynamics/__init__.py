@@ -38,7 +38,6 @@ from latent_sindy.models.dynamics.sindy import (
     CompiledSindy,
     SindyConfig,
     SindyDynamics,
-    SparseSindyDynamics,
 )
 
 __all__ = [
@@ -57,7 +56,6 @@ __all__ = [
     "SindyConfig",
     "SindyDynamics",
     "SparseDynamics",
-    "SparseSindyDynamics",
     "format_equations",
     "make_dynamics",
     "project_circle",

@@ -231,10 +231,6 @@ class SparseDynamics(LatentDynamics):
         ``scale`` (p, nz)); return how many were newly pruned."""
         raise NotImplementedError
 
-    def threshold(self, tau: float, scale: torch.Tensor | None = None) -> int:
-        """:meth:`prune` under its old name."""
-        return self.prune(tau, scale)
-
     def set_coefficients(self, coef: torch.Tensor, mask: torch.Tensor | None = None
                          ) -> SparseDynamics:
         """Set Ψ (p, nz) and M (p, nz), default ``coef != 0``; returns ``self``."""

@@ -49,7 +49,7 @@ from latent_sindy.sindy import (
 from latent_sindy.sindy import fit as sindy_fit
 from latent_sindy.sindy.optimizers import STLSQ
 
-__all__ = ["CompiledSindy", "SindyConfig", "SindyDynamics", "SparseSindyDynamics"]
+__all__ = ["CompiledSindy", "SindyConfig", "SindyDynamics"]
 
 
 class SindyDynamics(SparseDynamics):
@@ -285,7 +285,6 @@ class SindyDynamics(SparseDynamics):
         return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
 
 
-SparseSindyDynamics = CompiledSindy  # old name
 
 
 @dataclass(frozen=True)
@@ -396,4 +395,3 @@ class SindyConfig:
                                  circle=circle, turn=turn)
         return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle,
                              turn=turn)
-

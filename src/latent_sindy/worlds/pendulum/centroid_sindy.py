@@ -90,22 +90,19 @@ class CentroidSindy:
             the sparsest fit within three times the best rollout error; the training
             sequences stand in when the data has no validation split).
         sparsifier: one of :data:`SPARSIFIERS`.
-        threshold: ``min_share`` under its old name.
 
     Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the setting used)
     and ``selection_`` (the path it was chosen from, or None when it was given).
     """
 
     def __init__(self, order: int = 4, min_share: float | None = None,
-                 sparsifier: str = "stepwise", *, threshold: float | None = None) -> None:
+                 sparsifier: str = "stepwise") -> None:
         if sparsifier not in SPARSIFIERS:
             raise UserError(f"centroid SINDy sparsifier {sparsifier!r}: choose from "
                             f"{', '.join(SPARSIFIERS)}")
-        if threshold is not None and min_share is not None:
-            raise UserError("CentroidSindy(threshold=..., min_share=...): threshold is "
-                            "min_share's old name and both are given: keep min_share only")
-        min_share = threshold if threshold is not None else min_share
-        self.order, self.min_share, self.sparsifier = order, min_share, sparsifier
+        self.order = order
+        self.min_share = min_share
+        self.sparsifier = sparsifier
         self.library: SindyLibrary | None = None
 
     def fit(self, data: SequenceData) -> CentroidSindy:

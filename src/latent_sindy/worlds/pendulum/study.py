@@ -24,7 +24,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
 import torch
@@ -37,7 +37,6 @@ from latent_sindy.control.mppi import MPPI, MPPIConfig, latent_step
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models import LossWeights
-from latent_sindy.models.renamed import renamed
 from latent_sindy.stats import wilson_interval
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum.centroid_sindy import (
@@ -58,7 +57,6 @@ __all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study
 MODELS = ("sindy", "mlp", "linear")
 
 
-@renamed(centroid_threshold="centroid_min_share")
 @dataclass(frozen=True)
 class StudyConfig:
     """Settings of one pendulum study (the defaults: the measured runs of RESULTS.md and,
@@ -91,8 +89,7 @@ class StudyConfig:
     """The centroid SINDy's sparse regression: backward elimination by the fit a term costs,
     most complex first (``StepwiseSR``), or STLSQ (keeps about half of the library there:
     the centroids stay on circles, so the library's terms are dependent)."""
-    centroid_min_share: Annotated[float | None,
-                                  tyro.conf.arg(aliases=("--centroid-threshold",))] = None
+    centroid_min_share: float | None = None
     """The sparsifier's setting: stepwise, the share of a step's mean square one dropped
     term may cost; STLSQ, the smallest relative contribution of a kept term. None: chosen
     on the validation sequences, the sparsest fit whose rollouts are within three times the

@@ -7,13 +7,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from latent_sindy.errors import UserError
-from latent_sindy.models.renamed import renamed
 from latent_sindy.worlds.pendulum.video_pca import PIXELS
 
 __all__ = ["SCHEDULES", "Schedule", "weights"]
 
 
-@renamed(threshold="prune_below", threshold_every="prune_every")
 @dataclass(frozen=True)
 class Schedule:
     """A training schedule; loss weights as published (pixels in [0, 1], 1/12 of L1 on the

@@ -122,7 +122,7 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     model_cfg = ModelConfig(
         dynamics=ContinuousSindyConfig(derivative_order=2, order=3, include_sine=True,
                                        init=s.init, init_scale=s.init_scale, time_unit=None),
-        encoder=AutoencoderConfig(latent_dim=1, encoder_kind="mlp", decoder_kind="mlp"))
+        observation=AutoencoderConfig(latent_dim=1, encoder_kind="mlp", decoder_kind="mlp"))
     cfg = TrainConfig(epochs=s.warmup + s.epochs, refine_epochs=s.refine_epochs, lr=s.lr,
                       weight_decay=0.0, batch_size=s.batch, prune_below=s.prune_below,
                       prune_every=s.prune_every, eval_every=s.eval_every, starts=1)
@@ -168,13 +168,6 @@ def calibration(s: Schedule, data, k: int, span: float):
     return Phase(s.calibrate_epochs, "calibration", {
         "lr": s.calibrate_lr or s.lr, "loss": loss, "refine_epochs": refine,
         "prune_every": prune})
-
-
-def _as_keyed(s: Schedule) -> dict[str, Any]:
-    """The schedule's settings under the names finished rows were first keyed by (a renamed
-    setting under its old name), so rows trained before the renaming are still reused."""
-    old = {new: name for name, new in Schedule.renamed_settings.items()}
-    return {old.get(k, k): v for k, v in asdict(s).items()}
 
 
 @dataclass(frozen=True)
@@ -232,7 +225,7 @@ class VideoStudyConfig:
         this matches; the device and threads change the bits, not the study)."""
         return {"schedule": self.schedule, "derivatives": self.derivatives,
                 "components": self.components, "splits": list(self.splits),
-                "steps": self.steps, **_as_keyed(self.resolved_schedule()),
+                "steps": self.steps, **asdict(self.resolved_schedule()),
                 "time_unit": "data", **({} if self.omega2 == 1 else {"omega2": self.omega2}),
                 **({} if self.starts == "own_time" else {"starts": self.starts})}
 

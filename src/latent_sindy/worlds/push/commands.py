@@ -48,13 +48,13 @@ def control_command(run_dir: Path, run: Any, s: ControlConfig, out: Path, progre
     planner option, the planner of the run's world."""
     check_space(run.model, s.space)  # before the planner's note: the refusal alone
     if s.mppi == MPPIConfig():  # no planner option given: the planner of the run's world
-        s = replace(s, mppi=world_planner(run.env_config))
+        s = replace(s, mppi=world_planner(run.world_config))
         m = s.mppi
-        print(f"planner: the {run.env_config.push} push's default, K={m.samples} "
+        print(f"planner: the {run.world_config.push} push's default, K={m.samples} "
               f"H={m.horizon} sigma={m.sigma} lambda={m.lambda_} (options choose another)",
               file=sys.stderr)
-    _, summary = run_control(run.model, run.normalizer, run.env_config, s, out, progress)
-    print(format_summary(summary, f"{run_dir} ({run.config.model.kind}), "
+    _, summary = run_control(run.model, run.normalizer, run.world_config, s, out, progress)
+    print(format_summary(summary, f"{run_dir} ({run.config.model.dynamics_kind}), "
                                   f"{s.task} task, {s.space}-space MPPI:"))
     print(f"wrote {out}/results.json, results.csv"
           + (", episode GIFs" if s.gif_episodes else ""))

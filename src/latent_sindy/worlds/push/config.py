@@ -16,8 +16,7 @@ Named worlds (:data:`ENV_PRESETS`, :meth:`PushEnvConfig.named`):
   turning first. ``angle_period`` = pi/2.
 * ``"paper"``: the course's world, for reproducing the paper's Table I as defined:
   u = [p, phi, ell] with phi relative to the block's x axis within +-pi/2, always from the
-  block's -x face. A data file or run folder recorded before this choice existed (its
-  environment settings lack ``push``) means this world.
+  block's -x face.
 * ``"marked"``: the paper's push, but the block's +x half is painted dark red, so its
   orientation is visible over a whole turn (``angle_period`` = 2 pi).
 * ``"textured"``: the symmetric world's block and pushes (the same poses for the same seed
@@ -229,13 +228,12 @@ class PushEnvConfig:
     @classmethod
     def from_record(cls, d: dict, where: str) -> PushEnvConfig:
         """Rebuild from a record (a data file's or run folder's JSON, ``configs.to_json``);
-        ``where`` names it in errors. A record without ``push`` predates the choice and was
-        made in the paper's world."""
+        ``where`` names it in errors."""
         from latent_sindy.configs import from_json
 
         if not isinstance(d, dict):
             raise UserError(f"{where}: expected a mapping of environment settings")
-        return from_json(cls, {"push": "paper", **d}, where)
+        return from_json(cls, d, where)
 
 
 #: The named worlds (see the module docstring).

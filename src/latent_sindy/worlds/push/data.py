@@ -1,4 +1,4 @@
-"""The pushing world's data: block poses as states, its record, and its files of version 1.
+"""The pushing world's data: block poses as states, and its record.
 
 A pushing data set is a :class:`~latent_sindy.data.SequenceData` whose states are the block's
 poses (x, y, θ) with θ an angle of the block's visible symmetry, whose action box and names are
@@ -11,9 +11,6 @@ were collected (``collection``).
 
 from __future__ import annotations
 
-import json
-from typing import Any
-
 import numpy as np
 
 from latent_sindy.configs import to_json
@@ -21,7 +18,7 @@ from latent_sindy.data.sequence import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.worlds.push.config import PushEnvConfig
 
-__all__ = ["POSE_NAMES", "check_data", "push_config", "push_data", "read_legacy"]
+__all__ = ["POSE_NAMES", "check_data", "push_config", "push_data"]
 
 POSE_NAMES = ("x", "y", "θ")
 
@@ -89,21 +86,3 @@ def check_data(data: SequenceData) -> None:
         raise UserError(f"{data.source}: the pushing world's data carry the block poses "
                         "(x, y, θ) as states")
 
-
-def read_legacy(f: Any, where: str) -> SequenceData:
-    """A pushing-world file of format version 1 (h5py file ``f``): poses, env_config."""
-    missing = [k for k in ("images", "actions", "poses", "split") if k not in f]
-    if missing:
-        raise UserError(f"{where} lacks dataset(s) {', '.join(missing)}; re-collect it")
-    arrays = {k: f[k][()] for k in ("images", "actions", "poses", "split")}
-    env = PushEnvConfig.from_record(json.loads(f.attrs["env_config"]), f"{where}: env_config")
-    seed = int(f.attrs.get("seed", -1))
-    collection = json.loads(f.attrs.get("collection", "{}"))
-    images, actions, poses = arrays["images"], arrays["actions"], arrays["poses"]
-    for name, arr in (("actions", actions), ("poses", poses)):
-        if not np.issubdtype(arr.dtype, np.floating):
-            raise UserError(f"{where}: {name} must be floating point, got {arr.dtype}")
-    if images.dtype != np.uint8:
-        raise UserError(f"{where}: images must be uint8, got {images.dtype}")
-    return push_data(images, actions, poses, arrays["split"], env, None if seed < 0 else seed,
-                     collection, where)

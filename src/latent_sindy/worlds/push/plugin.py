@@ -44,7 +44,6 @@ class PushWorld:
         return PushEnvConfig.from_record(record.get("env_config"), f"{where}: env_config")
 
     check_data = staticmethod(_data.check_data)
-    read_legacy = staticmethod(_data.read_legacy)
     prepare_model = staticmethod(_prepare_model)
 
     @property

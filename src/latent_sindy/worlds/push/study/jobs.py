@@ -195,7 +195,7 @@ def _control(loaded: Any, run: RunDir, condition: Condition, settings: ControlCo
     if results.exists() and results.stat().st_mtime_ns >= (run / run.MODEL).stat().st_mtime_ns:
         record = _read_json(results)
     if not _whole_results(record, want):
-        run_control(loaded.model, loaded.normalizer, loaded.env_config, settings, folder)
+        run_control(loaded.model, loaded.normalizer, loaded.world_config, settings, folder)
         record = json.loads(results.read_text())
     actions = [a for ep in record["episodes"] for a in ep["actions"]]
     bad = sum(not all(math.isfinite(v) for v in a) for a in actions)

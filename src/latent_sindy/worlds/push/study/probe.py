@@ -137,7 +137,7 @@ def _probe_data(model: LatentModel, data: SequenceData, normalizer: Normalizer,
         raise UserError(f"{data.source}: the probe needs training and {held_out} trajectories "
                         f"(splits {data.split_counts()})")
     model.eval()
-    period = data.env_config.angle_period
+    period = data.world_config.angle_period
     z_tr, z_te = _latents(model, train, normalizer), _latents(model, test, normalizer)
     y_tr = pose_features(train.poses, period).double().numpy().reshape(len(z_tr), -1)
     y_te = pose_features(test.poses, period).double().numpy().reshape(len(z_te), -1)
@@ -303,7 +303,7 @@ def position_errors(model: LatentModel | None, data: SequenceData, normalizer: N
     ``predictions``: item t the model's normalised predictions from x_t, (N, T-t+1, C, S, S)
     (:func:`latent_sindy.study.evaluation.rollouts`), when already made.
     """
-    cfg = data.env_config
+    cfg = data.world_config
     levels = levels if levels is not None else block_levels(cfg)
     seen = block_position(data.images, cfg, levels)  # (N, T+1, 2)
     steps = data.steps

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.models.renamed import renamed
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
 from latent_sindy.worlds.push.planner import world_planner
@@ -58,7 +57,6 @@ class Condition:
         return self.cost or self.space
 
 
-@renamed(threshold="prune_below", threshold_every="prune_every")
 @dataclass(frozen=True)
 class Scale:
     """How big a study is: data, training schedule and control episodes.

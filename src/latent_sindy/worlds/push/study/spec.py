@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from latent_sindy.models.latent_model import LossWeights, ModelConfig
-from latent_sindy.models.renamed import renamed
 
 __all__ = ["SINGLE_STEP", "ModelSpec"]
 
@@ -17,7 +16,6 @@ __all__ = ["SINGLE_STEP", "ModelSpec"]
 SINGLE_STEP = "sindy2"
 
 
-@renamed(threshold="prune_below", init_threshold="init_share", cost="relative_time")
 @dataclass(frozen=True)
 class ModelSpec:
     """One model of the study: its name (folder, table column), label and training recipe."""

@@ -80,9 +80,7 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
     otherwise. A file without a readable plan is left to :func:`collect`, which refuses it."""
     try:
         recorded = read_sequences(path).record.get("collection", {}).get("plan")
-        # a world recorded before the push style existed is the paper's (PushEnvConfig)
-        env = {"push": "paper", **recorded.get("env", {})}
-        old = from_json(CollectionPlan, {**recorded, "env": env}, str(path))
+        old = from_json(CollectionPlan, recorded, str(path))
     except (UserError, AttributeError, TypeError, ValueError):
         return
     if old == plan:
@@ -113,7 +111,7 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
 def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
     """A given trajectory file must be of the study's ``--world``, hold images of
     ``--image-size`` (where that is given) and trajectories as long as every swept window."""
-    env = data.env_config
+    env = data.world_config
     if env.world_key != cfg.env_config().world_key:
         world = env.world_name
         raise UserError(f"--world {cfg.world}, but {cfg.data} was collected in "

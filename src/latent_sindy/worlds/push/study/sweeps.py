@@ -3,9 +3,7 @@
 A sweep names one model setting (:data:`SWEEPABLE`) and its values; the study trains every
 chosen model that has the setting once per value (:func:`.catalogue.study_specs`). Every
 value is checked when the sweep is read, before anything runs; :data:`SWEEPABLE` is also
-what ``reproduce --help`` lists (:func:`sweep_help`). A renamed setting's old name
-(:data:`RENAMED_SWEEPS`) still sweeps it, and names its runs as before, so an earlier
-study's finished runs are found again.
+what ``reproduce --help`` lists (:func:`sweep_help`).
 
     latent-sindy reproduce --models sindy2 --sweep lambda_l1=1e-3,1e-2 --seeds 0..2
 
@@ -31,7 +29,7 @@ from latent_sindy.sindy import VALID_ORDERS
 if TYPE_CHECKING:
     from latent_sindy.worlds.push.study.spec import ModelSpec
 
-__all__ = ["MAX_SEEDS", "RENAMED_SWEEPS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps",
+__all__ = ["MAX_SEEDS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps",
            "check_windows", "parse_seeds", "parse_sweeps", "sweep_help", "sweepable"]
 
 #: The most seeds a study takes (each trains and evaluates every model).
@@ -148,13 +146,9 @@ SWEEPABLE: dict[str, Sweepable] = {
                             _non_negative, "a finite number >= 0"),
 }
 
-#: Old sweep names -> the settings' names now.
-RENAMED_SWEEPS = {"threshold": "prune_below", "init_threshold": "init_share"}
-
-
 def sweepable(setting: str) -> Sweepable:
-    """The :data:`SWEEPABLE` entry of ``setting`` (its name now or an old one)."""
-    return SWEEPABLE[RENAMED_SWEEPS.get(setting, setting)]
+    """The :data:`SWEEPABLE` entry of ``setting``."""
+    return SWEEPABLE[setting]
 
 
 def sweep_help() -> str:
@@ -170,7 +164,7 @@ def sweep_help() -> str:
 def _check_values(setting: str, values: tuple[Any, ...], text: str) -> None:
     """UserError, named as the sweep ``text``, for an unknown setting or a value it
     does not take."""
-    if setting not in SWEEPABLE and setting not in RENAMED_SWEEPS:
+    if setting not in SWEEPABLE:
         raise UserError(f"{text}: unknown setting {setting!r}; sweepable: "
                         f"{', '.join(SWEEPABLE)}")
     if not values or len(set(values)) != len(values):
@@ -204,8 +198,7 @@ class Sweep:
         if not eq or not values:
             raise UserError(f"--sweep {text!r}: write SETTING=V1,V2 (e.g. lambda_l1=1e-3,1e-2); "
                             f"sweepable: {', '.join(SWEEPABLE)}")
-        known = setting in SWEEPABLE or setting in RENAMED_SWEEPS
-        kind = sweepable(setting).kind if known else float
+        kind = sweepable(setting).kind if setting in SWEEPABLE else float
         parsed = []
         for v in values.split(","):
             try:
@@ -237,7 +230,7 @@ def check_windows(sweeps: tuple[Sweep, ...], steps: int, trajectories: str) -> N
 
 def parse_sweeps(args: list[str]) -> tuple[Sweep, ...]:
     sweeps = tuple(Sweep.parse(a) for a in args)
-    names = [RENAMED_SWEEPS.get(s.setting, s.setting) for s in sweeps]
+    names = [s.setting for s in sweeps]
     if len(set(names)) != len(names):
         raise UserError(f"--sweep {' '.join(args)}: name each setting once")
     return sweeps
