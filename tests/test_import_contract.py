@@ -22,7 +22,7 @@ def test_the_core_imports_no_simulator(modules):
     assert out.returncode == 0, out.stderr
 
 
-def test_a_world_library_preset_is_found_by_name_without_importing_the_world():
+def test_a_world_is_listed_by_name_without_importing_it():
     code = ("import sys; from latent_sindy.plugins import get_world, world_names; "
             "assert 'push' in world_names(); "
             "from latent_sindy.data import read_sequences; "

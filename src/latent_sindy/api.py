@@ -60,7 +60,7 @@ class LatentSINDy:
         latent_dim: size of the latent state z.
         dynamics: "sindy" (sparse, interpretable), "linear" (z' = A z + B u + c) or "mlp".
         order: SINDy's polynomial order of the library in (z, u) (None: 2; continuous time 3).
-        library: SINDy's library preset ("poly"; worlds register their own).
+        library: SINDy's library by name ("poly"; worlds register their own).
         include_sine: SINDy's library also holds sin(z).
         encoder: "conv" (learned), "mlp" (fully connected, 128-64-32 sigmoid), or a kind a
             world registers; decoder: "conv", "fc" or "mlp" (None: mlp in continuous time).

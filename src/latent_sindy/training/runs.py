@@ -72,8 +72,6 @@ Space = Literal["latent", "image", "pose"]
 #: runs are compared on what their model was built with (the record's resolved "model").
 DERIVED: tuple[tuple[str, tuple[str, ...], Any], ...] = (
     ("observation", ("decoder.size", "sprite_size"), 11),
-    ("dynamics", ("frame_sense",), 1),
-    ("dynamics", ("frame_offset",), 0.0),
 )
 
 
