@@ -214,7 +214,7 @@ class Train:
     """
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=TrainConfig)
+        default_factory=lambda: TrainConfig(data=Path(f"data/{DEFAULT_WORLD}.h5")))
     # A second thread pays on a machine of one's own; while other jobs hold the cores it
     # measured 0.86-1.06x of one (BENCHMARKS.md). A CPU result's bits depend on the count.
     threads: int = 0
