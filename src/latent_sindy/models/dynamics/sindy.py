@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import torch
+import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
@@ -290,7 +291,7 @@ SparseSindyDynamics = CompiledSindy  # old name
 @dataclass(frozen=True)
 class SindyConfig:
     """SINDy: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library of [z, u] chosen by name
-    (--library: "poly" or one an installed world registers)."""
+    (--library: "poly" or one an installed world registers), or composed in Python."""
 
     kind: ClassVar[str] = "sindy"
     model_class: ClassVar[type[LatentDynamics]] = SindyDynamics
@@ -311,10 +312,20 @@ class SindyConfig:
     dataclass is taken too; the config keeps the pairs that differ from the defaults."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
+    composed: tyro.conf.Suppress[Any] = None
+    """A library composed in Python from the grammar (a LibrarySpec; the config keeps its
+    dict), in place of a named one: ``SindyConfig(composed=Polynomial(("z", "u"), 2) +
+    Sine("z"))``. It holds its own terms, so ``order`` and the sine and cosine switches are
+    not read."""
 
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
+        if self.composed is not None:
+            if self.library != "poly" or self.library_options:
+                raise UserError(f"a composed library replaces a named one: drop library "
+                                f"{self.library!r} and its options, or the composed spec")
+            object.__setattr__(self, "composed", spec_from_dict(self.composed).to_dict())
         library = named_library(self.library)
         if self.library != "poly" and self.include_cosine:
             raise UserError("--include-cosine is for the poly library only")
@@ -365,6 +376,9 @@ class SindyConfig:
         """The model for latent size nz and action size nu; ``circle``: the latent
         coordinates kept on the unit circle, ``turn``: turned by z_a's update (see
         :class:`LatentDynamics`)."""
+        if self.composed is not None:
+            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=self.composed,
+                                 circle=circle, turn=turn)
         if self.library == "poly":
             return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
                                  include_cosine=self.include_cosine, init_scale=self.init_scale,
