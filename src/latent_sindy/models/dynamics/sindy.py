@@ -304,8 +304,8 @@ class SindyConfig:
     library: str = "poly"
     """The candidate library by name: "poly", monomials of [z, u] up to the order (+ sin z),
     or one an installed world registers (latent_sindy.sindy.library_names() lists them;
-    docs/training.md). In Python, any composed library spec goes to SindyDynamics
-    (library_spec=) directly."""
+    docs/training.md). In Python a library composed from the grammar goes to `composed`
+    instead (or LatentSINDy(library=spec))."""
     library_options: tuple[str, ...] = ()
     """KEY=VALUE options of the named library (the fields of its options dataclass), e.g.
     `frequency=4`; a value left out keeps its default. In Python a mapping or the options
