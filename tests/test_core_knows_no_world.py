@@ -209,3 +209,28 @@ def test_the_command_lines_defaults_come_from_the_plugins() -> None:
              if world_words(v)}
     assert not found, found
     assert all("elsewhere world" in e for e in probe["errors"].values()), probe["errors"]
+
+
+def test_the_default_world_is_the_one_its_plugin_names(monkeypatch) -> None:
+    """The world whose plug-in says ``default = True``; else the first with commands; two
+    that say so, or none with commands, are refused."""
+    from latent_sindy import plugins
+
+    class World:
+        def __init__(self, default: bool = False, commands: bool = True) -> None:
+            if default:
+                self.default = True
+            if commands:
+                self.commands = {}
+
+    def installed(**worlds: World) -> str:
+        monkeypatch.setattr(plugins, "world_names", lambda: sorted(worlds))
+        monkeypatch.setattr(plugins, "get_world", worlds.__getitem__)
+        return plugins.default_world.__wrapped__()
+
+    assert installed(a=World(commands=False), b=World(), c=World(default=True)) == "c"
+    assert installed(a=World(commands=False), b=World(), c=World()) == "b"
+    with pytest.raises(UserError, match="each say they are the default"):
+        installed(a=World(default=True), b=World(default=True))
+    with pytest.raises(UserError, match="no installed world offers"):
+        installed(a=World(commands=False))

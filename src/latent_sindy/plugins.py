@@ -145,7 +145,7 @@ def default_world() -> str:
     if len(said) > 1:
         raise UserError(f"worlds {', '.join(said)} each say they are the default world: "
                         "uninstall all but one")
-    found = [name for name in said or worlds if hook(worlds[name], "commands")]
+    found = [name for name in said or worlds if hook(worlds[name], "commands") is not None]
     if not found:
         raise UserError("no installed world offers the commands collect, control and "
                         "reproduce (a commands hook): install a world plug-in that does")
