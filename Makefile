@@ -1,8 +1,9 @@
 # The two commands of the README: `make demo` (the main job) and `make test`.
 # Each creates .venv and installs the package (torch pinned by constraints.txt) by itself:
-# the demo the package alone, the tests the dev extras on top of it. pip compiles the
-# installed modules' bytecode on one core; `--no-compile` and compileall on every core make the
-# same .pyc files (BENCHMARKS.md, "Both cores through `make demo`").
+# the demo the package with the pushing world's simulator (the push extra), the tests the dev
+# extras on top of it. pip compiles the installed modules' bytecode on one core; `--no-compile`
+# and compileall on every core make the same .pyc files (BENCHMARKS.md, "Both cores through
+# `make demo`").
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -19,7 +20,7 @@ install: $(DEV_STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(PIP) -e .
+	$(PIP) -e '.[push]'
 	$(COMPILE)
 	touch $(STAMP)
 

@@ -109,7 +109,8 @@ def _fit_frame(P: np.ndarray, U: np.ndarray, f: float, mask: np.ndarray, turn: b
     """Every term of the frame library, least squares on the training pushes ``mask``."""
     z, u, m = _features(P, f), torch.as_tensor(U), torch.as_tensor(mask.reshape(-1))
     model = SindyConfig(order=1, library="frame", include_sine=False,
-                        angle_frequency=f).build(4, 3, circle=(2, 3), turn=turn).double()
+                        library_options={"frequency": f}).build(4, 3, circle=(2, 3),
+                                                                turn=turn).double()
     model.fit_state_data(z[:, :-1].reshape(-1, 4)[m], u.reshape(-1, 3)[m],
                          z[:, 1:].reshape(-1, 4)[m], optimizer=STLSQ(min_share=0.0))
     return _frame_step(model, f)

@@ -30,9 +30,9 @@ from latent_sindy.sindy import (
     SindyLibrary,
     Sine,
     Sum,
-    library_preset,
+    library_names,
+    library_spec,
     poly_library,
-    preset_names,
     register_derived,
     spec_from_dict,
 )
@@ -286,9 +286,9 @@ def test_spec_round_trips_through_json() -> None:
     assert str(Polynomial("z,u", 2) + Sine("z")) == "poly(z,u; 2) + sin(z)"
 
 
-def test_push_preset_adds_the_push_geometry() -> None:
+def test_the_push_library_adds_the_push_geometry() -> None:
     nz, nu = 4, 3
-    lib = SindyLibrary(library_preset("push", order=2, angle=1, length=2), nz, nu)
+    lib = SindyLibrary(library_spec("push", order=2), nz, nu)
     classic = CandidateLibrary(nz, nu, 2)
     assert lib.names[: classic.n_terms] == classic.names
     extra = lib.names[classic.n_terms :]
@@ -303,8 +303,8 @@ def test_push_preset_adds_the_push_geometry() -> None:
     torch.testing.assert_close(
         theta[:, lib.names.index("u2 cos(u1)")], u[:, 2] * torch.cos(u[:, 1])
     )
-    assert set(preset_names()) >= {"poly", "push", "face", "frame"}
-    assert library_preset("poly", order=3) == poly_library(3)
+    assert set(library_names()) >= {"poly", "push", "face", "frame"}
+    assert library_spec("poly", order=3) == poly_library(3)
 
 
 @pytest.mark.parametrize(
@@ -317,9 +317,11 @@ def test_push_preset_adds_the_push_geometry() -> None:
         (lambda: Sum(()), "non-empty"),
         (lambda: spec_from_dict({"kind": "exp", "variables": ["z"]}), "unknown"),
         (lambda: spec_from_dict({"kind": "sin", "variables": ["z"], "degree": 2}), "unknown"),
-        (lambda: library_preset("fourier"), "unknown"),
-        (lambda: library_preset("push", angle=2, length=2), "different"),
-        (lambda: library_preset("poly", degree=2), "unexpected"),
+        (lambda: library_spec("fourier"), "unknown"),
+        (lambda: push_library(angle=2, length=2), "different"),
+        (lambda: library_spec("poly", options=("degree=2",)), "unknown settings"),
+        (lambda: library_spec("face", order=2), "takes order 1"),
+        (lambda: library_spec("frame", order=1, options={"degree": 7}), "degree=7"),
     ],
 )
 def test_bad_specs_are_user_errors(make, match: str) -> None:
@@ -515,7 +517,7 @@ def test_face_variables_need_a_face_frame_and_one_definition() -> None:
 
 
 @pytest.mark.parametrize("load", [
-    "library_preset('frame')",
+    "library_spec('frame', order=1, include_sine=False)",
     "spec_from_dict(json.loads(json.dumps(FRAME)))",
 ])
 def test_a_world_library_loads_by_name_without_importing_the_world(load: str) -> None:
@@ -523,7 +525,7 @@ def test_a_world_library_loads_by_name_without_importing_the_world(load: str) ->
     # core finds the world through its plug-in entry point.
     code = (
         "import json, sys\n"
-        "from latent_sindy.sindy import SindyLibrary, library_preset, spec_from_dict\n"
+        "from latent_sindy.sindy import SindyLibrary, library_spec, spec_from_dict\n"
         "assert not [m for m in sys.modules if m.startswith('latent_sindy.worlds')]\n"
         f"FRAME = {frame_library().to_dict()!r}\n"
         f"spec = {load}\n"
@@ -533,9 +535,9 @@ def test_a_world_library_loads_by_name_without_importing_the_world(load: str) ->
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def test_an_unknown_preset_lists_the_worlds_presets() -> None:
+def test_an_unknown_library_lists_the_worlds_libraries() -> None:
     with pytest.raises(UserError, match=r"unknown: use one of poly.*frame"):
-        library_preset("fourier")
+        library_spec("fourier")
     with pytest.raises(UserError, match="rho"):  # the registered derived variables
         Sine("zz")
 

@@ -185,11 +185,11 @@ def test_the_frame_library_on_moments_needs_the_cameras_angle_map(tmp_path: Path
              "--no-progress"]
     sindy = ["sindy", "--order", "1", "--library", "frame", "--no-include-sine"]
     image = ["image", "--encoder", "moments", "--latent-dim", "4", "--decoder", "sprite"]
-    assert main([*train, "--out", str(tmp_path / "bad"), *sindy, "--frame-sense",
-                 str(-sense), *image]) == 2
-    assert f"give --frame-sense {sense} --frame-offset" in capsys.readouterr().err
-    assert main([*train, "--out", str(tmp_path / "ok"), *sindy, "--frame-sense", str(sense),
-                 "--frame-offset", repr(offset), *image]) == 0
+    assert main([*train, "--out", str(tmp_path / "bad"), *sindy, "--library-options",
+                 f"sense={-sense}", *image]) == 2
+    assert f"give --library-options sense={sense} offset=" in capsys.readouterr().err
+    assert main([*train, "--out", str(tmp_path / "ok"), *sindy, "--library-options",
+                 f"sense={sense}", f"offset={offset!r}", *image]) == 0
     assert main([*train, "--out", str(tmp_path / "auto"), *sindy, *image]) == 0
-    dyn = RunDir(tmp_path / "auto").load().model.config.dynamics
-    assert (dyn.frame_sense, dyn.frame_offset) == (sense, pytest.approx(offset))
+    options = RunDir(tmp_path / "auto").load().model.config.dynamics.options
+    assert (options.sense, options.offset) == (sense, pytest.approx(offset))

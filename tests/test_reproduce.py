@@ -240,17 +240,15 @@ def test_reused_study_data_must_match_the_collection_plan(study):
 
 @pytest.mark.parametrize("name", ["sindy2", "sindy_moments", "state_sindy_frame"])
 def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, name):
-    """Runs recorded when the sprite's side and the frame library's sense and offset were
-    plain defaults (11, 1, 0.0 in the asked settings) are compared on what their model was
-    built with, so they are reused; a model built otherwise is still refused."""
+    """Runs recorded when the sprite's side was a plain default (11 in the asked settings)
+    are compared on what their model was built with, so they are reused; a model built
+    otherwise is still refused."""
     src = study["out"] / "runs" / "seed0" / name
     run = tmp_path / name
     shutil.copytree(src, run)
     record = json.loads((run / "config.json").read_text())
     asked = record["train"]["model"]
-    for settings, key, before in ((asked["observation"].get("decoder", {}), "size", 11),
-                                  (asked["dynamics"], "frame_sense", 1),
-                                  (asked["dynamics"], "frame_offset", 0.0)):
+    for settings, key, before in ((asked["observation"].get("decoder", {}), "size", 11),):
         if key in settings:
             settings[key] = before
     (run / "config.json").write_text(json.dumps(record))

@@ -125,10 +125,10 @@ def test_the_angle_frequency_follows_the_encoders_order() -> None:
 
     obs = AutoencoderConfig(encoder_kind="moments", decoder_kind="sprite", latent_dim=4,
                             moment_order=3)
-    dyn = SindyConfig(order=1, library="face", angle_frequency=0.0)
     pytest.importorskip("latent_sindy.worlds.push")  # (registers the face library)
+    dyn = SindyConfig(order=1, library="face", library_options=("frequency=0",))
     cfg = ModelConfig(observation=obs, dynamics=dyn).resolve(1, 32, 3)
-    assert cfg.dynamics.angle_frequency == 3.0 and cfg.resolved
-    with pytest.raises(UserError, match="angle-frequency 0"):
+    assert cfg.dynamics.options.frequency == 3.0 and cfg.resolved
+    with pytest.raises(UserError, match="frequency=0 takes the moments encoder"):
         ModelConfig(observation=StateConfig(), dynamics=dyn)
     _ = TABLE

@@ -350,12 +350,12 @@ def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
     from latent_sindy.models import SindyConfig
 
     with pytest.raises(UserError, match="nearest face normal"):
-        SindyConfig(order=1, library="frame", angle_frequency=1.0)
+        SindyConfig(order=1, library="frame", library_options=("frequency=1",))
     # the data's square looks alike every 90°: a face library at another frequency is refused
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "r"), "--epochs", "1",
                  "--no-progress", "sindy", "--order", "1", "--library", "face",
-                 "--angle-frequency", "2", "state"]) != 0
-    assert "use --angle-frequency 4" in capsys.readouterr().err
+                 "--library-options", "frequency=2", "state"]) != 0
+    assert "use --library-options frequency=4" in capsys.readouterr().err
 
 
 def test_the_init_share_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:

@@ -35,6 +35,7 @@ from latent_sindy.locks import exclusive
 from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.progress import Progress
+from latent_sindy.sindy import LibrarySpec
 from latent_sindy.training import recipe as recipes
 from latent_sindy.training.config import TrainConfig, check_fit_settings
 from latent_sindy.training.loop import train
@@ -60,7 +61,9 @@ class LatentSINDy:
         latent_dim: size of the latent state z.
         dynamics: "sindy" (sparse, interpretable), "linear" (z' = A z + B u + c) or "mlp".
         order: SINDy's polynomial order of the library in (z, u) (None: 2; continuous time 3).
-        library: SINDy's library preset ("poly"; worlds register their own).
+        library: SINDy's library: a name ("poly"; worlds register their own) or a spec
+            composed from the grammar (``Polynomial(("z", "u"), 2) + Sine("z")``), which
+            holds its own terms (``order`` and ``include_sine`` are then not read).
         include_sine: SINDy's library also holds sin(z).
         encoder: "conv" (learned), "mlp" (fully connected, 128-64-32 sigmoid), or a kind a
             world registers; decoder: "conv", "fc" or "mlp" (None: mlp in continuous time).
@@ -88,7 +91,7 @@ class LatentSINDy:
     """
 
     def __init__(self, latent_dim: int = 4, *, dynamics: Literal["sindy", "linear", "mlp"]
-                 = "sindy", order: int | None = None, library: str = "poly",
+                 = "sindy", order: int | None = None, library: str | LibrarySpec = "poly",
                  include_sine: bool = True, encoder: str | None = None,
                  decoder: str | None = None,
                  loss: LossWeights | None = None, settings: TrainConfig | None = None,
@@ -141,6 +144,8 @@ class LatentSINDy:
                                              order=self.order, include_sine=self.include_sine,
                                              time_unit=recipes.unit_of(self.time_unit, self.recipe),
                                              **(recipes.INIT if self.recipe else {}))
+        elif self.dynamics == "sindy" and isinstance(self.library, LibrarySpec):
+            extra = {"composed": self.library}
         elif self.dynamics == "sindy":
             extra = {"order": self.order, "library": self.library,
                      "include_sine": self.include_sine}

@@ -34,16 +34,17 @@ import tyro
 from latent_sindy.atomic import check_output_dir, check_output_file
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
 from latent_sindy.models.autoencoder_flags import CLI_REGISTRY
-from latent_sindy.plugins import get_world, hook
+from latent_sindy.plugins import default_world, get_world, hook
 from latent_sindy.progress import bar
 from latent_sindy.study.commands import configured_world
 from latent_sindy.training.config import TrainConfig
 
 Flat = tyro.conf.OmitArgPrefixes
 
-DEFAULT_WORLD = "push"
+DEFAULT_WORLD = default_world()
 """The world plug-in whose settings collect, control and reproduce take as flags (its
-``commands`` hook, which it must have); they reach other worlds through the generic hooks."""
+``commands`` hook): the one the installed plug-ins name (:func:`~latent_sindy.plugins.
+default_world`); the commands reach other worlds through the generic hooks."""
 COMMAND_OF = hook(get_world(DEFAULT_WORLD), "commands")
 CollectSettings = COMMAND_OF["collect"].settings
 ControlSettings = COMMAND_OF["control"].settings
@@ -80,17 +81,19 @@ def _bar(desc: str, unit: str):
 
 @dataclass
 class Collect:
-    """Collect random-push trajectories into an HDF5 file (resumable: re-run to finish); with
-    --world, random-action sequences of any world that collects (its collect hook)."""
+    """Collect the default world's random-action trajectories into an HDF5 file (resumable:
+    re-run to finish); with --world, random-action sequences of any world that collects (its
+    collect hook)."""
 
     world: str = DEFAULT_WORLD
-    """The world to collect from: push (the options below), or another installed world with
-    a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed only."""
+    """The world to collect from: the default world (the options below), or another installed
+    world with a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed
+    only."""
     world_config: tuple[str, ...] = ()
-    """KEY=VALUE settings of a --world other than push (fields of its config dataclass, the
-    others at their defaults), e.g. `image_size=32` for pendulum or `task=reacher-easy
-    size=32` for dmc."""
-    out: Path = Path("data/push.h5")
+    """KEY=VALUE settings of a --world other than the default world (fields of its config
+    dataclass, the others at their defaults), e.g. `image_size=32` for pendulum or
+    `task=reacher-easy size=32` for dmc."""
+    out: Path = Path(f"data/{DEFAULT_WORLD}.h5")
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
     plan: Annotated[CollectSettings, tyro.conf.arg(name=""), Flat] = field(
         default_factory=CollectSettings)
@@ -210,7 +213,7 @@ class Train:
     """
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=TrainConfig)
+        default_factory=lambda: TrainConfig(data=Path(f"data/{DEFAULT_WORLD}.h5")))
     # A second thread pays on a machine of one's own; while other jobs hold the cores it
     # measured 0.86-1.06x of one (BENCHMARKS.md). A CPU result's bits depend on the count.
     threads: int = 0
@@ -251,14 +254,15 @@ class Equations:
 
 @dataclass
 class Control:
-    """Push the block to a goal with MPPI in a trained run's latent space (closed loop); a run
-    of another world (e.g. the pendulum) plays that world's tasks, results in RUN/control-SPACE.
+    """Reach a goal with MPPI in a trained run's latent space (closed loop) in the run's world:
+    a run of the default world plays its tasks with the options below, results in
+    RUN/control-TASK-SPACE; a run of another world (e.g. the pendulum) plays that world's
+    tasks, results in RUN/control-SPACE.
 
     Writes RUN/control-TASK-SPACE/results.json, results.csv and episode GIFs, and prints a
     summary: success rates (course and strict criteria), steps to goal, planning time. Without
     a planner option (--samples, --horizon, --sigma, --lambda, ...) it plans as the study does
-    in the run's world: the course's settings for the paper's push, K=300 H=8
-    sigma=(0.2, 1.0, 0.05) for pushes in any direction.
+    in the run's world (the world's own planner settings).
     """
 
     run_dir: tyro.conf.Positional[Path]

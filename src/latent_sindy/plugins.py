@@ -7,7 +7,7 @@ metadata, as this project does for its own worlds in ``pyproject.toml``::
     mine = "my_package.world:WORLD"
 
 Loading a plug-in runs its module, which may register what the core looks up by name:
-library presets and derived library variables (:mod:`latent_sindy.sindy`), encoders. The core
+named libraries and derived library variables (:mod:`latent_sindy.sindy`), encoders. The core
 calls :func:`load_plugins` when a name it is asked for is not registered yet, so a run folder
 that names a world's library loads without the user importing the world first.
 
@@ -28,8 +28,8 @@ from latent_sindy.errors import UserError
 
 GROUP = "latent_sindy.worlds"
 
-__all__ = ["CONFIG_GIVEN", "GROUP", "HOOKS", "Command", "WorldPlugin", "get_world", "hook",
-           "load_plugins", "world_names"]
+__all__ = ["CONFIG_GIVEN", "GROUP", "HOOKS", "Command", "WorldPlugin", "default_world",
+           "get_world", "hook", "load_plugins", "world_names"]
 
 
 class WorldPlugin(Protocol):
@@ -64,7 +64,7 @@ HOOKS: dict[str, str] = {
                           "or runs carry [no settings: data and runs of the world are refused]",
     "check_data": "(data) -> None: UserError unless the data fit the world [any data]",
     "prepare_model": "(model config, data) -> the model config the world adjusts to its data, "
-                     "e.g. a library preset's parameters [as given]",
+                     "e.g. a named library's options [as given]",
     "feasible": "(states, actions) -> bool per action: which the world can carry out [all]",
     "planner": "() -> the MPPI settings control uses in this world [MPPIConfig()]",
     "collect": "(sequences, steps, seed) -> SequenceData of random actions [collect_random]",
@@ -76,6 +76,9 @@ HOOKS: dict[str, str] = {
                      "study does, passed to the reproduce hook by name, e.g. ('workers',) "
                      "[none: those settings are refused]",
     "data": "(**settings) -> SequenceData the world's study is made of [none]",
+    "default": "True: this world is the CLI's default world, whose commands hook gives "
+               "collect, control and reproduce their flags (one installed world at most) "
+               "[the first installed world, by name, with a commands hook]",
     "commands": "{'collect' | 'control' | 'reproduce': Command} the CLI's commands as this "
                 "world runs them, with settings of its own (a Command's settings type: its "
                 "fields are the command's flags where this is the CLI's default world); "
@@ -118,6 +121,23 @@ def get_world(name: str) -> Any:
         raise UserError(f"world {name!r} is not installed: use one of "
                         f"{', '.join(world_names()) or '(none)'}")
     return found[0].load()
+
+
+@cache
+def default_world() -> str:
+    """The name of the CLI's default world: the installed world whose plug-in says it is
+    (its ``default`` hook), else the first, by name, with a ``commands`` hook. UserError where
+    two say so or none has commands."""
+    worlds = {name: get_world(name) for name in world_names()}
+    said = [name for name, world in worlds.items() if hook(world, "default")]
+    if len(said) > 1:
+        raise UserError(f"worlds {', '.join(said)} each say they are the default world: "
+                        "uninstall all but one")
+    found = [name for name in said or worlds if hook(worlds[name], "commands") is not None]
+    if not found:
+        raise UserError("no installed world offers the commands collect, control and "
+                        "reproduce (a commands hook): install a world plug-in that does")
+    return found[0]
 
 
 @cache

@@ -187,7 +187,8 @@ class AutoencoderConfig:
     # ------------------------------------------------------------------ what the latent is
     @property
     def pose_latent(self) -> bool:
-        """Whether the latent is a pose (x, y, cos nφ, sin nφ), as a face library needs."""
+        """Whether the latent is a pose (x, y, cos nφ, sin nφ), as a library written on a pose
+        latent needs."""
         return self.encoder_kind in ("moments", "mask_moments")
 
     @property

@@ -105,9 +105,9 @@ class ModelConfig:
     """Image models: a readout of the pose features from the latent, trained with the data's
     true poses (privileged; weight --lambda-pose) and usable as MPPI's cost (--space pose):
     "linear" (learned), or "coordinates" (the first four latent coordinates are the pose
-    features, x, y, cos fθ, sin fθ, f the object's symmetry, so a face library can write the
-    dynamics on them). Control reads the goal's pose from the goal image, never the
-    true state."""
+    features, x, y, cos fθ, sin fθ, f the object's symmetry, so a library written on a pose
+    latent can write the dynamics on them). Control reads the goal's pose from the goal
+    image, never the true state."""
     turn: bool = False
     """A pose latent's orientation features (z2, z3) are turned, after every step, by the
     angle ω that the dynamics give as z2's update (z2 + i z3 times e^(iω); z3's own update is
@@ -131,14 +131,15 @@ class ModelConfig:
             raise UserError(f"--library {self.dynamics.library} writes the dynamics on the pose "
                             "features (z2, z3 = cos, sin of the angle): use it with the state "
                             "encoder, the moments encoder (--encoder moments --latent-dim 4) or "
-                            "--pose-head coordinates, or use --library push")
-        if isinstance(self.dynamics, SindyConfig) and self.dynamics.pose_library and (
-                self.dynamics.angle_frequency == 0
-                and getattr(self.observation, "encoder_kind", None) not in ("moments",
-                                                                          "mask_moments")):
-            raise UserError("--angle-frequency 0 takes the moments encoder's --moment-order: "
-                            "use it with --encoder moments or mask_moments, or give the "
-                            "object's symmetry (4 for a square)")
+                            "--pose-head coordinates, or use a library written on any latent "
+                            "(e.g. poly)")
+        if isinstance(self.dynamics, SindyConfig) and self.dynamics.follows_latent and (
+                getattr(self.observation, "encoder_kind", None) not in ("moments",
+                                                                      "mask_moments")):
+            raise UserError(f"--library-options {self.dynamics.named.latent_frequency}=0 takes "
+                            "the moments encoder's --moment-order: use it with --encoder "
+                            "moments or mask_moments, or give the angle frequency of the "
+                            "object's symmetry")
         if self.turn and not self.pose_latent:
             raise UserError("--turn turns the pose latent's orientation features (z2, z3): use "
                             "it with the state or moments encoder or --pose-head coordinates")
@@ -170,15 +171,15 @@ class ModelConfig:
 
     @property
     def resolved(self) -> bool:
-        return self.observation.resolved and self.action_dim is not None and (
-            getattr(self.dynamics, "angle_frequency", 1) != 0)
+        return self.observation.resolved and self.action_dim is not None and not (
+            getattr(self.dynamics, "follows_latent", False))
 
     def with_moment_order(self, order: int) -> ModelConfig:
-        """This config with the moments encoder's order ``order``, and the pose library's
-        angle frequency too where it was left to it (0)."""
+        """This config with the moments encoder's order ``order``, and the named library's
+        angle frequency too where it was left to it (:attr:`SindyConfig.follows_latent`)."""
         dyn = self.dynamics
-        if getattr(dyn, "angle_frequency", None) == 0:
-            dyn = dataclasses.replace(dyn, angle_frequency=float(order))
+        if isinstance(dyn, SindyConfig):
+            dyn = dyn.with_latent_frequency(order)
         return dataclasses.replace(self, observation=dataclasses.replace(
             self.observation, moment_order=order), dynamics=dyn)
 
@@ -198,7 +199,7 @@ class ModelConfig:
             self, observation=self.observation.resolve(channels, image_size, source),
             action_dim=action_dim)
         order = getattr(self.observation, "moment_order", 0)
-        if getattr(self.dynamics, "angle_frequency", None) == 0 and order:
+        if getattr(self.dynamics, "follows_latent", False) and order:
             out = out.with_moment_order(order)
         return out
 

@@ -66,7 +66,8 @@ class StateConfig:
 
     @property
     def pose_latent(self) -> bool:
-        """The latent is the pose features (a face library can write dynamics on it)."""
+        """The latent is the pose features (a library written on a pose latent can write
+        dynamics on it)."""
         return True
 
     @property

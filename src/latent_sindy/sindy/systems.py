@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from latent_sindy.sindy.grammar import Cosine, Polynomial, Sine
-from latent_sindy.sindy.presets import poly_library
+from latent_sindy.sindy.named_libraries import poly_library
 from latent_sindy.sindy.torch_library import SindyLibrary
 
 __all__ = ["KnownSystem", "duffing_forced", "lorenz_control"]

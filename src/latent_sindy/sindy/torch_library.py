@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from latent_sindy.sindy.grammar import LibrarySpec, spec_from_dict
-from latent_sindy.sindy.presets import poly_library
+from latent_sindy.sindy.named_libraries import poly_library
 from latent_sindy.sindy.terms import BoundDerived, compile_terms
 
 __all__ = ["VALID_ORDERS", "CandidateLibrary", "LibrarySubset", "SindyLibrary"]
@@ -271,7 +271,7 @@ class SindyLibrary(_ProductTerms):
 class CandidateLibrary(SindyLibrary):
     """The classic library: monomials of [z, u] up to ``order``, then sin(z), then cos(z).
 
-    The spec :func:`~latent_sindy.sindy.presets.poly_library` ``(order, include_sine,
+    The spec :func:`~latent_sindy.sindy.named_libraries.poly_library` ``(order, include_sine,
     include_cosine)``; the monomials have the order, names and values of
     ``pysindy.PolynomialLibrary(degree=order, include_bias=True)``.
 

@@ -29,7 +29,7 @@ from latent_sindy.atomic import check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
-from latent_sindy.plugins import CONFIG_GIVEN, get_world, hook, world_names
+from latent_sindy.plugins import CONFIG_GIVEN, default_world, get_world, hook, world_names
 from latent_sindy.progress import say_stderr
 from latent_sindy.result_files import record_rows
 from latent_sindy.study.report import Report
@@ -95,8 +95,9 @@ def machine() -> dict[str, Any]:
 
 def check_study_folder(out: Path, study: str) -> None:
     """UserError if ``out`` holds the results of another study (its summary.json names the
-    world: a world study's at its top, the push study's in its config): the study would
-    write its summary.json, report.html and table.md over them."""
+    world: a world study's at its top; one with its config but no world is the default
+    world's study): the study would write its summary.json, report.html and table.md over
+    them."""
     path = out / "summary.json"
     try:
         summary = json.loads(path.read_text())
@@ -104,7 +105,7 @@ def check_study_folder(out: Path, study: str) -> None:
         return  # no summary (yet), or one no study can have written: nothing to keep apart
     if not isinstance(summary, dict):
         return
-    held = summary.get("world") or ("push" if "config" in summary else None)
+    held = summary.get("world") or (default_world() if "config" in summary else None)
     if held is not None and held != study:
         raise UserError(f"--out {out} holds the {held} study (its summary.json): choose "
                         f"another --out for the {study} study")

@@ -81,8 +81,9 @@ def unknown_choice(name: str, value: Any) -> str | None:
 class TrainConfig:
     """Settings of one training run; with the data file they determine the final model."""
 
-    data: Path = Path("data/push.h5")
-    """Trajectory file (.h5) from `latent-sindy collect`."""
+    data: Path = Path("data/train.h5")
+    """Trajectory file (.h5) from `latent-sindy collect` (the command line's default: the
+    default world's, data/WORLD.h5)."""
     out: Path = Path("runs/sindy")
     """Run folder to create (config, weights, checkpoint, metrics, loss plot)."""
     model: tyro.conf.OmitArgPrefixes[ModelConfig] = field(default_factory=ModelConfig)
@@ -90,12 +91,12 @@ class TrainConfig:
     loss: tyro.conf.OmitArgPrefixes[LossWeights] = field(default_factory=LossWeights)
     """Weights of the loss terms."""
     window: int = 1
-    """Pushes per training window H (1: the paper's single-step model)."""
+    """Actions per training window H (1: the paper's single-step model)."""
     epochs: int = 300
     """Passes over the training windows (the paper: 3000; 300 trains in minutes on a CPU)."""
     batch_size: int | None = None
     """Windows per mini-batch (the paper: 500); trajectory batches hold batch_size // (T-H+1)
-    whole trajectories (at least one), T the pushes per trajectory. None: a sixteenth of the
+    whole trajectories (at least one), T the actions per trajectory. None: a sixteenth of the
     training windows, 16 to 500, so that every epoch makes about 16 updates however small the
     data (a batch of 500 gives a set of 50 trajectories one update an epoch, too few to learn
     anything in 300 epochs)."""
@@ -197,7 +198,7 @@ class TrainConfig:
 
         checks = (
             (self.epochs >= 1, f"--epochs {self.epochs}: train for at least 1 epoch"),
-            (self.window >= 1, f"--window {self.window}: windows need at least 1 push"),
+            (self.window >= 1, f"--window {self.window}: windows need at least 1 action"),
             (self.batch_size is None or self.batch_size >= 1,
              f"--batch-size {self.batch_size}: use 1 or more (or None: chosen from the data)"),
             (self.starts >= 1, f"--starts {self.starts}: use 1 or more"),

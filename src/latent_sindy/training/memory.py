@@ -37,7 +37,7 @@ def check_training_memory(model_cfg: ModelConfig, cfg: TrainConfig, data: Sequen
 def _dynamics_bytes(model_cfg: ModelConfig, cfg: TrainConfig) -> tuple[int, str, str] | None:
     nz, nu, dyn = model_cfg.observation.latent_dim, model_cfg.action_dim or 0, model_cfg.dynamics
     fix = "use a smaller --latent-dim"
-    if dyn.kind == "sindy":  # the polynomial part alone; a preset's other terms come on top
+    if dyn.kind == "sindy":  # the polynomial part alone; a named library's other terms come on top
         terms = math.comb(nz + nu + dyn.order, dyn.order)
         terms += nz * (getattr(dyn, "include_sine", False) + getattr(dyn, "include_cosine", False))
         params, activations = terms * nz, (cfg.batch_size or 1) * terms  # Ψ (p, nz); Θ (B, p)

@@ -69,8 +69,6 @@ Space = Literal["latent", "image", "pose"]
 #: runs are compared on what their model was built with (the record's resolved "model").
 DERIVED: tuple[tuple[str, str], ...] = (
     ("observation", "decoder.size"),
-    ("dynamics", "frame_sense"),
-    ("dynamics", "frame_offset"),
 )
 
 

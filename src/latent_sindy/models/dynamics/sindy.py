@@ -4,7 +4,7 @@ frozen fast form for control, and its config.
 Ψ is trained (or fitted by sparse regression, :meth:`SindyDynamics.fit_state_data`) and the
 mask M only ever pruned, so :class:`SindyDynamics` is a
 :class:`~latent_sindy.models.dynamics.base.SparseDynamics`. Any library of
-:mod:`latent_sindy.sindy` can be given (``library_spec``); the config names a few.
+:mod:`latent_sindy.sindy` can be given (``library_spec``); the config chooses one by name.
 
     >>> model = SindyConfig(order=2).build(nz=16, nu=3)
     >>> z = model.rollout(torch.zeros(4, 16), torch.zeros(4, 10, 3))  # (4, 11, 16)
@@ -16,12 +16,14 @@ mask M only ever pruned, so :class:`SindyDynamics` is a
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
 import torch
+import tyro
 from torch import nn
 
 from latent_sindy.errors import UserError
@@ -39,11 +41,9 @@ from latent_sindy.sindy import (
     VALID_ORDERS,
     CandidateLibrary,
     LibrarySpec,
+    NamedLibrary,
     SindyLibrary,
-    Sine,
-    has_preset,
-    library_preset,
-    preset_names,
+    named_library,
     spec_from_dict,
 )
 from latent_sindy.sindy import fit as sindy_fit
@@ -289,109 +289,107 @@ class SindyDynamics(SparseDynamics):
 
 @dataclass(frozen=True)
 class SindyConfig:
-    """SINDy: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library of [z, u]."""
+    """SINDy: z[t+1] = z + Θ(z, u) (M ⊙ Ψ) over a candidate library of [z, u] chosen by name
+    (--library: "poly" or one an installed world registers), or composed in Python."""
 
     kind: ClassVar[str] = "sindy"
     model_class: ClassVar[type[LatentDynamics]] = SindyDynamics
     order: int = 2
-    """Polynomial order of the candidate library (1-4)."""
+    """Polynomial order of the candidate library (1-4; a named library may take fewer)."""
     include_sine: bool = True
     """Add sin(z_i) candidates."""
     include_cosine: bool = False
     """Add cos(z_i) candidates ("poly" library only)."""
-    library: Literal["poly", "push", "face", "frame"] = "poly"
-    """"poly": monomials of [z, u] up to the order (+ sin z); any other name is a library
-    preset a world registers (:mod:`latent_sindy.sindy.presets`). The pushing world's, for
-    example (docs/world.md), for actions u = [p, angle, length]: "push", poly plus the push
-    length times the sine and cosine of the push angle, alone and times each state; "face"
-    (order 1, on a pose latent, world-direction pushes): the push length times the push
-    direction or the orientation features (z2, z3), times powers of the contact offset and
-    the relative push angle; "frame" (likewise): the push in the pushed face's frame."""
-    angle_frequency: float = 4.0
-    """"face" and "frame" presets: f of the orientation features (cos fθ, sin fθ), the
-    object's visible symmetry (2π over the visible period; 4 for a square). The relative
-    action angle enters as sin(f u1), cos(f u1) times those features. 0: the moments
-    encoder's ``moment_order`` (the order its latent's features turn at; chosen from the data
-    when that is 0)."""
-    frame_degree: int = 3
-    """"frame" preset: highest degree of its monomials (of the contact offset and the angle
-    from the face normal)."""
-    frame_sense: int | None = None
-    """"frame" preset: the orientation features' sense against the world's, fθ =
-    sense · atan2(z3, z2) + offset (-1 for features read in a mirrored image). None: the
-    latent's own, which training states in the run's record: on the moments latent the
-    data's camera's (a value given must match it), on a pose latent in world angles (the
-    state, a coordinates pose head) 1. A model built from an unresolved config reads None
-    as 1 and its offset as 0."""
-    frame_offset: float | None = None
-    """"frame" preset: that offset (radians); None: the latent's own, as ``frame_sense``
-    (the moments latent's camera's, else 0)."""
+    library: str = "poly"
+    """The candidate library by name: "poly", monomials of [z, u] up to the order (+ sin z),
+    or one an installed world registers (latent_sindy.sindy.library_names() lists them;
+    docs/training.md). In Python a library composed from the grammar goes to `composed`
+    instead (or LatentSINDy(library=spec))."""
+    library_options: tuple[str, ...] = ()
+    """KEY=VALUE options of the named library (the fields of its options dataclass), e.g.
+    `frequency=4`; a value left out keeps its default. In Python a mapping or the options
+    dataclass is taken too; the config keeps the pairs that differ from the defaults."""
     init_scale: float = 1e-3
     """Standard deviation of the initial coefficients Ψ."""
+    composed: tyro.conf.Suppress[Any] = None
+    """A library composed in Python from the grammar (a LibrarySpec; the config keeps its
+    dict), in place of a named one: ``SindyConfig(composed=Polynomial(("z", "u"), 2) +
+    Sine("z"))``. It holds its own terms, so ``order`` and the sine and cosine switches are
+    not read."""
 
     def __post_init__(self) -> None:
         if isinstance(self.order, bool) or self.order not in VALID_ORDERS:
             raise UserError(f"SINDy order {self.order} is not supported: use 1, 2, 3 or 4")
-        if not has_preset(self.library):
-            raise UserError(f"--library {self.library!r}: use one of {', '.join(preset_names())}")
+        if self.composed is not None:
+            if self.library != "poly" or self.library_options:
+                raise UserError(f"a composed library replaces a named one: drop library "
+                                f"{self.library!r} and its options, or the composed spec")
+            object.__setattr__(self, "composed", spec_from_dict(self.composed).to_dict())
+        library = named_library(self.library)
         if self.library != "poly" and self.include_cosine:
             raise UserError("--include-cosine is for the poly library only")
-        if self.library in ("face", "frame") and self.order != 1:
-            raise UserError(f"--library {self.library} with --order {self.order}: the "
-                            f"{self.library} library's push terms already hold the "
-                            "higher-order products; use --order 1")
-        if self.library == "frame" and self.angle_frequency != 0 and (
-                self.angle_frequency < 3 or self.angle_frequency != round(self.angle_frequency)):
-            raise UserError(f"--library frame with --angle-frequency {self.angle_frequency:g}: "
-                            "its angle a is measured from the nearest face normal of a block "
-                            "whose visible symmetry is its number of faces (a uniform square: "
-                            "4); use an integer >= 3, or --library face / push")
-        if isinstance(self.frame_degree, bool) or not 0 <= self.frame_degree <= 4:
-            raise UserError(f"--frame-degree {self.frame_degree}: use 0 to 4")
-        if self.frame_sense not in (None, 1, -1):
-            raise UserError(f"--frame-sense {self.frame_sense}: use 1 or -1")
-        if self.frame_offset is not None and not math.isfinite(self.frame_offset):
-            raise UserError(f"--frame-offset {self.frame_offset}: use a finite angle (radians)")
-        if not (math.isfinite(self.angle_frequency) and self.angle_frequency >= 0):
-            raise UserError(f"--angle-frequency {self.angle_frequency}: use a finite number "
-                            "> 0 (4 for a square block), or 0 for the moments encoder's order")
+        if self.order not in library.orders:
+            raise UserError(f"--library {self.library} with --order {self.order}: that library "
+                            f"takes --order {' or '.join(map(str, library.orders))}")
+        options = library.settings(self.library_options, f"--library-options of {self.library}")
+        object.__setattr__(self, "library_options", library.pairs(options))
         check_init_scale("SINDy", self.init_scale)
+
+    @property
+    def named(self) -> NamedLibrary:
+        """What the library's name stands for (its builder, options and needs)."""
+        return named_library(self.library)
+
+    @property
+    def options(self) -> Any:
+        """The named library's options (its options dataclass)."""
+        return self.named.settings(self.library_options, f"--library-options of {self.library}")
+
+    def with_options(self, **changes: Any) -> SindyConfig:
+        """This config with the named library's options ``changes`` replaced."""
+        return dataclasses.replace(self, library_options=dataclasses.replace(
+            self.options, **changes))
 
     @property
     def pose_library(self) -> bool:
         """Whether the library writes the dynamics on a pose latent (x, y, cos fθ, sin fθ,
-        ...): the face and frame presets."""
-        return self.library in ("face", "frame")
+        ...): the model needs a latent whose first four coordinates are those."""
+        return self.named.pose_latent
+
+    @property
+    def follows_latent(self) -> bool:
+        """Whether the library's angle frequency is left to the pose latent's (its
+        ``latent_frequency`` option at 0): resolved from the encoder's moment order."""
+        name = self.named.latent_frequency
+        return name is not None and getattr(self.options, name) == 0
+
+    def with_latent_frequency(self, frequency: float) -> SindyConfig:
+        """This config with a frequency left to the latent (:attr:`follows_latent`) set to
+        ``frequency``; as it is otherwise."""
+        if not self.follows_latent:
+            return self
+        return self.with_options(**{self.named.latent_frequency: float(frequency)})
 
     def build(self, nz: int, nu: int, circle: Sequence[int] | None = None,
               turn: bool = False) -> SindyDynamics:
         """The model for latent size nz and action size nu; ``circle``: the latent
         coordinates kept on the unit circle, ``turn``: turned by z_a's update (see
         :class:`LatentDynamics`)."""
-        if self.library in ("push", "face", "frame") and nu < 3:
-            raise UserError(f"the {self.library} library needs actions [p, angle, length], "
-                            f"got {nu}")
-        if self.pose_library and nz < 4:
-            raise UserError(f"the {self.library} library needs the pose (x, y, cos fθ, sin fθ) "
-                            f"as the first four latent coordinates, got a latent of size {nz}: "
-                            "use the state or moments encoder or --pose-head coordinates")
-        if self.library == "frame":
-            spec = library_preset("frame", order=self.order, frequency=self.angle_frequency,
-                                  degree=self.frame_degree,
-                                  sense=1 if self.frame_sense is None else self.frame_sense,
-                                  angle_offset=self.frame_offset or 0.0)
-            if self.include_sine:
-                spec = spec + Sine("z")
-        elif self.library == "face":
-            spec = library_preset("face", order=self.order, frequency=self.angle_frequency)
-            if self.include_sine:
-                spec = spec + Sine("z")
-        elif self.library == "push":
-            spec = library_preset("push", order=self.order, angle=1, length=2,
-                                  include_sine=self.include_sine)
-        else:
+        if self.composed is not None:
+            return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=self.composed,
+                                 circle=circle, turn=turn)
+        if self.library == "poly":
             return SindyDynamics(nz, nu, order=self.order, include_sine=self.include_sine,
                                  include_cosine=self.include_cosine, init_scale=self.init_scale,
                                  circle=circle, turn=turn)
+        library = self.named
+        if nu < library.actions:
+            raise UserError(f"the {self.library} library needs at least {library.actions} "
+                            f"action coordinates, got {nu}")
+        if library.pose_latent and nz < 4:
+            raise UserError(f"the {self.library} library needs the pose (x, y, cos fθ, sin fθ) "
+                            f"as the first four latent coordinates, got a latent of size {nz}: "
+                            "use the state or moments encoder or --pose-head coordinates")
+        spec = library.build(self.order, self.include_sine, self.options)
         return SindyDynamics(nz, nu, init_scale=self.init_scale, library_spec=spec, circle=circle,
                              turn=turn)

@@ -2,7 +2,9 @@
 
 PyBullet writes its build time to stderr on import and "argv[0]=" to stdout on connect,
 straight from C; this module hides both so the CLI's output stays ours (and a CLI error
-stays one line).
+stays one line). PyBullet is the ``push`` extra (``pip install 'latent-sindy[push]'``): where
+it is missing, importing this module (what simulating, rendering or reaching in this world
+does) raises a UserError saying so.
 """
 
 from __future__ import annotations
@@ -11,6 +13,12 @@ import contextlib
 import ctypes
 import os
 import sys
+
+from latent_sindy.errors import UserError
+
+#: What a user without PyBullet is told (one line).
+MISSING = ("the push world simulates with PyBullet, which is not installed: "
+           "pip install 'latent-sindy[push]' (or pip install pybullet)")
 
 
 @contextlib.contextmanager
@@ -39,9 +47,14 @@ def quiet_c_output():
         os.close(null)
 
 
-with quiet_c_output():
-    import pybullet
-    import pybullet_data
-    from pybullet_utils.bullet_client import BulletClient
+try:
+    with quiet_c_output():
+        import pybullet
+        import pybullet_data
+        from pybullet_utils.bullet_client import BulletClient
+except ModuleNotFoundError as e:
+    if (e.name or "").partition(".")[0] not in ("pybullet", "pybullet_data", "pybullet_utils"):
+        raise
+    raise UserError(MISSING) from None
 
-__all__ = ["BulletClient", "pybullet", "pybullet_data", "quiet_c_output"]
+__all__ = ["MISSING", "BulletClient", "pybullet", "pybullet_data", "quiet_c_output"]

@@ -85,7 +85,7 @@ def moment_frame(cfg: PushEnvConfig) -> tuple[int, float]:
     """(sense, offset) that map the angle nφ of the n-th angular moment of ``cfg``'s images
     (image axes: x to the right, y down; n = 2π / the block's visible period) to the world's
     fθ = sense · nφ + offset: what the frame library needs of the moments latent
-    (``SindyConfig.frame_sense``, ``frame_offset``). The camera maps a world angle β to the
+    (the frame library's ``sense`` and ``offset`` options). The camera maps a world angle β to the
     image angle γ0 + sense · β (:meth:`Camera.angle_map`), and a square's 4th moment peaks at
     its corners, π / n off its faces, so nφ = n (γ0 + sense θ) + π."""
     n = 2 * math.pi / cfg.angle_period

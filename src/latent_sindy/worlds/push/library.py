@@ -4,14 +4,15 @@ Importing this module (the world's plug-in does) registers with :mod:`latent_sin
 
 * the derived-variable node :class:`FaceFrame` (dict key ``"face_frame"``, the key run folders
   store), which defines the pushed face's variables ``a`` and ``n``;
-* the library presets ``"push"`` (:func:`push_library`), ``"face"`` (:func:`face_library`) and
-  ``"frame"`` (:func:`frame_library`).
+* the named libraries ``"push"`` (:func:`push_library`), ``"face"`` (:func:`face_library`,
+  options :class:`FaceOptions`) and ``"frame"`` (:func:`frame_library`, options
+  :class:`FrameOptions`), which ``SindyConfig(library=...)`` and ``--library`` choose.
 
 Actions are ``u = [p, ψ, ℓ]`` (contact offset, push angle, push length) and a pose latent is
 ``(x, y, cos fθ, sin fθ)`` (f the block's visible symmetry: 4 for a square).
 
-    >>> from latent_sindy.sindy import SindyLibrary, library_preset
-    >>> SindyLibrary(library_preset("frame"), n_state=4, n_control=3).n_terms
+    >>> from latent_sindy.sindy import SindyLibrary, library_spec
+    >>> SindyLibrary(library_spec("frame", order=1, include_sine=False), 4, 3).n_terms
     57
 """
 
@@ -33,11 +34,12 @@ from latent_sindy.sindy import (
     DerivedVariables,
     Identity,
     LibrarySpec,
+    NamedLibrary,
     Polynomial,
     Sine,
     poly_library,
     register_derived,
-    register_preset,
+    register_library,
 )
 from latent_sindy.sindy.grammar import variables
 
@@ -45,6 +47,8 @@ __all__ = [
     "FACE_VARIABLES",
     "FaceFrame",
     "FaceIndices",
+    "FaceOptions",
+    "FrameOptions",
     "face_library",
     "face_variables",
     "frame_library",
@@ -267,6 +271,92 @@ def frame_library(
                      offset=angle_offset)
 
 
-register_preset("push", push_library)
-register_preset("face", face_library)
-register_preset("frame", frame_library)
+def _check_frequency(frequency: float) -> None:
+    if isinstance(frequency, bool) or not (math.isfinite(frequency) and frequency >= 0):
+        raise UserError(f"frequency={frequency}: use a finite number > 0 (4 for a square "
+                        "block), or 0 for the moments encoder's order")
+
+
+@dataclass(frozen=True)
+class FaceOptions:
+    """The face library's options (``--library face --library-options KEY=VALUE``)."""
+
+    frequency: float = 4.0
+    """f of the orientation features (cos fθ, sin fθ), the block's visible symmetry (2π over
+    its visible period; 4 for a square). The relative push angle enters as sin(f u1),
+    cos(f u1) times those features. 0: the moments encoder's ``moment_order`` (the order its
+    latent's features turn at; chosen from the data when that is 0)."""
+
+    def __post_init__(self) -> None:
+        _check_frequency(self.frequency)
+
+
+@dataclass(frozen=True)
+class FrameOptions:
+    """The frame library's options (``--library frame --library-options KEY=VALUE``)."""
+
+    frequency: float = 4.0
+    """As the face library's: the block's visible symmetry, or 0 for the moments encoder's
+    order."""
+    degree: int = 3
+    """Highest degree of its monomials (of the contact offset and the angle from the face
+    normal)."""
+    sense: int | None = None
+    """The orientation features' sense against the world's, fθ = sense · atan2(z3, z2) +
+    offset (-1 for features read in a mirrored image). None: the latent's own, which training
+    states in the run's record: on the moments latent the data's camera's (a value given
+    must match it), on a pose latent in world angles (the state, a coordinates pose head) 1.
+    A model built from an unresolved config reads None as 1 and its offset as 0."""
+    offset: float | None = None
+    """That offset (radians); None: the latent's own, as ``sense`` (the moments latent's
+    camera's, else 0)."""
+
+    def __post_init__(self) -> None:
+        _check_frequency(self.frequency)
+        if self.frequency != 0 and (self.frequency < 3
+                                    or self.frequency != round(self.frequency)):
+            raise UserError(f"frequency={self.frequency:g}: its angle a is "
+                            "measured from the nearest face normal of a block whose visible "
+                            "symmetry is its number of faces (a uniform square: 4); use an "
+                            "integer >= 3, or --library face / push")
+        if isinstance(self.degree, bool) or not 0 <= self.degree <= 4:
+            raise UserError(f"degree={self.degree}: use 0 to 4")
+        if self.sense not in (None, 1, -1):
+            raise UserError(f"sense={self.sense}: use 1 or -1")
+        if self.offset is not None and not math.isfinite(self.offset):
+            raise UserError(f"offset={self.offset}: use a finite angle (radians)")
+
+
+def _push(order: int, include_sine: bool, options: Any) -> LibrarySpec:
+    return push_library(order, angle=1, length=2, include_sine=include_sine)
+
+
+def _face(order: int, include_sine: bool, options: FaceOptions) -> LibrarySpec:
+    spec = face_library(order, frequency=options.frequency)
+    return spec + Sine("z") if include_sine else spec
+
+
+def _frame(order: int, include_sine: bool, options: FrameOptions) -> LibrarySpec:
+    spec = frame_library(order, frequency=options.frequency, degree=options.degree,
+                         sense=1 if options.sense is None else options.sense,
+                         angle_offset=options.offset or 0.0)
+    return spec + Sine("z") if include_sine else spec
+
+
+#: Actions [p, ψ, ℓ]: the contact offset, the push angle and the push length.
+_ACTIONS = 3
+
+register_library("push", NamedLibrary(
+    _push, actions=_ACTIONS,
+    about="poly plus the push length times the sine and cosine of the push angle, alone and "
+          "times each state"))
+register_library("face", NamedLibrary(
+    _face, FaceOptions, orders=(1,), actions=_ACTIONS, pose_latent=True,
+    latent_frequency="frequency",
+    about="on a pose latent, world-direction pushes: the push length times the push "
+          "direction or the orientation features, times powers of the contact offset and the "
+          "relative push angle (order 1: its push terms hold the higher-order products)"))
+register_library("frame", NamedLibrary(
+    _frame, FrameOptions, orders=(1,), actions=_ACTIONS, pose_latent=True,
+    latent_frequency="frequency",
+    about="as face, with the push written in the pushed face's frame"))

@@ -19,7 +19,7 @@ import numpy as np
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.control.world import Task
 from latent_sindy.worlds.push import data as _data
-from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the presets)
+from latent_sindy.worlds.push import library as _library  # noqa: F401  (registers the libraries)
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.criteria import goal_criteria
 from latent_sindy.worlds.push.models import prepare_model as _prepare_model
@@ -33,6 +33,8 @@ class PushWorld:
     """The Panda pushing world ``config`` (the symmetric world by default)."""
 
     name = "push"
+    default = True
+    """The CLI's default world: collect, control and reproduce take its settings as flags."""
 
     def __init__(self, config: PushEnvConfig | None = None) -> None:
         self.config = config or PushEnvConfig()

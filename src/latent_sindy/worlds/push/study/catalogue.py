@@ -44,7 +44,8 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
     auto = AutoencoderConfig(decoder_kind=decoder)
     library = "face" if push == "symmetric" else "push"
     pose_dynamics = SindyConfig(order=1, library=library, include_sine=False,
-                                angle_frequency=2 * math.pi / angle_period)
+                                library_options={"frequency": 2 * math.pi / angle_period}
+                                if library == "face" else ())
     frame = library == "face"  # the frame library, like the face one, needs world directions
     moments = dataclasses.replace(auto, encoder_kind="moments", latent_dim=4,
                                   decoder_kind="sprite",
@@ -128,7 +129,8 @@ def model_specs(scale: Scale, decoder: Literal["conv", "fc"] = "conv",
         # prediction terms erase the orientation: RESULTS.md, "A learned object mask").
         ModelSpec("sindy_learned", f"SINDy ({library} library), learned mask moments",
                   ModelConfig(observation=learned,
-                              dynamics=dataclasses.replace(pose_dynamics, angle_frequency=0.0)),
+                              dynamics=pose_dynamics.with_options(frequency=0.0)
+                              if library == "face" else pose_dynamics),
                   loss=LossWeights(lambda_pred_x=0.0, lambda_pred_z=0.0, lambda_l1=0.0),
                   prune_below=0.0, init_share=0.2, sindy_fit="after", relative_time=1.0,
                   headline=True),

@@ -18,19 +18,21 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, replace
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from latent_sindy.api import AllTermsPruned, LatentSINDy
 from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.progress import Milestones
 from latent_sindy.study import evaluation
-from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged, train
+from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged
 from latent_sindy.training.loop import restore_finished
 from latent_sindy.training.record import run_record
 from latent_sindy.worlds.push.episodes import ControlConfig, run_control
@@ -82,10 +84,22 @@ def ensure_trained(cfg: TrainConfig, progress=None) -> str:
         restore_finished(run)  # a deleted or damaged metrics.csv, a missing loss.png
         return "reused"
     if run.interrupted:
-        train(replace(cfg, resume=True), progress)
+        _fit(cfg, progress, resume=True)
         return "resumed"
-    train(cfg, progress)
+    _fit(cfg, progress)
     return "trained"
+
+
+def _fit(cfg: TrainConfig, progress: Any, resume: bool = False) -> None:
+    """Train ``cfg`` into its run folder through the estimator, as a user of the library
+    would: ``LatentSINDy(model=..., settings=...).fit(data, out=...)`` (``resume``: go on
+    from the folder's checkpoint)."""
+    estimator = LatentSINDy(model=cfg.model, settings=cfg, loss=cfg.loss, seed=cfg.seed,
+                            device=cfg.device)
+    with warnings.catch_warnings():  # (the study reports each model's sparsity itself)
+        warnings.simplefilter("ignore", AllTermsPruned)
+        estimator.fit(read_sequences(cfg.data), out=cfg.out, progress=progress,
+                      **({"resume": True} if resume else {}))
 
 
 def train_job(job: TrainJob) -> dict[str, Any]:

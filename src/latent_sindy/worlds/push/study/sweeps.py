@@ -97,9 +97,9 @@ def _is_sindy(spec: ModelSpec) -> bool:
 
 
 def _has_order(spec: ModelSpec) -> bool:
-    """SINDy whose library takes an order: the face and frame libraries are order 1 by
-    construction (their push terms hold the higher products)."""
-    return _is_sindy(spec) and not spec.model.dynamics.pose_library
+    """SINDy whose library takes more than one order: the face and frame libraries are
+    order 1 by construction (their push terms hold the higher products)."""
+    return _is_sindy(spec) and len(spec.model.dynamics.named.orders) > 1
 
 
 def _is_sindy_on_fixed_encoder(spec: ModelSpec) -> bool:
