@@ -14,6 +14,10 @@ Draw i of ``--seed S`` is the same video on any machine: rerun one with ``--only
 
     python benchmarks/video_draws.py --draws 20 --seed 0 --out draws0.jsonl --workers 2
     python benchmarks/video_draws.py --smoke          # one tiny draw, two epochs (tests)
+
+``--record results`` also writes one row per fit into the tracked result file
+``results/pendulum-video/family-draws.csv`` under the model ``--label`` (then
+``python -m latent_sindy.results_page`` regenerates RESULTS.md).
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from typing import Any
 from latent_sindy.script_args import check_output_file, positive_int, seed_range
 
 MODES = ("exact", "frames")
+#: How each mode is named in the tracked result file's model column.
+MODE_NAMES = {"exact": "exact derivatives", "frames": "frames alone"}
 
 
 def video_of(seed: int, index: int, mode: str, smoke: bool = False) -> Any:
@@ -51,6 +57,7 @@ def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> 
     import torch
 
     from latent_sindy import LatentSINDy
+    from latent_sindy.api import AllTermsPruned, UncertainLaw
 
     torch.set_num_threads(1)
     d = video_of(seed, index, mode, smoke)
@@ -75,6 +82,8 @@ def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> 
             "settings": d.to_dict(), "law": d.law_text(), "equations": est.equations(),
             **verdict, "warnings": [str(w.message) for w in caught
                                     if not issubclass(w.category, DeprecationWarning)],
+            "warned": any(issubclass(w.category, (UncertainLaw, AllTermsPruned))
+                          for w in caught),
             "restarts": est.kept_.get("restarts"),
             "time_unit": est.record_["model"]["dynamics"].get("time_unit"),
             "data_s": round(t1 - t0, 1), "fit_s": round(t2 - t1, 1)}
@@ -109,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="append one JSON line per fit; skip those there")
     p.add_argument("--save", help="save each fitted model under this folder")
     p.add_argument("--smoke", action="store_true", help="one tiny draw, two epochs (tests)")
+    p.add_argument("--record", type=Path, metavar="DIR",
+                   help="also write each fit's row into DIR/pendulum-video/family-draws.csv "
+                        "(the tracked results: DIR is results)")
+    p.add_argument("--label", default="default",
+                   help="the model's name in the recorded rows (the mode is added to it)")
     p.add_argument("--derivative-error", action="store_true",
                    help="only print how far central differences of each draw's frames are "
                         "from its exact second derivative (no fit)")
@@ -149,6 +163,14 @@ def main(argv: list[str] | None = None) -> int:
             futures = {pool.submit(one_fit, *job, args.smoke, args.save): job for job in todo}
             for fut in futures:
                 keep(futures[fut], fut.result())
+    if args.record is not None:
+        from latent_sindy.result_files import record_rows
+
+        record_rows(args.record, "pendulum-video", "family-draws", [
+            {"model": f"{args.label}, {MODE_NAMES[j[2]]}", "seed": j[0], "case": f"draw {j[1]}",
+             "system": r["system"].replace("_", " "), "recovered": r["recovered"],
+             "warned": r.get("warned", bool(r["warnings"])), "fit_s": r["fit_s"]}
+            for j, r in rows.items()])
     for mode in modes:
         got = [rows[j] for j in jobs if j[2] == mode]
         print(f"{mode}: recovered {sum(r['recovered'] for r in got)} of {len(got)}")

@@ -118,6 +118,15 @@ def test_benchmark_smoke_writes_a_row_per_fit_and_resumes(tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0 and len(out.read_text().splitlines()) == 1
     assert "recovered 0 of 1" in again.stdout or "recovered 1 of 1" in again.stdout
+    # --record: the fit's row in the tracked result file, under the label and the mode
+    record = subprocess.run([*cmd, "--record", str(tmp_path / "results"), "--label", "trial"],
+                            capture_output=True, text=True, timeout=600)
+    assert record.returncode == 0, record.stderr
+    from latent_sindy.result_files import read_rows
+
+    rows = read_rows(tmp_path / "results" / "pendulum-video" / "family-draws.csv")
+    assert [(r["model"], r["case"]) for r in rows] == [("trial, exact derivatives", "draw 0")]
+    assert rows[0]["recovered"] in (True, False) and rows[0]["fit_s"] >= 0
 
 
 def test_benchmark_refuses_bad_arguments(tmp_path):

@@ -184,9 +184,9 @@ class LatentSINDy:
         folder = {} if out is None else {"out": Path(out), "data": Path(data.source)}
         cfg = self.train_config(**folder, **(recipes.recipe_epochs(settings) if self.recipe
                                              else settings))
-        finish = None
+        hooks: dict[str, Any] = {}
         if self.recipe:  # (into a folder: its main fit, the phases and restarts in memory)
-            cfg, phases, restarts, finish = recipes.apply_recipe(
+            cfg, phases, restarts, hooks = recipes.apply_recipe(
                 cfg, data, self._loss_given, self.pca_components, phases, restarts, bool(folder),
                 scale="epochs" not in settings)
         if out is not None:
@@ -198,7 +198,7 @@ class LatentSINDy:
         else:
             session, result, metrics = fit_in_memory(cfg, data, progress, phases or (),
                                                      warmup=warmup, restarts=restarts,
-                                                     finish=finish)
+                                                     **hooks)
             self.model_, self.normalizer_, record = session.model, session.norm, session.record
             self.description_, self.world_record_ = record["description"], record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}

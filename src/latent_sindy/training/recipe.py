@@ -28,6 +28,7 @@ import numpy as np
 from latent_sindy.data import SequenceData
 from latent_sindy.models.loss import LossWeights
 from latent_sindy.training.config import TrainConfig
+from latent_sindy.training.manifold_start import begin_session
 from latent_sindy.training.reselect import reselect_session
 from latent_sindy.training.session import Phase, Restarts
 
@@ -119,7 +120,7 @@ def recipe_settings(base: TrainConfig | None = None) -> TrainConfig:
 def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
                  components: int | None, phases: Any, restarts: Restarts | None,
                  in_folder: bool = False, scale: bool = False
-                 ) -> tuple[TrainConfig, list[Phase], Restarts | None, Any]:
+                 ) -> tuple[TrainConfig, list[Phase], Restarts | None, dict[str, Any]]:
     """A fit's settings ``cfg`` (its model already the recipe's) on ``data`` with the recipe
     filled in where the caller left it (None): the loss weights, the principal components
     (with the mlp encoder and decoder, which take them),
@@ -127,9 +128,11 @@ def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
     which trains the main fit alone (phases and restarts are in memory only); ``scale``
     (the caller gave no epochs): the schedule's epochs, pruning interval and refinement, and
     the calibration's, counted in updates (:func:`schedule_scale`). The last of the four
-    returned is what each start does after its phases (the recipe's: the law chosen again on
-    held-out derivatives, :func:`~latent_sindy.training.reselect.reselect_session`), None
-    in a run folder."""
+    returned are ``fit_in_memory``'s hooks: what each start does before its main fit (the
+    encoder started at the frames' geodesic coordinates,
+    :func:`~latent_sindy.training.manifold_start.begin_session`) and after its phases (the
+    law chosen again on held-out derivatives,
+    :func:`~latent_sindy.training.reselect.reselect_session`); none in a run folder."""
     spread = pixel_spread(data)
     factor = schedule_scale(data, cfg.batch_size) if scale else 1.0
     if scale:
@@ -143,10 +146,11 @@ def apply_recipe(cfg: TrainConfig, data: SequenceData, loss: LossWeights | None,
                                                                        pca_components=k))
     cfg = dataclasses.replace(cfg, model=model, loss=loss or recipe_loss(spread))
     if in_folder:
-        return cfg, list(phases or ()), restarts, None
+        return cfg, list(phases or ()), restarts, {}
     calibrate = calibration(spread, scaled(300, factor), scaled(25, factor))
     return (cfg, [calibrate] if phases is None else list(phases),
-            RESTARTS if restarts is None else restarts, reselect_session)
+            RESTARTS if restarts is None else restarts,
+            {"begin": begin_session, "finish": reselect_session})
 
 
 def recipe_epochs(settings: dict[str, Any]) -> dict[str, Any]:

@@ -233,6 +233,7 @@ class Restarts:
 def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | None = None,
                   phases: Sequence[Phase] = (), *, warmup: Sequence[Phase] = (),
                   restarts: Restarts | None = None,
+                  begin: Callable[[Session], dict | None] | None = None,
                   finish: Callable[[Session], float | None] | None = None
                   ) -> tuple[Session, FitResult, list[dict]]:
     """Train ``cfg``'s model on ``data`` without a run folder: ``warmup`` phases, the fit to
@@ -243,7 +244,10 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
     ``restarts``) and every epoch's metrics rows of the kept start. ``finish``, called on
     each start's session after its phases (its model holding the kept weights), may change
     the model (the recipe chooses the law again: :mod:`~latent_sindy.training.reselect`)
-    and returns the validation share of z^(k) the law leaves unexplained, or None."""
+    and returns the validation share of z^(k) the law leaves unexplained, or None.
+    ``begin``, called on each start's fresh session before anything is trained, may set its
+    model's start (the recipe's: :mod:`~latent_sindy.training.manifold_start`); what it
+    returns is kept as ``kept["start"]``."""
     if not all(isinstance(p, Phase) for p in (*phases, *warmup)):
         raise UserError("phases, warmup: give a sequence of latent_sindy.Phase")
     if restarts is not None and not isinstance(restarts, Restarts):
@@ -262,6 +266,7 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
         if start:
             progress.close()
             progress.note(f"restart {start} of {rule.count} (seed {seed})")
+        begun = begin(session) if begin is not None else None
         progress.start(session.cfg.epochs + sum(p.epochs for p in phases), session.done)
         metrics: list[dict] = []
         for phase in warmup:
@@ -274,7 +279,7 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             if phases:  # the phases go on from the kept weights
                 session.model.load_state_dict(result.state)
         return {"session": session, "result": result, "metrics": metrics + result.metrics,
-                "recon": kept_value(result, "val/recon"), "start": start}
+                "recon": kept_value(result, "val/recon"), "start": start, "begun": begun}
 
     def finish_phases(c: dict[str, Any]) -> None:
         for phase in phases:
@@ -329,6 +334,8 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             result.kept["restarts"]["agreed"] = largest >= rule.agree
     if phases:
         result.kept["unexplained"] = kept["fvu"]
+    if kept["begun"] is not None:
+        result.kept["start"] = kept["begun"]
     session.finish(result).cpu().eval()
     return session, result, kept["metrics"]
 
