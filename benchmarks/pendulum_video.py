@@ -7,7 +7,7 @@ latent dimension 1, fully connected encoder and decoder 128-64-32 with sigmoid a
 z'' = Θ(z, z') Ξ over polynomials of (z, z') to order 3 plus sin of each (12 terms). One step
 is the loss (the encoder's z, ż, z̈ and the decoder's x̂, ẍ̂ by forward mode) + backward +
 Adam update on a batch of ``--batch`` frames (published: 1000), through the one training loop
-(``training.core.train_epoch``). It reports the median and the fastest step over
+(``training.fit_loop.train_epoch``). It reports the median and the fastest step over
 ``--steps`` timed steps (after one warm-up step), and the time an epoch of the training split
 would take at the median (the published run: 5001 + 1001 epochs).
 
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
     from latent_sindy.models import AutoencoderConfig, LossWeights, ModelConfig
     from latent_sindy.models.dynamics import ContinuousSindyConfig
     from latent_sindy.training import TrainConfig
-    from latent_sindy.training.core import Gradients, train_epoch
+    from latent_sindy.training.fit_loop import Gradients, train_epoch
     from latent_sindy.training.prepare import derivative_samples, new_model
     from latent_sindy.training.record import run_record
     from latent_sindy.worlds.pendulum.video import pendulum_video

@@ -29,7 +29,7 @@ from latent_sindy.models.dynamics import ContinuousSindyConfig
 from latent_sindy.models.loss import latent_error
 from latent_sindy.models.reward_head import Targets
 from latent_sindy.training import DerivativeSamples, Sequences, TrainConfig, evaluate
-from latent_sindy.training.core import Gradients
+from latent_sindy.training.fit_loop import Gradients
 from latent_sindy.training.prepare import derivative_samples, training_tensors
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -17,7 +17,7 @@ from latent_sindy.models.dynamics.continuous import ContinuousSindyConfig
 from latent_sindy.models.dynamics.sindy import SindyDynamics
 from latent_sindy.models.latent_model import ModelConfig
 from latent_sindy.training.config import AUTO_BATCH, TrainConfig, resolve_prune
-from latent_sindy.training.core import prune, share_scale
+from latent_sindy.training.fit_loop import prune, share_scale
 from latent_sindy.training.prepare import settle_settings
 
 

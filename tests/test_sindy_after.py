@@ -99,12 +99,12 @@ def test_a_run_folder_keeps_the_choice_and_is_reused(tmp_path) -> None:
 def test_settings_the_fit_refuses_are_refused_before_the_order_is_chosen(monkeypatch) -> None:
     """--sindy-fit after with dynamics it cannot fit: the error comes before any training."""
     from latent_sindy.models.dynamics import LinearConfig
-    from latent_sindy.training import core
+    from latent_sindy.training import fit_loop
 
     def no_training(*args, **kwargs):
         raise AssertionError("trained before the settings were checked")
 
-    monkeypatch.setattr(core, "fit", no_training)
+    monkeypatch.setattr(fit_loop, "fit", no_training)
     est = estimator()
     est.model = ModelConfig(observation=est.model_config.observation, dynamics=LinearConfig())
     with pytest.raises(UserError, match="--sindy-fit after"):

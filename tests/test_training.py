@@ -465,7 +465,7 @@ def test_the_record_holds_what_auto_batching_resolved_to(data: Path, tmp_path: P
 def scripted_validation(monkeypatch, objectives: list[float]) -> None:
     """The trainer's validation reports these objectives, one per evaluation in order (the
     other terms are the real ones); training itself is untouched."""
-    from latent_sindy.training import core as fit_module
+    from latent_sindy.training import fit_loop as fit_module
 
     real, values = fit_module.evaluate, iter(objectives)
 
@@ -668,8 +668,8 @@ def test_batch_parallel_gradients_equal_one_thread_and_repeat_exactly() -> None:
     """--parallel batch: the slices' loss terms and gradients, weighted by their share and
     added, are those of the whole batch (to float rounding), the pose head's unused
     parameters stay without a gradient, and the same batch gives the same bits again."""
-    from latent_sindy.training.core import Gradients as _Gradients
-    from latent_sindy.training.core import Sequences
+    from latent_sindy.training.fit_loop import Gradients as _Gradients
+    from latent_sindy.training.fit_loop import Sequences
 
     torch.manual_seed(0)
     cfg = ModelConfig(observation=AutoencoderConfig(**TINY_AE), dynamics=DYNAMICS_KINDS["sindy"](),

@@ -38,9 +38,9 @@ from latent_sindy.progress import Progress
 from latent_sindy.sindy import LibrarySpec
 from latent_sindy.training import recipe as recipes
 from latent_sindy.training.config import TrainConfig, check_fit_settings
-from latent_sindy.training.loop import train
 from latent_sindy.training.runs import RunDir
 from latent_sindy.training.session import Phase, Restarts, fit_in_memory
+from latent_sindy.training.train_run import train
 
 __all__ = ["AllTermsPruned", "LatentSINDy", "UncertainLaw"]
 
@@ -360,7 +360,7 @@ class LatentSINDy:
         is locked while written (a `latent-sindy train` into it is refused meanwhile, and one
         that holds it refuses this save) and must hold no run."""
         self._check_fitted()
-        from latent_sindy.training.core import to_cpu
+        from latent_sindy.training.fit_loop import to_cpu
         from latent_sindy.training.record import action_box
         from latent_sindy.version import __version__
 

@@ -50,7 +50,7 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.training.config import resolve_prune
-from latent_sindy.training.core import FitResult, prune, share_scale, to_cpu
+from latent_sindy.training.fit_loop import FitResult, prune, share_scale, to_cpu
 from latent_sindy.training.session import Session, fit_in_memory, prepare
 
 __all__ = ["STATE_FORMAT", "WarmState", "first_fit", "load_state", "save_state", "warm_fit"]

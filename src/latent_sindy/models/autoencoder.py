@@ -275,7 +275,7 @@ class Autoencoder(nn.Module):
             if isinstance(part, MomentEncoder | MaskMomentEncoder | SpriteDecoder):
                 part.fit_statistics(frames)
         if k := self.config.pca_components:
-            from latent_sindy.models.front import principal_components
+            from latent_sindy.models.pca_front import principal_components
 
             mean, basis, spread = principal_components(frames.flatten(1), k)
             # coordinates of unit spread (the pixels' variance, concentrated on k

@@ -124,7 +124,7 @@ class AutoencoderFlags:
     pca_components: int = 0
     """mlp encoder and decoder: the first this many principal components of the normalised
     training frames in front of the encoder's network and behind the decoder's, a fixed
-    linear map (:mod:`~latent_sindy.models.front`; the frames' derivatives pass it exactly):
+    linear map (:mod:`~latent_sindy.models.pca_front`; the frames' derivatives pass it exactly):
     the networks work on these coordinates, not on every pixel. 0: none."""
 
 

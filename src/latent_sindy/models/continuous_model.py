@@ -51,9 +51,9 @@ import torch
 
 from latent_sindy.errors import UserError
 from latent_sindy.models.derivatives import along, along_layers
-from latent_sindy.models.front import LinearMap
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.models.loss import DEFAULT_WEIGHTS, LossWeights, latent_error
+from latent_sindy.models.pca_front import LinearMap
 from latent_sindy.models.reward_head import Targets
 
 __all__ = ["ContinuousLatentModel"]

@@ -38,7 +38,7 @@ from latent_sindy.models.autoencoder_parts import (
     sprite_side,
 )
 from latent_sindy.models.encoders import median_background, mlp
-from latent_sindy.models.front import LinearMap
+from latent_sindy.models.pca_front import LinearMap
 
 __all__ = ["Decoder", "MlpDecoder", "SpriteDecoder"]
 

@@ -33,7 +33,7 @@ from torch import nn
 import latent_sindy.models.autoencoder_parts as parts
 from latent_sindy.errors import UserError
 from latent_sindy.models.autoencoder_parts import KERNEL, ImageShape, conv_shape
-from latent_sindy.models.front import LinearMap
+from latent_sindy.models.pca_front import LinearMap
 
 __all__ = ["ACTIVATIONS", "KERNEL", "Encoder", "KeypointEncoder", "MaskMomentEncoder",
            "MlpEncoder", "MomentEncoder", "angular_moments", "image_coordinates",

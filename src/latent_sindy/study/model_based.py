@@ -29,7 +29,7 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 
-__all__ = ["MODELS", "LoopScale", "loop_wall", "mean_interval", "pick_scale", "run_loop",
+__all__ = ["MODELS", "LoopScale", "loop_wall", "mean_interval", "pick_scale", "run_seed",
            "run_study", "sized_config"]
 
 Say = Callable[[str], None]
@@ -192,7 +192,7 @@ def run_study(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
     # each job its own wall time; a worker process says its lines on its stderr
     tell = say if ex.slots == 1 else say_stderr
     order = reversed(jobs) if ex.slots == 1 else jobs  # (one worker runs the last first)
-    pending = {ex.submit(run_loop, world, s, seed, kind, out, str(on), threads, tell,
+    pending = {ex.submit(run_seed, world, s, seed, kind, out, str(on), threads, tell,
                          steps_per_action, reader): (seed, kind) for seed, kind in order}
     try:
         while pending:
@@ -208,7 +208,7 @@ def run_study(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
             "interval": "mean ± t(0.975, n-1)·sd/√n over seeds"}
 
 
-def run_loop(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: str,
+def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: str,
              threads: int, say: Say, steps_per_action: int = 1,
              reader: Callable[[], Any] | None = None) -> dict[str, Any]:
     """One (seed, model) loop of the study in ``out/seed<S>/<kind>`` (resumed where it

@@ -24,7 +24,7 @@ from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.models.reward_head import Targets
 from latent_sindy.sindy import STLSQ
 from latent_sindy.training.config import TrainConfig, auto_batch_size, resolve_batching
-from latent_sindy.training.core import ENCODE_CHUNK
+from latent_sindy.training.fit_loop import ENCODE_CHUNK
 from latent_sindy.training.samples import CoordinateSamples, DerivativeSamples, Samples, Sequences
 
 __all__ = [
@@ -78,7 +78,7 @@ def new_model(model_cfg, cfg: TrainConfig, device: torch.device
 
 @dataclass
 class TrainingTensors:
-    """What :func:`~latent_sindy.training.core.fit` trains and validates on."""
+    """What :func:`~latent_sindy.training.fit_loop.fit` trains and validates on."""
 
     train: Samples
     """Sequences (windows or whole trajectories), or a continuous-time model's samples."""
@@ -141,7 +141,7 @@ def choose_moment_order(model_cfg, data: SequenceData, norm: Normalizer, cfg: Tr
     :data:`PROVISIONAL_ORDER` (same seed, loss and batches), then the trained encoder's
     :meth:`~latent_sindy.models.encoders.MaskMomentEncoder.symmetry_order` on the training
     images; any other config as it is."""
-    from latent_sindy.training.core import fit
+    from latent_sindy.training.fit_loop import fit
 
     if not getattr(model_cfg.observation, "order_from_data", False):
         return model_cfg

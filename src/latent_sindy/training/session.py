@@ -1,7 +1,7 @@
 """One training, set up in one place: :func:`prepare` checks the settings and the data and
 builds everything a fit needs (a :class:`Session`: model, optimiser, mini-batch generator,
 tensors, where it stands); :meth:`Session.fit` trains it, whole or a :class:`Phase` at a time.
-The estimator, the run folder (:mod:`latent_sindy.training.loop`), the choice of a moment
+The estimator, the run folder (:mod:`latent_sindy.training.train_run`), the choice of a moment
 order and the worlds' own studies all train through it.
 
 An autoencoder and its sparse dynamics find a good model from some initialisations and not
@@ -38,7 +38,7 @@ from latent_sindy.errors import UserError
 from latent_sindy.models.latent_model import LatentModel, ModelConfig
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
-from latent_sindy.training.core import (
+from latent_sindy.training.fit_loop import (
     BestValidation,
     FitResult,
     TrainingDiverged,
@@ -111,7 +111,7 @@ class Session:
         """Train: without ``phase`` to ``cfg.epochs`` with the run's settings, its metrics and
         selection going on (a resumed run, the chosen start); with one, the phase's epochs
         with its settings, then its kept weights adopted as it says. Returns the fit's
-        result (:func:`~latent_sindy.training.core.fit`)."""
+        result (:func:`~latent_sindy.training.fit_loop.fit`)."""
         if phase is None:
             result = self._fit(self.cfg, self.metrics, self.best, on_epoch)
         else:

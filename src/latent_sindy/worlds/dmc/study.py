@@ -30,7 +30,7 @@ from latent_sindy.study.model_based import (
 )
 from latent_sindy.worlds.dmc.config import DmcConfig
 
-__all__ = ["MODELS", "SCALES", "DmcScale", "mean_interval", "run_dmc_study", "run_loop",
+__all__ = ["MODELS", "SCALES", "DmcScale", "mean_interval", "run_dmc_study", "run_seed",
            "study_scale"]
 
 Say = Callable[[str], None]
@@ -129,12 +129,12 @@ def _reader(world_config: DmcConfig) -> Callable[[], Any]:
     return partial(ColourPoseReader, world_config.size)
 
 
-def run_loop(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Path,
+def run_seed(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Path,
              device: str, threads: int, say: Say) -> dict[str, Any]:
     """One (seed, model) loop of the study in ``out/seed<S>/<kind>`` (resumed where it
     stopped): its log and wall time and this call's seconds
-    (:func:`latent_sindy.study.model_based.run_loop`)."""
+    (:func:`latent_sindy.study.model_based.run_seed`)."""
     from latent_sindy.worlds.dmc.world import DmcWorld
 
-    return study.run_loop(DmcWorld(world_config), s, seed, kind, out, device, threads, say,
+    return study.run_seed(DmcWorld(world_config), s, seed, kind, out, device, threads, say,
                           world_config.action_repeat, _reader(world_config))

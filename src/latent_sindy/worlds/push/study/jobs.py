@@ -33,8 +33,8 @@ from latent_sindy.errors import UserError
 from latent_sindy.progress import Milestones
 from latent_sindy.study import evaluation
 from latent_sindy.training import RESUMABLE, RunDir, TrainConfig, TrainingDiverged
-from latent_sindy.training.loop import restore_finished
 from latent_sindy.training.record import run_record
+from latent_sindy.training.train_run import restore_finished
 from latent_sindy.worlds.push.episodes import ControlConfig, run_control
 from latent_sindy.worlds.push.study import probe
 from latent_sindy.worlds.push.study.results import RunResult

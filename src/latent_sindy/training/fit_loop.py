@@ -1,4 +1,4 @@
-"""The training core: one gradient loop over a latent model, its pruning and model selection.
+"""The fit loop: one gradient loop over a latent model, its pruning and model selection.
 
 :func:`fit` is the loop, readable on one screen: every epoch one shuffled pass of AdamW over
 the training sequences, every ``prune_every`` epochs the SINDy coefficients with
@@ -8,7 +8,7 @@ validation loss every ``eval_every`` epochs, and the weights of the best validat
 the last pruning that removed a term kept (:class:`BestValidation`). It works in memory;
 every training reaches it through a :class:`~latent_sindy.training.session.Session`, and the
 run folder (checkpoints, resume, metrics file, progress) wraps it through ``on_epoch``
-(:mod:`latent_sindy.training.loop`).
+(:mod:`latent_sindy.training.train_run`).
 
     result = fit(model, opt, gen, Sequences(x, u), Sequences(xv, uv), settings)
     model.load_state_dict(result.state)

@@ -12,7 +12,7 @@ from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models import AutoencoderConfig
 from latent_sindy.models.derivatives import along
-from latent_sindy.models.front import principal_components
+from latent_sindy.models.pca_front import principal_components
 
 
 def _low_rank(m: int, p: int, rank: int, seed: int = 0) -> torch.Tensor:

@@ -1,5 +1,5 @@
 """Training into a run folder: the data file, resume, checkpoints and progress around
-:func:`~latent_sindy.training.core.fit` (the one gradient loop).
+:func:`~latent_sindy.training.fit_loop.fit` (the one gradient loop).
 
 The paper's recipe (docs/design.md): AdamW on the loss of
 :meth:`~latent_sindy.models.latent_model.LatentModel.loss` over windows of ``window`` steps,
@@ -29,7 +29,7 @@ from latent_sindy.models.latent_model import LatentModel
 from latent_sindy.plots import loss_histories
 from latent_sindy.progress import Progress, Silent
 from latent_sindy.training.config import TrainConfig, resolve_device, resolve_parallel
-from latent_sindy.training.core import (
+from latent_sindy.training.fit_loop import (
     BestValidation,
     TrainingDiverged,
     keep_freed_memory,
