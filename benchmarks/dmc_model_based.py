@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     from latent_sindy import LatentSINDy
-    from latent_sindy.control import ModelBasedConfig, MPPIConfig, model_based
+    from latent_sindy.control import MPPIConfig
+    from latent_sindy.model_based import ModelBasedConfig, model_based
     from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
     from latent_sindy.progress import say_stderr
     from latent_sindy.worlds.dmc.config import DmcConfig

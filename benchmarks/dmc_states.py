@@ -20,7 +20,7 @@ the fit is the windowed one (each feature's change over that many control steps 
 the library summed over them, :func:`~latent_sindy.sindy.fit_trajectory_data`), which a
 camera's error spoils far less than the one-step fit. ``--gain`` filters what the planner
 reads as the library's read-latent planner does (``auto``: the gain chosen on the training
-episodes, :func:`~latent_sindy.control.read_latent.filter_gain`); ``--iterations`` gives
+episodes, :func:`~latent_sindy.read_latent.filter_gain`); ``--iterations`` gives
 MPPI several updates a command.
 
     python benchmarks/dmc_states.py                               # cartpole-swingup, 5 seeds
@@ -206,7 +206,7 @@ def plan(env, model, head, mppi_cfg, episodes: int, steps: int, repeat: int, see
     step's features filtered with ``gain`` as the library's read-latent planner does."""
     from latent_sindy.control.costs import RewardCost
     from latent_sindy.control.mppi import MPPI, latent_step
-    from latent_sindy.control.read_latent import filter_step
+    from latent_sindy.read_latent import filter_step
 
     spec = env.action_spec()
     low = np.broadcast_to(spec.minimum, spec.shape).tolist()
@@ -275,8 +275,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
 
     from latent_sindy.control.mppi import MPPIConfig
-    from latent_sindy.control.read_latent import filter_gain
     from latent_sindy.models import SindyConfig
+    from latent_sindy.read_latent import filter_gain
     from latent_sindy.sindy import STLSQ, Trimmed
     from latent_sindy.worlds.dmc.config import DmcConfig
     from latent_sindy.worlds.dmc.env import physics_names

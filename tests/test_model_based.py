@@ -12,16 +12,11 @@ import pytest
 import torch
 
 from latent_sindy import LatentSINDy, SequenceData
-from latent_sindy.control import (
-    MPPI,
-    ModelBasedConfig,
-    MPPIConfig,
-    RewardCost,
-    model_based,
-)
+from latent_sindy.control import MPPI, MPPIConfig, RewardCost
 from latent_sindy.control.collect import collect_random
 from latent_sindy.data import concatenate
 from latent_sindy.errors import UserError
+from latent_sindy.model_based import ModelBasedConfig, model_based
 from latent_sindy.models import ModelConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import SindyConfig

@@ -14,8 +14,9 @@ import pytest
 import torch
 
 from latent_sindy import LatentSINDy
-from latent_sindy.control import ModelBasedConfig, MPPIConfig, model_based
+from latent_sindy.control import MPPIConfig
 from latent_sindy.errors import UserError
+from latent_sindy.model_based import ModelBasedConfig, model_based
 from latent_sindy.models import ModelConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import SindyConfig

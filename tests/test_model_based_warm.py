@@ -14,10 +14,11 @@ import pytest
 import torch
 
 from latent_sindy import LatentSINDy
-from latent_sindy.control import ModelBasedConfig, MPPIConfig, model_based
-from latent_sindy.control.model_based_compare import compare_models
-from latent_sindy.control.warm_start import load_state
+from latent_sindy.control import MPPIConfig
 from latent_sindy.errors import UserError
+from latent_sindy.model_based import ModelBasedConfig, model_based
+from latent_sindy.model_based.compare import compare_models
+from latent_sindy.model_based.warm_start import load_state
 from latent_sindy.models import ModelConfig
 from latent_sindy.models.autoencoder import AutoencoderConfig
 from latent_sindy.models.dynamics import DYNAMICS_KINDS, SindyConfig

@@ -9,14 +9,14 @@ import pytest
 import torch
 
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.read_latent import (
+from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
+from latent_sindy.read_latent import (
     ReadLatent,
     ReadLatentConfig,
     filter_step,
     filtered,
 )
-from latent_sindy.data import SequenceData
-from latent_sindy.errors import UserError
 
 DT, STIFF, DAMP, GAIN, GOAL, EDGE = 0.1, 4.0, 0.5, 2.0, 0.5, 1.2
 

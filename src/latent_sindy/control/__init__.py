@@ -1,9 +1,7 @@
 """Control in latent space: MPPI over any latent model's batched ``step``, its costs, a planner
 toward goal images, the world interface and the one closed loop every world runs through
-(policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`), and the
-model-based loop that plans against a learned reward (:mod:`.model_based`, warm-started
-refits :mod:`.warm_start`, several models side by side :mod:`.model_based_compare`; a
-latent read from the frames rather than learned, :mod:`.read_latent`).
+(policies ``reset(goal, seed)`` and ``act(observation)``, :mod:`.episodes`). The online
+model-based loop that plans against a learned reward is :mod:`latent_sindy.model_based`.
 
 >>> from latent_sindy.control import MPPI, MPPIConfig, latent_step
 >>> mppi = MPPI(latent_step(model), z_goal, MPPIConfig())
@@ -22,16 +20,8 @@ from latent_sindy.control.episodes import (
     run_loop,
     success_rates,
 )
-from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult, model_based
-from latent_sindy.control.model_based_compare import compare_models
 from latent_sindy.control.mppi import MPPI, DynamicsStep, MPPIConfig, MPPIInfo, latent_step
 from latent_sindy.control.planner import ImagePlanner
-from latent_sindy.control.read_latent import (
-    LatentReader,
-    ReadLatent,
-    ReadLatentConfig,
-    ReadLatentPlanner,
-)
 from latent_sindy.control.sindy_step import SindyKernelStep
 from latent_sindy.control.world import Task, World
 
@@ -43,26 +33,18 @@ __all__ = [
     "ImagePlanner",
     "ImagePolicy",
     "LatentCost",
-    "LatentReader",
     "MPPIConfig",
     "MPPIInfo",
-    "ModelBasedConfig",
-    "ModelBasedResult",
     "Observation",
     "Policy",
     "PoseCost",
-    "ReadLatent",
-    "ReadLatentConfig",
-    "ReadLatentPlanner",
     "RewardCost",
     "SindyKernelStep",
     "StateCost",
     "Task",
     "World",
     "collect_random",
-    "compare_models",
     "latent_step",
-    "model_based",
     "run_closed_loop",
     "run_episode",
     "run_loop",

@@ -216,13 +216,14 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
     import torch
 
     from latent_sindy import LatentSINDy
-    from latent_sindy.control import ModelBasedConfig, MPPIConfig, compare_models
+    from latent_sindy.control import MPPIConfig
+    from latent_sindy.model_based import ModelBasedConfig, compare_models
     from latent_sindy.models import DYNAMICS_KINDS, AutoencoderConfig, LossWeights, ModelConfig
 
     t0 = time.perf_counter()
     torch.set_num_threads(threads)
     if s.latent == "read":
-        from latent_sindy.control.read_latent import ReadLatent, ReadLatentConfig
+        from latent_sindy.read_latent import ReadLatent, ReadLatentConfig
 
         if reader is None:
             raise UserError("a scale of a read latent needs the world's reader of the frames")

@@ -1,7 +1,7 @@
 """The gym world: any Gymnasium environment with ``rgb_array`` frames (``GymConfig.id``,
 Pendulum-v1 by default) as a :class:`~latent_sindy.control.world.World`: random-action data
 with the environment's own rewards and its observation as the true state, and the model-based
-loop (:func:`latent_sindy.control.model_based`) planned against a learned reward. It has no
+loop (:func:`latent_sindy.model_based.model_based`) planned against a learned reward. It has no
 goal pose: a closed loop toward a goal image refuses it. Importing this module does not
 import gymnasium.
 
@@ -132,5 +132,5 @@ class GymWorld:
 
     def _no_goal(self) -> UserError:
         return UserError(f"gym {self.config.id} is scored by its reward, not by a goal pose: "
-                         "plan against a learned reward (latent_sindy.control.model_based, or "
+                         "plan against a learned reward (latent_sindy.model_based, or "
                          "latent-sindy reproduce --world gym), not toward a goal image")

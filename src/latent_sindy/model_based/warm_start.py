@@ -1,4 +1,4 @@
-"""Warm-started refits for the model-based loop (:mod:`.model_based`): the first iteration
+"""Warm-started refits for the model-based loop (:mod:`.online`): the first iteration
 fits from scratch; every later one continues from the last iteration's model and AdamW
 optimiser for a fixed budget of updates on all the data so far, instead of fitting anew.
 

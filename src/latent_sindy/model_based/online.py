@@ -51,16 +51,16 @@ from latent_sindy.configs import to_json
 from latent_sindy.control.collect import collect_random
 from latent_sindy.control.episodes import Observation, run_loop
 from latent_sindy.control.mppi import MPPIConfig
-from latent_sindy.control.warm_start import (
+from latent_sindy.control.world import World
+from latent_sindy.data import SequenceData, concatenate, read_sequences, write_sequences
+from latent_sindy.errors import UserError
+from latent_sindy.model_based.warm_start import (
     WarmState,
     first_fit,
     load_state,
     save_state,
     warm_fit,
 )
-from latent_sindy.control.world import World
-from latent_sindy.data import SequenceData, concatenate, read_sequences, write_sequences
-from latent_sindy.errors import UserError
 from latent_sindy.progress import Progress, Silent
 
 __all__ = ["LOG_FORMAT", "ModelBasedConfig", "ModelBasedResult", "model_based"]

@@ -1,6 +1,6 @@
 """Planning on a latent that is read from the frames, not learned: a world's reader (image
 moments, a marker, a tracker) gives the latent, and only its dynamics and a reward head are
-fitted. The estimator the model-based loop (:func:`~latent_sindy.control.model_based`) takes
+fitted. The estimator the model-based loop (:func:`~latent_sindy.model_based.model_based`) takes
 like any other, so SINDy, linear and MLP dynamics on the same read latent are compared on
 the same data and planner.
 

@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from latent_sindy.control.model_based import ModelBasedConfig, ModelBasedResult, model_based
 from latent_sindy.control.world import World
 from latent_sindy.errors import UserError
+from latent_sindy.model_based.online import ModelBasedConfig, ModelBasedResult, model_based
 from latent_sindy.progress import Progress
 
 __all__ = ["compare_models"]
