@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import torch
 
 from latent_sindy.models.dynamics.base import LatentDynamics
 from latent_sindy.sindy import LibrarySubset
-
-if TYPE_CHECKING:
-    from latent_sindy.models.dynamics.sindy import SindyDynamics
 
 __all__ = ["CompiledSindy"]
 
@@ -20,16 +17,18 @@ class CompiledSindy(LatentDynamics):
 
     ``z_{t+1} = z_t + Θ_S(z_t, u_t) C_S`` with S the active terms, Θ_S (K, |S|) and
     C_S = (M ⊙ Ψ)[S] (|S|, nz) stored as a buffer; the model's circle, if any, is kept.
+    Made by :meth:`SindyDynamics.compile_sparse
+    <latent_sindy.models.dynamics.sindy.SindyDynamics.compile_sparse>`.
     """
 
     kind = "sindy-sparse"
     coef: torch.Tensor  # (|S|, nz)
 
-    def __init__(self, model: SindyDynamics) -> None:
-        super().__init__(model.nz, model.nu, model.circle, model.turn)
-        terms = model.active_terms()
-        self.library: LibrarySubset = model.library.subset(terms)
-        self.register_buffer("coef", model.coefficients().detach()[terms].clone())
+    def __init__(self, library: LibrarySubset, coef: torch.Tensor, nu: int,
+                 circle: Sequence[int] | None, turn: bool) -> None:
+        super().__init__(coef.shape[1], nu, circle, turn)
+        self.library = library
+        self.register_buffer("coef", coef.detach().clone())  # (|S|, nz)
 
     @property
     def names(self) -> list[str]:

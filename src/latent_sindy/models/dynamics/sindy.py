@@ -279,7 +279,9 @@ class SindyDynamics(SparseDynamics):
         included). It holds a snapshot of the coefficients (no gradient): compile again after
         further training or pruning.
         """
-        return CompiledSindy(self)
+        terms = self.active_terms()
+        return CompiledSindy(self.library.subset(terms), self.coefficients().detach()[terms],
+                             self.nu, self.circle, self.turn)
 
     def extra_repr(self) -> str:
         return f"nz={self.nz}, nu={self.nu}, active={self.n_active()}/{self.n_candidates()}"
