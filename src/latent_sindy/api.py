@@ -105,18 +105,28 @@ class LatentSINDy:
         if time not in ("discrete", "continuous"):
             raise UserError(f"time {time!r}: use discrete or continuous")
         if model is not None and model.dynamics.kind == "continuous":  # (a whole model given)
-            time, derivative_order = "continuous", model.dynamics.derivative_order
+            time = "continuous"
+            derivative_order = model.dynamics.derivative_order
             order = model.dynamics.order
-        self.time, self.derivative_order = time, derivative_order
+        self.time = time
+        self.derivative_order = derivative_order
         if order is None:
             order = 3 if time == "continuous" else 2
-        self.latent_dim, self.dynamics, self.order = latent_dim, dynamics, order
-        self.library, self.include_sine = library, include_sine
-        net, self.seed, self.device = "mlp" if time == "continuous" else "conv", seed, device
-        self.encoder, self.decoder = encoder or net, decoder or net
-        self.pca_components, self.time_unit = pca_components, time_unit
+        self.latent_dim = latent_dim
+        self.dynamics = dynamics
+        self.order = order
+        self.library = library
+        self.include_sine = include_sine
+        net = "mlp" if time == "continuous" else "conv"
+        self.seed = seed
+        self.device = device
+        self.encoder = encoder or net
+        self.decoder = decoder or net
+        self.pca_components = pca_components
+        self.time_unit = time_unit
         self.recipe = time == "continuous" and model is None and settings is None
-        self._loss_given, self.loss = loss, loss or LossWeights()
+        self._loss_given = loss
+        self.loss = loss or LossWeights()
         self.settings = settings or recipes.default_settings(self.recipe)
         self.model = model
         self.model_config  # noqa: B018  (validates the settings now)
@@ -199,10 +209,14 @@ class LatentSINDy:
             session, result, metrics = fit_in_memory(cfg, data, progress, phases or (),
                                                      warmup=warmup, restarts=restarts,
                                                      **hooks)
-            self.model_, self.normalizer_, record = session.model, session.norm, session.record
-            self.description_, self.world_record_ = record["description"], record["world"]["record"]
+            self.model_ = session.model
+            self.normalizer_ = session.norm
+            record = session.record
+            self.description_ = record["description"]
+            self.world_record_ = record["world"]["record"]
             self.record_ = {**record, "kept": result.kept}
-            self.metrics_, self.kept_ = metrics, result.kept
+            self.metrics_ = metrics
+            self.kept_ = result.kept
         if note := pruned_note(self.model_.dynamics):
             warnings.warn(note, AllTermsPruned, stacklevel=2)
         else:
@@ -213,14 +227,17 @@ class LatentSINDy:
     def _adopt(self, folder: RunDir) -> LatentSINDy:
         """Take the model, record, metrics and kept epoch of the finished run ``folder``."""
         run = folder.load()
-        self.model_, self.normalizer_ = run.model, run.normalizer
-        self.description_, self.world_record_ = run.description, run.world_record
+        self.model_ = run.model
+        self.normalizer_ = run.normalizer
+        self.description_ = run.description
+        self.world_record_ = run.world_record
         record = folder.read_record()
         kept = record.get("kept")
         if not isinstance(kept, dict):
             raise UserError(f"{folder / folder.CONFIG} names no kept epoch (the file was "
                             "edited): retrain the run")
-        self.record_, self.kept_ = {**record, "kept": kept}, kept
+        self.record_ = {**record, "kept": kept}
+        self.kept_ = kept
         try:
             self.metrics_: list[dict[str, Any]] | None = folder.read_metrics()
         except UserError:  # the model is usable without its history (missing or damaged)
@@ -297,7 +314,8 @@ class LatentSINDy:
                             f"got shape {np.shape(image)}")
         single = np.ndim(image) == 3
         second = inputs.check_previous(self.model_.dynamics, previous, "simulate")
-        nu, n = len(self.description_["action_low"]), 1 if single else len(image)
+        nu = len(self.description_["action_low"])
+        n = 1 if single else len(image)
         actions = inputs.check_rollout_actions(actions, single, n, nu)
         lead = np.shape(actions)[:-1]
         u = self._actions(actions, lead).reshape(n, lead[-1], nu)  # (N, T, nu)

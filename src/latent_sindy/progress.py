@@ -101,7 +101,8 @@ class Milestones:
         self.every = self.total = 1
 
     def start(self, total: int, initial: int) -> None:
-        self.total, self.every = total, max(1, total // 5)
+        self.total = total
+        self.every = max(1, total // 5)
 
     def update(self, epoch: int, metrics: Mapping[str, float | None]) -> None:
         if epoch % self.every == 0 or epoch == self.total:

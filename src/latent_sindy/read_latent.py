@@ -135,14 +135,17 @@ class ReadLatent:
             if not callable(getattr(reader, method, None)):
                 raise UserError(f"ReadLatent needs a reader with {method}(); "
                                 f"{type(reader).__name__} has none")
-        self.reader, self.config, self.seed = reader, config or ReadLatentConfig(), seed
+        self.reader = reader
+        self.config = config or ReadLatentConfig()
+        self.seed = seed
 
     def fit(self, data: SequenceData, **_: Any) -> ReadLatent:
         """Fit the reader, the dynamics and the reward head on ``data`` (stacked-frame
         episodes with actions and rewards); returns ``self``."""
         if data.actions is None or data.rewards is None:
             raise UserError("ReadLatent.fit needs episodes with actions and rewards")
-        cfg, gen = self.config, torch.Generator().manual_seed(self.seed)
+        cfg = self.config
+        gen = torch.Generator().manual_seed(self.seed)
         torch.manual_seed(self.seed)
         images = torch.from_numpy(np.asarray(data.images))
         actions = torch.from_numpy(np.asarray(data.actions, np.float64))
@@ -150,20 +153,23 @@ class ReadLatent:
         self.dt = float(data.dt) if data.dt is not None else 1.0
         self.reader.fit_episodes(images[:cfg.reader_episodes])
         read = [self.reader.episode(images[e], actions[e], self.dt) for e in range(data.n)]
-        Z, seen = torch.stack([z for z, _ in read]), torch.stack([s for _, s in read])
+        Z = torch.stack([z for z, _ in read])
+        seen = torch.stack([s for _, s in read])
         if int(seen.sum()) < 2:
             raise UserError("ReadLatent.fit: the reader saw the object in fewer than two "
                             "frames; check the reader on these frames")
         circle = getattr(self.reader, "circle", None)
         self.mean, self.sd = Z[seen].mean(0), Z[seen].std(0).clamp_min(1e-12)
         if circle is not None:
-            self.mean[list(circle)], self.sd[list(circle)] = 0.0, 1.0
+            self.mean[list(circle)] = 0.0
+            self.sd[list(circle)] = 1.0
         Zs = (Z - self.mean) / self.sd
         self.support_ = (Zs[seen].min(0).values.float(), Zs[seen].max(0).values.float())
         rows = (seen[:, :-1] & seen[:, 1:]).reshape(-1)
         nz, nu = Z.shape[-1], actions.shape[-1]
         z0 = Zs[:, :-1].reshape(-1, nz)[rows].float()
-        z1, u = Zs[:, 1:].reshape(-1, nz)[rows].float(), actions.reshape(-1, nu)[rows].float()
+        z1 = Zs[:, 1:].reshape(-1, nz)[rows].float()
+        u = actions.reshape(-1, nu)[rows].float()
         if cfg.dynamics == "sindy":
             self.model = SindyConfig(order=cfg.order, include_sine=False).build(
                 nz, nu, circle=circle)  # (the regression itself runs in float64)
@@ -228,7 +234,9 @@ class ReadLatentPlanner:
     reading (:meth:`note_action` tells it the one carried out, if noise changed it)."""
 
     def __init__(self, est: ReadLatent, mppi: MPPIConfig, seed: int) -> None:
-        self.est, self.cfg, self.seed = est, mppi, seed
+        self.est = est
+        self.cfg = mppi
+        self.seed = seed
         self.reset()
 
     def reset(self, goal: Any = None, seed: int | None = None) -> None:
@@ -279,7 +287,8 @@ def filtered(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor, seen: tor
     nu) and seen flags (E, T+1): each step ``gain`` of the way from the model's prediction
     to the reading (the planner's filter, module docstring); readings as they are until an
     episode's first seen frame."""
-    est, out = Z[:, 0], [Z[:, 0]]
+    est = Z[:, 0]
+    out = [Z[:, 0]]
     known = seen[:, 0].clone()
     for t in range(U.shape[1]):
         step = filter_step(model(est, U[:, t]), Z[:, t + 1], seen[:, t + 1], gain, circle)

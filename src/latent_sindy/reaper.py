@@ -44,7 +44,8 @@ def descendants(root: int) -> dict[int, int]:
             if st is not None:
                 children.setdefault(st[0], []).append(int(entry))
                 starts[int(entry)] = st[1]
-    found, todo = {}, [root]
+    found = {}
+    todo = [root]
     while todo:
         for pid in children.get(todo.pop(), ()):
             if pid not in found:

@@ -22,11 +22,16 @@ def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> S
     rng = np.random.default_rng(seed)
     low, high = np.asarray(world.action_low, float), np.asarray(world.action_high, float)
     env = world.make_env()
-    images, actions, states, rewards = [], [], [], []
+    images = []
+    actions = []
+    states = []
+    rewards = []
     try:
         for i in range(sequences):
             task = world.sample_task(rng)
-            frames, us, xs = [world.reset(env, task, seed * 100_003 + i)], [], [world.state(env)]
+            frames = [world.reset(env, task, seed * 100_003 + i)]
+            us = []
+            xs = [world.state(env)]
             for _ in range(steps):
                 u = rng.uniform(low, high).astype(np.float32)
                 obs, reward, *_ = env.step(u)

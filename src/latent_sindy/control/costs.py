@@ -147,7 +147,8 @@ class RewardCost:
             raise UserError(f"RewardCost takes a callable reward(z, u), got {type(reward)}")
         if not (isinstance(weight, int | float) and weight >= 0 and weight < float("inf")):
             raise UserError(f"RewardCost weight={weight!r}: use a number >= 0")
-        self.reward, self.weight = reward, float(weight)
+        self.reward = reward
+        self.weight = float(weight)
         self.low = self.high = None
         if support is not None:
             low, high = (torch.as_tensor(v, dtype=torch.float32) for v in support)

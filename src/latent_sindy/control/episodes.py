@@ -68,7 +68,8 @@ def run_loop(policy: Policy, stepper: Stepper, first: Observation, goal: Observa
     the episode ends or ``max_steps`` actions were taken. Returns the number of actions
     taken."""
     policy.reset(goal, seed)
-    observation, steps = first, 0
+    observation = first
+    steps = 0
     while steps < max_steps and not stepper.done():
         observation, ended = stepper.step(policy.act(observation))
         steps += 1
@@ -111,7 +112,11 @@ class _WorldSteps:
 
     def __init__(self, world: World, env: Any, task: Task, until: str | None,
                  stop: bool) -> None:
-        self.world, self.env, self.task, self.until, self.stop = world, env, task, until, stop
+        self.world = world
+        self.env = env
+        self.task = task
+        self.until = until
+        self.stop = stop
         self.actions: list[list[float]] = []
         self.states = [world.state(env)]
         met = world.success(self.states[0], task.goal)

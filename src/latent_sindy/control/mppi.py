@@ -194,7 +194,8 @@ class MPPI:
         if isinstance(seed, bool) or not isinstance(seed, int):
             raise UserError(f"MPPI seed {seed!r}: must be an integer")
         kw = {"dtype": dtype, "device": device}
-        self.dtype, self.device = dtype, device
+        self.dtype = dtype
+        self.device = device
         self.cost: StateCost = (
             LatentCost(torch.as_tensor(cost, **kw), cfg.Q) if isinstance(cost, Tensor) else cost
         )
@@ -299,7 +300,10 @@ class MPPI:
         n_kept, min_cost, kept_sum = torch.stack((n_kept.to(costs.dtype), best, kept_sum)).tolist()
         discarded = K - int(n_kept)
         mean_cost = kept_sum / n_kept if n_kept else math.nan
-        self.actions, self.noise, self.costs, self.weights = actions, eps, costs, w
+        self.actions = actions
+        self.noise = eps
+        self.costs = costs
+        self.weights = w
         return action, discarded, min_cost, mean_cost
 
     def _rollout_cost(self, z0: Tensor, actions: Tensor) -> Tensor:

@@ -55,9 +55,14 @@ class ImagePlanner:
             raise UserError("objective 'reward' plans in latent space: drop space='image'")
         if len(action_low) == 0:
             raise UserError("this model has no actions (an autonomous system): nothing to plan")
-        self.model, self.normalizer, self.settings = model.eval(), normalizer, mppi
+        self.model = model.eval()
+        self.normalizer = normalizer
+        self.settings = mppi
         self.box = (tuple(action_low), tuple(action_high))
-        self.space, self.Q, self.seed, self.objective = space, Q, seed, objective
+        self.space = space
+        self.Q = Q
+        self.seed = seed
+        self.objective = objective
         self.pixel_dtype = pixel_dtype  # (None: images of any pixel type are taken)
         self.step = latent_step(model.dynamics)  # active SINDy terms only
         self.mppi: MPPI | None = None

@@ -101,7 +101,12 @@ class SindyKernelStep:
         products = [tuple(sorted(remap[int(i)] for i in row if i != one)) for row in table]
         bias = torch.zeros(nz, dtype=torch.float64)
         order = sorted(range(self.n_terms), key=lambda s: products[s])
-        terms, start, ptr, rows, coefs, prev = [], [], [0], [], [], ()
+        terms = []
+        start = []
+        ptr = [0]
+        rows = []
+        coefs = []
+        prev = ()
         for s in order:
             p = products[s]
             if not p:  # the constant term: its coefficients are a bias
@@ -189,7 +194,8 @@ class SindyKernelStep:
     def _run(self, z0t: Tensor, ut: Tensor, out: Tensor | None = None) -> Tensor:
         """The kernel on z0t (nz, K), ut (H, nu, K) (views, any strides) -> out (H, nz, K)."""
         if z0t.requires_grad or ut.requires_grad:
-            z0t, ut = z0t.detach(), ut.detach()
+            z0t = z0t.detach()
+            ut = ut.detach()
         if ut.dtype != z0t.dtype:
             ut = ut.to(z0t.dtype)
         if out is None:

@@ -173,7 +173,8 @@ class SequenceData:
         if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(low < high)):
             raise UserError(f"{where}: the action box needs finite action_low < action_high, "
                             f"got {low.tolist()} and {high.tolist()}")
-        self.action_low, self.action_high = tuple(low.tolist()), tuple(high.tolist())
+        self.action_low = tuple(low.tolist())
+        self.action_high = tuple(high.tolist())
         out = (actions < low - _SLACK) | (actions > high + _SLACK)
         if np.any(out):
             i, k, j = (int(v) for v in np.argwhere(out)[0])
@@ -185,7 +186,8 @@ class SequenceData:
         if self.states is None:
             if self.state_names or self.state_periods:
                 raise UserError(f"{where}: state_names or state_periods given without states")
-            self.state_names, self.state_periods = (), ()
+            self.state_names = ()
+            self.state_periods = ()
             return
         states = _float_array("states", self.states, (n, t1), "ns", where)
         ns = states.shape[2]

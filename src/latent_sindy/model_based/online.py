@@ -155,8 +155,10 @@ class _Recorder:
     """An episode of a world stepped by :func:`run_loop`, recording what the data need."""
 
     def __init__(self, world: World, env: Any, image: np.ndarray) -> None:
-        self.world, self.env = world, env
-        self.frames, self.states = [image], [world.state(env)]
+        self.world = world
+        self.env = env
+        self.frames = [image]
+        self.states = [world.state(env)]
         self.actions: list[np.ndarray] = []
         self.rewards: list[float] = []
 
@@ -182,7 +184,11 @@ class _Exploring:
 
     def __init__(self, planner: Any, std: np.ndarray, rng: np.random.Generator,
                  low: np.ndarray, high: np.ndarray) -> None:
-        self.planner, self.std, self.rng, self.low, self.high = planner, std, rng, low, high
+        self.planner = planner
+        self.std = std
+        self.rng = rng
+        self.low = low
+        self.high = high
 
     def reset(self, goal: Observation | None, seed: int | None = None) -> None:
         self.planner.reset(None, seed)
@@ -254,7 +260,8 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                                    * per_action, seconds) for i in range(data.n)],
                "iterations": []}
         _save(folder, data, log)
-    estimator, state = None, None
+    estimator = None
+    state = None
     if cfg.warm_updates and 0 < log["done"] < cfg.iterations:
         state = load_state(_state_path(folder, log["done"]), log["done"])
     progress.start(cfg.iterations, min(log["done"], cfg.iterations))
@@ -269,14 +276,17 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
             fit_s = time.perf_counter() - t0
             planner = estimator.planner(cfg.mppi, seed=cfg.seed * 1000 + iteration,
                                         objective="reward")
-            parts, entries = [data], []
+            parts = [data]
+            entries = []
             for _ in range(cfg.episodes_per_iteration):
-                index, t1 = data.n + len(entries), time.perf_counter()
+                index = data.n + len(entries)
+                t1 = time.perf_counter()
                 parts.append(_planned(world, env, planner, cfg, index, data))
                 steps = (index + 1) * cfg.episode_steps * per_action
                 entries.append(_entry(parts[-1], 0, iteration, "planned", steps,
                                       time.perf_counter() - t1) | {"episode": index})
-            t1, seen = time.perf_counter(), data.n * cfg.episode_steps * per_action
+            t1 = time.perf_counter()
+            seen = data.n * cfg.episode_steps * per_action
             tests = [_planned(world, env, planner, cfg, k, data, test=True)
                      for k in range(cfg.eval_episodes)]
             test_s = time.perf_counter() - t1

@@ -77,11 +77,13 @@ class WarmState:
 def _adopt(estimator: Any, session: Session, result: FitResult, metrics: list[dict]) -> Any:
     """``estimator`` holding the session's model as its own fit would (the attributes
     :meth:`latent_sindy.LatentSINDy.fit` sets)."""
-    estimator.model_, estimator.normalizer_ = session.model, session.norm
+    estimator.model_ = session.model
+    estimator.normalizer_ = session.norm
     estimator.description_ = session.record["description"]
     estimator.world_record_ = session.record["world"]["record"]
     estimator.record_ = {**session.record, "kept": result.kept}
-    estimator.metrics_, estimator.kept_ = metrics, result.kept
+    estimator.metrics_ = metrics
+    estimator.kept_ = result.kept
     return estimator
 
 
@@ -125,7 +127,8 @@ def warm_fit(estimator: Any, data: SequenceData, settings: dict[str, Any], state
     session = prepare(cfg, data, record=record, earlier=record, resumed=True)
     session.model.load_state_dict(state.model)
     session.opt.load_state_dict(state.optimizer)
-    train, per_batch = session.tensors.train, session.tensors.per_batch
+    train = session.tensors.train
+    per_batch = session.tensors.per_batch
     if _updates_per_epoch(session) > updates:  # the budget, whatever the data so far
         take = torch.randperm(train.n, generator=session.gen)[:updates * per_batch]
         take = take.sort().values.to(train.device)

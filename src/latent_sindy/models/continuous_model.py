@@ -172,7 +172,8 @@ class ContinuousLatentModel(LatentModel, dynamics_kind="continuous"):
             raise ValueError("coordinates: this model has no principal-component front "
                              "(pca_components 0, or not the mlp encoder and decoder)")
         enc, dec = front
-        coords, left = [], []
+        coords = []
+        left = []
         for part in x.split(chunk):
             flat = part.flatten(2)  # (b, 1+k, P)
             c = flat @ enc.weight.T

@@ -126,7 +126,8 @@ class MlpDecoder(nn.Module):
                  pca_components: int = 0) -> None:  # k principal components behind; 0: none
         super().__init__()
         self.shape = shape
-        pixels, k = shape[0] * shape[1] * shape[2], pca_components
+        pixels = shape[0] * shape[1] * shape[2]
+        k = pca_components
         self.net = mlp([latent_dim, *reversed(cfg.widths), k or pixels], cfg.activation)
         if k:  # back from the principal components (fitted with the model's statistics)
             self.net.append(LinearMap(k, pixels))

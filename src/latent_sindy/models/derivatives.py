@@ -68,7 +68,8 @@ def along_layers(layers: nn.Sequential, x: torch.Tensor, *rates: torch.Tensor
     whole network, which pays for every op it passes."""
     for layer in layers:
         if isinstance(layer, nn.Linear) or getattr(layer, "is_linear", False):
-            x, rates = layer(x), tuple(r @ layer.weight.T for r in rates)
+            x = layer(x)
+            rates = tuple(r @ layer.weight.T for r in rates)
         else:
             x, *more = along(layer, x, *rates)
             rates = tuple(more)

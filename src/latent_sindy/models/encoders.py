@@ -60,7 +60,8 @@ class MlpEncoder(nn.Module):
     def __init__(self, cfg: parts.MlpEncoderConfig, shape: ImageShape, latent_dim: int,
                  pca_components: int = 0) -> None:  # k principal components in front; 0: none
         super().__init__()
-        pixels, k = shape[0] * shape[1] * shape[2], pca_components
+        pixels = shape[0] * shape[1] * shape[2]
+        k = pca_components
         self.net = mlp([k or pixels, *cfg.widths, latent_dim], cfg.activation)
         if k:  # the principal components in front (fitted with the model's statistics)
             self.net.insert(0, LinearMap(pixels, k))
@@ -119,7 +120,8 @@ class KeypointEncoder(nn.Module):
     def __init__(self, cfg: parts.KeypointEncoderConfig, shape: ImageShape, latent_dim: int
                  ) -> None:
         super().__init__()
-        c, k = cfg.channels, latent_dim // 2
+        c = cfg.channels
+        k = latent_dim // 2
         pad = KERNEL // 2
         self.net = nn.Sequential(
             nn.Conv2d(shape[0], c, KERNEL, padding=pad), nn.ReLU(),
@@ -305,9 +307,13 @@ class MaskMomentEncoder(_PoseFrame):
     def __init__(self, cfg: parts.MaskMomentEncoderConfig, shape: ImageShape,
                  latent_dim: int = 4) -> None:
         super().__init__(cfg, shape, latent_dim)
-        self.normalise, self.kind = cfg.normalise, cfg.weight
-        self.window_pixels, self.refine = cfg.window, cfg.refine
-        c, layers, width = shape[0], [], cfg.channels
+        self.normalise = cfg.normalise
+        self.kind = cfg.weight
+        self.window_pixels = cfg.window
+        self.refine = cfg.refine
+        c = shape[0]
+        layers = []
+        width = cfg.channels
         for _ in range(cfg.layers):
             layers += [nn.Conv2d(c, width, 3, padding=1), nn.ReLU()]
             c = width

@@ -82,7 +82,8 @@ def rollout_error(library: SindyLibrary, coef: torch.Tensor, X: torch.Tensor,
                          f"{tuple(X.shape)} and {tuple(U.shape)}")
     spread = X.reshape(-1, X.shape[-1]).std(0).clamp_min(1e-12)
     coef = torch.as_tensor(coef, dtype=torch.float64)
-    x, total = X[:, 0], 0.0
+    x = X[:, 0]
+    total = 0.0
     for t in range(U.shape[1]):
         x = x + library(x, U[:, t]) @ coef
         step = float(((x - X[:, t + 1]) / spread).norm(dim=-1).mean())
@@ -125,7 +126,8 @@ def select_on_rollouts(
     if make is None:
         def make(setting: float) -> Sparsifier:
             return StepwiseSR(setting, complexity=library.degrees)
-    fits, path = [], []
+    fits = []
+    path = []
     for setting in settings:
         fit = fit_state_data(library, Z, U, Znext, make(float(setting)))
         coef = fit.coef_ * fit.mask_

@@ -99,7 +99,8 @@ class _Say:
     """The loop's progress as lines for ``say``."""
 
     def __init__(self, say: Say, name: str) -> None:
-        self.say, self.name = say, name
+        self.say = say
+        self.name = name
 
     def start(self, total: int, initial: int) -> None:
         if initial:

@@ -173,7 +173,9 @@ def model_based_study(result: dict[str, Any], scale: str, out: Path, title: str,
         final += [[name, f"{reference.steps:,}", f"{mean} ± {sd}",
                    "published: " + reference.sources[name]]
                   for name, (mean, sd) in reference.returns.items()]
-    costs, equations, numbers = [], {}, {}
+    costs = []
+    equations = {}
+    numbers = {}
     for m in MODELS:
         for seed, run in sorted(runs[m].items()):
             its = run["log"]["iterations"]

@@ -45,7 +45,8 @@ class TrainingDiverged(UserError):
     def __init__(self, epoch: int, what: str, message: str | None = None) -> None:
         super().__init__(message or f"training diverged at epoch {epoch}: {what} is not "
                          "finite; lower the learning rate and start over")
-        self.epoch, self.what = epoch, what
+        self.epoch = epoch
+        self.what = what
 
     def __reduce__(self):  # crosses process boundaries (the study's workers) whole
         return type(self), (self.epoch, self.what, str(self))
@@ -148,7 +149,8 @@ class Gradients:
     """
 
     def __init__(self, model: LatentModel, parts: int) -> None:
-        self.model, self.parts = model, parts
+        self.model = model
+        self.parts = parts
         self.params = [p for p in model.parameters() if p.requires_grad]
         self._pool: ThreadPoolExecutor | None = None
         self._threads = torch.get_num_threads()
@@ -279,13 +281,17 @@ class BestValidation:
 
     def mask_changed(self, epoch: int) -> None:
         """A pruning at ``epoch`` removed terms: earlier epochs have another mask."""
-        self.epoch, self.objective, self.state, self.since = None, math.inf, None, epoch
+        self.epoch = None
+        self.objective = math.inf
+        self.state = None
+        self.since = epoch
 
     def offer(self, epoch: int, objective: float, model: torch.nn.Module) -> bool:
         """Keep ``model``'s weights if ``objective`` is the lowest so far (ties: the earlier)."""
         if objective >= self.objective:
             return False
-        self.epoch, self.objective = epoch, objective
+        self.epoch = epoch
+        self.objective = objective
         self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
         return True
 
@@ -302,7 +308,9 @@ class BestValidation:
         if saved is None:
             best.since = resumed_at + 1
             return best
-        best.epoch, best.objective, best.since = saved["epoch"], saved["objective"], saved["since"]
+        best.epoch = saved["epoch"]
+        best.objective = saved["objective"]
+        best.since = saved["since"]
         if saved["model"] is not None:
             best.state = {k: v.to(device) for k, v in saved["model"].items()}
         return best

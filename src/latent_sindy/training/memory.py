@@ -35,17 +35,21 @@ def check_training_memory(model_cfg: ModelConfig, cfg: TrainConfig, data: Sequen
 
 
 def _dynamics_bytes(model_cfg: ModelConfig, cfg: TrainConfig) -> tuple[int, str, str] | None:
-    nz, nu, dyn = model_cfg.observation.latent_dim, model_cfg.action_dim or 0, model_cfg.dynamics
+    nz = model_cfg.observation.latent_dim
+    nu = model_cfg.action_dim or 0
+    dyn = model_cfg.dynamics
     fix = "use a smaller --latent-dim"
     if dyn.kind == "sindy":  # the polynomial part alone; a named library's other terms come on top
         terms = math.comb(nz + nu + dyn.order, dyn.order)
         terms += nz * (getattr(dyn, "include_sine", False) + getattr(dyn, "include_cosine", False))
-        params, activations = terms * nz, (cfg.batch_size or 1) * terms  # Ψ (p, nz); Θ (B, p)
+        params = terms * nz  # Ψ (p, nz); Θ (B, p)
+        activations = (cfg.batch_size or 1) * terms
         what = (f"SINDy of order {dyn.order} on --latent-dim {nz} ({terms:.3g} library terms "
                 f"x {nz} coefficients)")
         fix += " or --order"
     elif dyn.kind == "linear":
-        params, activations = nz * (nz + nu + 1), 0
+        params = nz * (nz + nu + 1)
+        activations = 0
         what = f"linear dynamics on --latent-dim {nz} ({nz} x {nz + nu + 1} coefficients)"
     elif dyn.kind == "mlp":
         width = dyn.hidden

@@ -396,7 +396,8 @@ def _choose_start(cfg: TrainConfig, candidate: Callable[[int], Session],
     probe = min(cfg.epochs, cfg.start_epochs or max(1, cfg.epochs // 5))
     chosen: Session | None = None
     diverged: TrainingDiverged | None = None
-    seeds, scores = [], []
+    seeds = []
+    scores = []
     for k in range(cfg.starts):
         seed = start_seed(cfg.seed, k)
         start = candidate(seed)
@@ -423,7 +424,9 @@ def _choose_start(cfg: TrainConfig, candidate: Callable[[int], Session],
         progress.note(f"start {k + 1} of {cfg.starts} (seed {seed}): objective {score:.4g} "
                       f"after {probe} epochs")
         if chosen is None or score < min(scores[:-1]):
-            start.done, start.metrics, start.best = probe, result.metrics, result.best
+            start.done = probe
+            start.metrics = result.metrics
+            start.best = result.best
             chosen = start
     if chosen is None:  # every candidate diverged
         raise diverged

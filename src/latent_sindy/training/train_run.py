@@ -99,7 +99,8 @@ def _resume(ckpt: dict[str, Any], run: RunDir, cfg: TrainConfig, model: LatentMo
     except (KeyError, RuntimeError, ValueError, TypeError) as e:
         raise UserError(f"{run / run.CHECKPOINT} does not fit this model ({e}); start "
                         "over with --overwrite") from e
-    metrics, done = list(ckpt["metrics"]), int(ckpt["epoch"])
+    metrics = list(ckpt["metrics"])
+    done = int(ckpt["epoch"])
     if "best" not in ckpt and cfg.keep_best:
         progress.note(f"{run / run.CHECKPOINT} is from before model selection: the kept "
                       f"weights are chosen among epochs {done + 1} to {cfg.epochs}")
@@ -147,15 +148,19 @@ def _train(cfg: TrainConfig, progress: Progress | None, data: SequenceData | Non
                           earlier=run.read_record(), progress=progress)
     else:
         session = prepare(cfg, data, device, record=record, progress=progress, ready=ready)
-    model, opt, gen = session.model, session.opt, session.gen
-    threads, parallel = torch.get_num_threads(), resolve_parallel(cfg, device.type,
-                                                                  torch.get_num_threads())
+    model = session.model
+    opt = session.opt
+    gen = session.gen
+    threads = torch.get_num_threads()
+    parallel = resolve_parallel(cfg, device.type, threads)
     if ckpt is not None:
         session.metrics, session.done, session.best = _resume(
             ckpt, run, cfg, model, opt, gen, device, (device.type, threads, parallel), progress)
         session.info = ckpt.get("start")  # the start was chosen before the checkpoint
         ready()
-    metrics, best, done = session.metrics, session.best, session.done
+    metrics = session.metrics
+    best = session.best
+    done = session.done
     run.write_metrics(metrics)  # drops rows logged after the checkpoint (or a start's probe)
     if session.tensors.val is None:
         progress.note(f"{cfg.data} has no validation trajectories: val/* metrics stay empty")
@@ -220,7 +225,8 @@ def restore_finished(run: RunDir) -> list[str]:
         rows: list[dict[str, Any]] | None = run.read_metrics()
         problem = None if len(rows) == epochs else f"{run / run.METRICS} holds {len(rows)} rows"
     except UserError as e:
-        rows, problem = None, str(e)
+        rows = None
+        problem = str(e)
     if problem is not None:
         saved = _checkpoint_metrics(run, epochs)
         if saved is not None:

@@ -217,7 +217,8 @@ class ContinuousSindyDynamics(SparseDynamics):
             raise UserError(f"a continuous-time model of order {self.derivative_order} steps "
                             f"its phase state of {size} coordinates (z{', ż' * (size > self.nz)}"
                             f"), got {z.shape[-1]}")
-        h, f = self.dt, self.field
+        h = self.dt
+        f = self.field
         k1 = f(z, u)
         k2 = f(z + 0.5 * h * k1, u)
         k3 = f(z + 0.5 * h * k2, u)

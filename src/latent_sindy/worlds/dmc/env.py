@@ -123,7 +123,8 @@ class DmcPixelEnv(gym.Env):
     def picture_of(self, state: np.ndarray) -> np.ndarray:
         """The observation the camera would give with the physics at ``state`` (every
         stacked frame the same), the environment left as it was."""
-        now, frames = self.state(), self._frames.copy()
+        now = self.state()
+        frames = self._frames.copy()
         try:
             with self.physics.reset_context():
                 self.physics.set_state(np.asarray(state, np.float64))

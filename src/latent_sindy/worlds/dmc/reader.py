@@ -92,12 +92,15 @@ class ColourPoseReader:
                 isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in body)):
             raise UserError(f"ColourPoseReader body {body!r}: give the body's half width and "
                             "half height (two positive numbers), or None")
-        self.size, self.edge, self.min_peak = size, float(edge), float(min_peak)
+        self.size = size
+        self.edge = float(edge)
+        self.min_peak = float(min_peak)
         self.edges = bool(edges)
         self.body = None if body is None else (body[0] * size / 64, body[1] * size / 64)
         self.xs, self.ys = image_coordinates(size, size)
         self.pixel = float(self.xs[1] - self.xs[0])
-        self.sigma, self.inner = sigma * size / 64, inner * size / 64
+        self.sigma = sigma * size / 64
+        self.inner = inner * size / 64
         self.reach = math.ceil(3 * self.sigma)
         k = torch.arange(-self.reach, self.reach + 1, dtype=torch.float32)
         g = torch.exp(-k**2 / (2 * self.sigma**2))
@@ -122,7 +125,8 @@ class ColourPoseReader:
                             "median; give frames where the object moves")
         colour = d.permute(0, 2, 3, 1)[top].mean(0)
         self.colour = colour / colour.norm().clamp_min(1e-12)
-        self.pivot, self.extent = (1.0, 0.0), None
+        self.pivot = (1.0, 0.0)
+        self.extent = None
         self.found_edges = self.body is not None and self.edges
         if self.found_edges:
             self._body(x[:chunk])  # the body's extent, from the first chunk's frames
@@ -201,7 +205,10 @@ class ColourPoseReader:
     def _body(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """The weight map (B, H, W), the body's centre (B,) twice, the peaks (B,) and
         whether the body lies whole in the frame (B,)."""
-        xs, ys, k, n = self.xs, self.ys, self.kernel, self.reach
+        xs = self.xs
+        ys = self.ys
+        k = self.kernel
+        n = self.reach
         lin = torch.relu(((x - self.background) * self.colour[:, None, None]).sum(1))
         w = lin ** 2
         b = F.conv2d(F.conv2d(w[:, None], k.view(1, 1, 1, -1), padding=(0, n)),
@@ -273,7 +280,8 @@ class ColourPoseReader:
         ux, uy = (vx / r)[:, None, None], (vy / r)[:, None, None]
         dx = self.xs[None, None] - mx[:, None, None]
         dy = self.ys[None, :, None] - my[:, None, None]
-        p, margin = self.pixel, 1.5 * self.size / 64
+        p = self.pixel
+        margin = 1.5 * self.size / 64
         strip = ((dx * ux + dy * uy) > math.hypot(hx, hy) * p) & (
             (dx * uy - dy * ux).abs() < margin * p)
         wb = w * (self._box(mx, my) & ~strip)
@@ -331,7 +339,8 @@ def _midpoint(profile: torch.Tensor, at: torch.Tensor, start: torch.Tensor, half
     coordinates ``at`` (N,) falls to half its median within ``half`` pixels of ``start``
     (B,), each linearly interpolated between pixels; the distance between the two (B,), 0
     where one of them lies outside; and that median (B,)."""
-    n, p = profile.shape[1], float(at[1] - at[0])
+    n = profile.shape[1]
+    p = float(at[1] - at[0])
     c = ((start - at[0]) / p).round().long().clamp(0, n - 1)
     idx = torch.arange(n)
     near = (idx[None] - c[:, None]).abs() <= max(1, round(half))

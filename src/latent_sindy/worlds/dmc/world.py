@@ -57,7 +57,8 @@ def _describe(config: DmcConfig) -> _Description:
 
     env = load(config)
     try:
-        spec, model = env.action_spec(), env.physics.model
+        spec = env.action_spec()
+        model = env.physics.model
         names, periods = physics_names(env.physics)
         return _Description(
             tuple(np.broadcast_to(spec.minimum, spec.shape).astype(float).tolist()),

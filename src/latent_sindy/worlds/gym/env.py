@@ -83,7 +83,8 @@ class GymPixelEnv(gym.Env):
                                            self.action_high.astype(np.float32))
         self._frames: deque[np.ndarray] = deque(maxlen=config.frames)
         self._state = np.zeros(0)
-        self._ended, self._steps = True, 0  # until the first reset
+        self._ended = True  # until the first reset
+        self._steps = 0
 
     @property
     def dt(self) -> float | None:
@@ -128,7 +129,8 @@ class GymPixelEnv(gym.Env):
         super().reset(seed=seed)
         obs, _ = self.env.reset(seed=seed, options=options)
         self._state = self._flat(obs)
-        self._ended, self._steps = False, 0
+        self._ended = False
+        self._steps = 0
         frame = self.render_frame()
         for _ in range(self.config.frames):
             self._frames.append(frame)
@@ -142,7 +144,9 @@ class GymPixelEnv(gym.Env):
         space = self.env.action_space
         u = np.clip(np.asarray(action, np.float64).reshape(-1), self.action_low,
                     self.action_high).reshape(space.shape).astype(space.dtype)
-        reward, terminated, truncated = 0.0, False, False
+        reward = 0.0
+        terminated = False
+        truncated = False
         for _ in range(self.config.action_repeat):
             obs, r, terminated, truncated, _ = self.env.step(u)
             reward += float(r)

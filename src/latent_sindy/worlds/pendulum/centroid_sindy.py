@@ -121,7 +121,8 @@ class CentroidSindy:
                 self.library, z, u, z_next, frame_centroids(held.images).double(),
                 torch.as_tensor(held.actions, dtype=torch.float64),
                 TOLERANCES if self.sparsifier == "stepwise" else STLSQ_SHARES, make)
-            fit, self.setting_ = self.selection_.model, self.selection_.setting
+            fit = self.selection_.model
+            self.setting_ = self.selection_.setting
         else:
             fit = fit_state_data(self.library, z, u, z_next, make(self.min_share))
             self.setting_ = self.min_share

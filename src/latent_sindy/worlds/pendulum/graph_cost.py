@@ -48,13 +48,15 @@ def graph_distances(points: np.ndarray, source: int, neighbours: int) -> np.ndar
     # Prim's tree: clusters the k nearest neighbours leave apart are joined by short edges
     inside = np.zeros(n, bool)
     inside[0] = True
-    best, parent = gap[0].copy(), np.zeros(n, int)
+    best = gap[0].copy()
+    parent = np.zeros(n, int)
     for _ in range(n - 1):
         j = int(np.argmin(np.where(inside, np.inf, best)))
         inside[j] = True
         edges[j][int(parent[j])] = edges[int(parent[j])][j] = float(gap[j, parent[j]])
         closer = gap[j] < best
-        best[closer], parent[closer] = gap[j][closer], j
+        best[closer] = gap[j][closer]
+        parent[closer] = j
     dist = np.full(n, np.inf)
     dist[source] = 0.0
     queue = [(0.0, source)]

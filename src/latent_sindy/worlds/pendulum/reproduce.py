@@ -142,7 +142,8 @@ def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
         f"{cfg.derivatives}, device {resolve_device(cfg.device)}")
     result = run_video_study(cfg, out, say)
     record = to_record(result)
-    s, med = record["summary"], record["summary"]["median"]
+    s = record["summary"]
+    med = record["summary"]["median"]
     pub, rep = s["published"], s["replicated"]
 
     def e(v: float | None) -> str:
@@ -289,7 +290,9 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
     threads_before = torch.get_num_threads()
     torch.set_num_threads(threads)
     per_seed: dict[int, list[dict[str, Any]]] = {}
-    tables, equations, data_s = [], {}, {}
+    tables = []
+    equations = {}
+    data_s = {}
     try:
         for seed, cfg in configs.items():
             trained = (f"{cfg.epochs} epochs of {', '.join(cfg.models)}" if cfg.models
@@ -298,7 +301,8 @@ def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = No
                 f"{cfg.image_size}x{cfg.image_size}, {trained}, {cfg.episodes} swing-ups "
                 f"from {cfg.start} starts, device {resolve_device(device)}")
             record = _seed_record(cfg, out, say)
-            per_seed[seed], data_s[seed] = record["rows"], record["data_s"]
+            per_seed[seed] = record["rows"]
+            data_s[seed] = record["data_s"]
             tables.append(Table(f"Seed {seed}", record["header"], record["table"]))
             for r in record["rows"]:
                 name = _model_id(r["model"])

@@ -166,7 +166,9 @@ class LatentSwingUp:
                  encode: Callable[[np.ndarray], np.ndarray] | None = None,
                  step: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
                  ) -> None:
-        self.model, self.codes, self.config = model, codes, config
+        self.model = model
+        self.codes = codes
+        self.config = config
         self.encode = encode or model.encode
         self.step = step or latent_step(model.model_.dynamics)
         self.mppi: MPPI | None = None
@@ -174,7 +176,8 @@ class LatentSwingUp:
 
     def cost(self, goal_image: np.ndarray) -> GraphDistanceCost:
         """The cost toward ``goal_image`` (built once per goal)."""
-        cfg, goal = self.config, np.asarray(self.encode(goal_image))
+        cfg = self.config
+        goal = np.asarray(self.encode(goal_image))
         if goal.tobytes() not in self._costs:
             cost = GraphDistanceCost(self.codes, goal, cfg.neighbours, cfg.nodes,
                                      seed=cfg.seed, grid=cfg.grid)
@@ -337,7 +340,8 @@ def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
     """Fit one model on the centroid latent; its row, with ``step`` set, not yet run."""
     t0 = time.perf_counter()
     if kind == "mlp":
-        model, eq = CentroidMlp(seed=cfg.seed).fit(data), ["(an MLP: no equations)"]
+        model = CentroidMlp(seed=cfg.seed).fit(data)
+        eq = ["(an MLP: no equations)"]
     else:
         model = (CentroidSindy(1, 0.0, "stlsq") if kind == "linear" else CentroidSindy(
             cfg.centroid_order, cfg.centroid_min_share, cfg.centroid_sparsifier)).fit(data)

@@ -28,7 +28,8 @@ __all__ = ["DT", "PIXELS", "SPLITS", "STEPS", "Compressed", "as_sequences", "cac
 PIXELS = 51 * 51
 SPLITS = (100, 10, 10)
 """The benchmark's training, validation and test trajectories."""
-STEPS, DT = 500, 0.02
+STEPS = 500
+DT = 0.02
 
 
 @dataclass
@@ -106,7 +107,8 @@ def load_or_make(folder: Path, k: int, frames_every: int, derivatives: str,
     file is made again), else made and cached atomically (``.npz``, no pickles)."""
     path = Path(folder) / cache_name(k, frames_every, derivatives, splits, steps, omega2,
                                      starts)
-    n, frames = sum(splits), len(range(0, steps, frames_every))
+    n = sum(splits)
+    frames = len(range(0, steps, frames_every))
     try:
         with np.load(path, allow_pickle=False) as f:
             video = Compressed(**{name: f[name] for name in
@@ -128,7 +130,8 @@ def as_sequences(video: Compressed) -> tuple[SequenceData, float, float]:
     [0, 1] as SequenceData asks (the model's normaliser undoes it; an affine map keeps the
     derivatives exact), with the offset and scale to map back."""
     c = video.coords
-    lo, span = float(c[:, :, 0].min()), float(np.ptp(c[:, :, 0])) * 1.001
+    lo = float(c[:, :, 0].min())
+    span = float(np.ptp(c[:, :, 0])) * 1.001
     images = (c[:, :, 0] - lo) / span
     n, f, k = images.shape
     data = SequenceData(images.reshape(n, f, 1, 1, k).clip(0, 1), None, split=video.split,

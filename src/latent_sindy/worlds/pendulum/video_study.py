@@ -140,7 +140,8 @@ def train_seed(seed: int, s: Schedule, data, k: int, video: Compressed, lo: floa
     with warnings.catch_warnings():  # (a seed that lost every term is a row of the study)
         warnings.simplefilter("ignore", AllTermsPruned)
         est.fit(data, phases=phases, warmup=warmup, restarts=rule)
-    model, kept = est.model_, est.kept_
+    model = est.model_
+    kept = est.kept_
     norm = Normalizer.from_dict(est.record_["normalizer"])
     steps = s.warmup + s.epochs + s.calibrate_epochs
     last = s.warmup + (s.epochs if phases else 0)  # the last stretch's epochs follow
@@ -251,7 +252,8 @@ class VideoStudyResult:
 
     def lines(self) -> list[str]:
         """The summary as the benchmark prints it."""
-        s, med = self.summary(), self.summary()["median"]
+        s = self.summary()
+        med = self.summary()["median"]
         return [f"recovered {s['recovered']} of {s['seeds']}; median FVU x "
                 f"{med['fvu_x']:.1e} ẍ {med['fvu_ddx']:.1e} z̈ {med['fvu_ddz']:.1e}",
                 f"published (best of 10): x {PUBLISHED['fvu_x']:.0e} ẍ "

@@ -95,7 +95,9 @@ def collect_one(env, index: int, plan: CollectionPlan) -> dict[str, np.ndarray]:
         rng = np.random.default_rng([plan.seed, index, attempt])
         obs, info = env.reset(seed=int(rng.integers(2**31)))
         actions = rng.uniform(low, high, size=(plan.steps, plan.env.action_dim)).astype(np.float32)
-        images, poses, executed = [obs], [info["pose"]], []
+        images = [obs]
+        poses = [info["pose"]]
+        executed = []
         for a in actions:
             obs, _, terminated, _, info = env.step(a)
             images.append(obs)

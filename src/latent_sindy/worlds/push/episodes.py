@@ -87,7 +87,10 @@ class _Pushes:
 
     def __init__(self, env, controller: Controller, info: dict, until: str,
                  frames: list | None) -> None:
-        self.env, self.controller, self.info, self.frames = env, controller, info, frames
+        self.env = env
+        self.controller = controller
+        self.info = info
+        self.frames = frames
         self.key = "is_success" if until == "course" else "is_success_strict"
         self.steps_goal = 0 if info["is_success"] else None
         self.steps_strict = 0 if info["is_success_strict"] else None
@@ -108,7 +111,8 @@ class _Pushes:
         self.discarded += push.plan.discarded
         self.actions.append([float(a) for a in action])
         obs, _, terminated, _, info = self.env.step(action)
-        self.info, self.steps = info, self.steps + 1
+        self.info = info
+        self.steps = self.steps + 1
         self.executed += bool(info["push_executed"])
         if self.frames is not None:
             self.frames.append(self.env.render())
@@ -133,7 +137,9 @@ def run_episode(env, controller: Controller, episode: int, settings: ControlConf
     run = _Pushes(env, controller, info, settings.until, frames)
     run_loop(controller, run, Observation(obs, info["pose"]), goal_view, settings.max_steps,
              seed)
-    info, plan_ms, reach_ms = run.info, run.plan_ms, run.reach_ms
+    info = run.info
+    plan_ms = run.plan_ms
+    reach_ms = run.reach_ms
     return EpisodeResult(
         episode=episode, seed=reset_seed, start=start, goal=goal,
         success=run.steps_goal is not None, steps_to_goal=run.steps_goal,
@@ -153,7 +159,8 @@ def summarize(results: list[EpisodeResult]) -> dict[str, float]:
     ok = [r for r in results if r.success]
     ok_strict = [r for r in results if r.strict_success]
     plan = [r.plan_ms_mean for r in results if r.steps]
-    n, pushes = len(results), sum(r.steps for r in results)
+    n = len(results)
+    pushes = sum(r.steps for r in results)
     lo, hi = wilson_interval(len(ok), n)
     slo, shi = wilson_interval(len(ok_strict), n)
     return {

@@ -83,7 +83,8 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
     names = dyn.names
     p = coef.shape[1]
     if p <= MAX_COLUMNS:
-        cols, shown = np.arange(p), "all terms"
+        cols = np.arange(p)
+        shown = "all terms"
     else:
         active = np.flatnonzero(mask.any(axis=0))
         cols = active
@@ -93,7 +94,8 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
             cols = np.sort(active[np.argsort(-strength, kind="stable")[:MAX_COLUMNS]])
             shown = f"the {MAX_COLUMNS} strongest of {len(active)} active terms (of {p})"
         if len(cols) == 0:
-            cols, shown = np.arange(1), f"no active term of {p}"
+            cols = np.arange(1)
+            shown = f"no active term of {p}"
     data = np.ma.masked_where(~mask[:, cols], coef[:, cols])
     lim = float(np.abs(coef).max()) or 1.0
     width, height = min(30.0, max(6.0, 0.11 * len(cols) + 2)), 4.2
@@ -107,7 +109,8 @@ def coefficient_map(dyn: SindyDynamics, title: str, path: Path) -> Path:
     rows = [f"z{j}" for j in range(coef.shape[0])]
     if getattr(dyn, "turn", False):  # z_a's coefficients are the turn ω; z_b has none
         a, b = dyn.circle
-        rows[a], rows[b] = "ω", f"(z{b})"
+        rows[a] = "ω"
+        rows[b] = f"(z{b})"
     ax.set_yticks(range(coef.shape[0]), rows, fontsize=6)
     ax.set_xticks(range(len(cols)), [names[i] for i in cols], rotation=90,
                   fontsize=7 if len(cols) <= 60 else 5)

@@ -165,8 +165,10 @@ def _whole_evaluation(record: Any, key: dict[str, Any]) -> bool:
     """Whether ``record`` is evaluation.json as :func:`eval_job` writes it for ``key``."""
     if not (isinstance(record, dict) and record.get("key") == key):
         return False
-    losses, stats = record.get("losses"), record.get("stats")
-    probe, position = record.get("probe", 0), record.get("position", 0)
+    losses = record.get("losses")
+    stats = record.get("stats")
+    probe = record.get("probe", 0)
+    position = record.get("position", 0)
     if not (isinstance(losses, dict) and isinstance(stats, dict)
             and _numbers(record.get("horizon")) and record["horizon"]):
         return False
@@ -222,7 +224,8 @@ def eval_job(job: EvalJob) -> RunResult:
     t0 = time.perf_counter()
     run = RunDir(job.run)
     loaded = run.load()
-    cache, key = run / run.EVALUATION, _eval_key(run, job.data)
+    cache = run / run.EVALUATION
+    key = _eval_key(run, job.data)
     record = _read_json(cache)
     if not _whole_evaluation(record, key):  # missing, stale or damaged: measured again
         data = read_sequences(job.data)

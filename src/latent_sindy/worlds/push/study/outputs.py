@@ -39,7 +39,8 @@ def output_stage(study: Study, data: SequenceData, say: Say,
     """Figures, equations and tables of a finished study; returns what the report shows.
     ``started``: the :func:`submit_model_figures` of ``pool``, drawn while the evaluations
     ran; a figure it lacks is drawn here."""
-    out, cfg = study.config.out, study.config
+    out = study.config.out
+    cfg = study.config
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     first = cfg.seeds[0]
@@ -67,7 +68,8 @@ def output_stage(study: Study, data: SequenceData, say: Say,
                   "test trajectories")
 
     conditions = study.scale.all_conditions()
-    bars, plan_ms = {}, {}
+    bars = {}
+    plan_ms = {}
     for cond in conditions:
         key = f"control/{cond.name}/success_rate"
         if any(key in study.stats[m] for m in ok):
@@ -111,7 +113,8 @@ def model_figure_jobs(plan: StudyPlan, trained: Collection[str], data: Path | Se
     (key, function, arguments): "rollouts" (Fig. 8: the single- and multi-step SINDy-2, the
     paper's, then the other headline image models, what the representation work bought) and
     each model's coefficient map (key: its name; None for a model without one)."""
-    fig_dir, threads = plan.config.out / "figures", plan.config.threads
+    fig_dir = plan.config.out / "figures"
+    threads = plan.config.threads
     runs = plan.runs[plan.config.seeds[0]]
     single, multi = plan.single_step, plan.multistep
     strip = [(runs[s.name], f"{kind} {s.label}\n(trained on H={s.window})")

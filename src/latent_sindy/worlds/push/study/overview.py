@@ -106,7 +106,8 @@ def _finite(s: Stat | None) -> bool:
 def describe(spec: ModelSpec) -> tuple[str, str]:
     """The dynamics and what the model observes, in a word or two each: ("SINDy poly-2",
     "image"), ("SINDy face", "moments"), ("MLP", "state")."""
-    dyn, obs = spec.model.dynamics, spec.model.observation
+    dyn = spec.model.dynamics
+    obs = spec.model.observation
     if dyn.kind == "sindy":
         library = getattr(dyn, "library", "poly")
         kind = f"SINDy {library}" + (f"-{dyn.order}" if library in ("poly", "push") else "")
@@ -132,9 +133,11 @@ def overview(study: Study) -> Overview:
         coarse = Success(*pooled_counts(runs, f"control/{CONDITION}/success_rate", episodes))
         strict = Success(*pooled_counts(runs, f"control/{CONDITION}/strict_success_rate",
                                         episodes))
-        active, candidates = stats.get("sindy/active"), stats.get("sindy/coefficients")
+        active = stats.get("sindy/active")
+        candidates = stats.get("sindy/coefficients")
         if not _finite(active):  # a dense network: all its parameters
-            active, candidates = stats.get("params/dynamics"), None
+            active = stats.get("params/dynamics")
+            candidates = None
         rows.append(ModelRow(m, spec.label, spec.model.dynamics.kind, *describe(spec), active,
                              candidates, stats.get(key), coarse, strict))
 

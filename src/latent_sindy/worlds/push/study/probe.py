@@ -230,7 +230,8 @@ class KernelProbe:
         if not 0 < held_out < 1:
             raise UserError(f"KernelProbe: held_out={held_out} must be a fraction in (0, 1)")
         self.gammas, self.ridges, self.held_out = gammas, ridges, held_out
-        self.max_frames, self.seed = max_frames, seed
+        self.max_frames = max_frames
+        self.seed = seed
 
     def fit(self, z: np.ndarray, y: np.ndarray, groups: np.ndarray | None = None
             ) -> KernelProbe:
@@ -244,11 +245,13 @@ class KernelProbe:
         groups = np.arange(len(z)) if groups is None else np.asarray(groups)
         ids = np.unique(groups)
         if len(ids) < 2:
-            groups, ids = np.arange(len(z)), np.arange(len(z))
+            groups = np.arange(len(z))
+            ids = np.arange(len(z))
         if len(z) > self.max_frames:  # whole trajectories, as many as fit
             keep = rng.permutation(ids)[: max(2, len(ids) * self.max_frames // len(z))]
-            z, y, groups = z[np.isin(groups, keep)], y[np.isin(groups, keep)], groups[
-                np.isin(groups, keep)]
+            z = z[np.isin(groups, keep)]
+            y = y[np.isin(groups, keep)]
+            groups = groups[np.isin(groups, keep)]
             ids = np.unique(groups)
         val = np.isin(groups, rng.permutation(ids)[: max(1, round(self.held_out * len(ids)))])
         self.mean_, self.scale_ = z.mean(0), z.std(0) + 1e-12
@@ -264,7 +267,9 @@ class KernelProbe:
             for lam in self.ridges:
                 err = ((k_val @ self._solve(k_fit, t[fit], lam) - t[v]) ** 2).mean(0).numpy()
                 better = err < best
-                best[better], self.gamma_[better], self.ridge_[better] = err[better], g, lam
+                best[better] = err[better]
+                self.gamma_[better] = g
+                self.ridge_[better] = lam
         self.centres_ = x
         self.coef_ = torch.zeros_like(t)  # (M, ny): one column per target, its own kernel
         for g, lam in sorted(set(zip(self.gamma_, self.ridge_, strict=True))):

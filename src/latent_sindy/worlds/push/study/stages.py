@@ -51,7 +51,8 @@ Say = Callable[[str], None]
 # ----------------------------------------------------------------------------- stage 1: data
 def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
     """The trajectory file of the study: as given, reused, or collected for the scale."""
-    path, scale = cfg.data_path, cfg.preset
+    path = cfg.data_path
+    scale = cfg.preset
     if cfg.data is not None and path.exists():
         say(f"[1/4] data: using {path} as given")
         return path
@@ -85,7 +86,8 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
         return
     if old == plan:
         return
-    world, size = old.env.world_name, old.env.image_size
+    world = old.env.world_name
+    size = old.env.image_size
     differs = []
     if old.env.world_key != plan.env.world_key:
         differs.append(f"--world {world or 'of another kind'} (this study: --world {cfg.world})")
@@ -132,7 +134,8 @@ def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say,
     returns what was measured of every run that finished training. ``trained`` is called
     once, when the last training is done, with the first seed's models that finished
     training (it may queue work of its own on the executor behind the evaluations)."""
-    cfg, scale = plan.config, plan.scale
+    cfg = plan.config
+    scale = plan.scale
     jobs = []
     for seed in cfg.seeds:
         for spec in plan.specs:
@@ -158,7 +161,9 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
     """Run the training jobs; each finished one queues its evaluation; until all are done.
     Returns the results and metrics per seed and model, the training status per run and
     the failures. ``trained``: as :func:`run_stage`'s."""
-    scale, threads, n = plan.scale, plan.config.threads, len(jobs)
+    scale = plan.scale
+    threads = plan.config.threads
+    n = len(jobs)
     train_needs = Resources(cpus=threads, gpus=plan.config.gpus)
     eval_needs = Resources(cpus=threads)
     results: dict[int, dict[str, RunResult]] = {}
@@ -166,7 +171,9 @@ def _drain(pool: Executor, jobs: list[TrainJob], plan: StudyPlan, data: Path, sa
     train_status: dict[str, str] = {}
     failures: list[str] = []
     t0 = time.perf_counter()
-    done_eval, trainings, first = 0, n, plan.config.seeds[0]
+    done_eval = 0
+    trainings = n
+    first = plan.config.seeds[0]
     ready: set[str] = set()  # the first seed's models that finished training
     pending: dict[Future, tuple[str, Any]] = {
         pool.submit(train_job, j, resources=train_needs,
@@ -227,7 +234,8 @@ def _num(v: float | None) -> str:
 def baseline_stage(data: SequenceData) -> Baselines:
     """Prediction error against horizon of the predictors that learn nothing, and the block
     position error of reading the true held-out images and of "nothing moves"."""
-    normalizer, test = Normalizer.from_trajectories(data), held_out(data)
+    normalizer = Normalizer.from_trajectories(data)
+    test = held_out(data)
     return Baselines(pred_err=baseline_errors(data.split("train"), test, normalizer),
                      position=position_errors(None, test, normalizer))
 

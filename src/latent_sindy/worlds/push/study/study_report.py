@@ -52,7 +52,8 @@ def findings(study: Study) -> list[str]:
     if multi and single and single.name in study.stats and multi.name in study.stats:
         a, b = multi.name, single.name
         ea, eb = _mean(study, a, "pred_err/hmax"), _mean(study, b, "pred_err/hmax")
-        rnd, pap = "control/random/latent/success_rate", "control/paper/latent/success_rate"
+        rnd = "control/random/latent/success_rate"
+        pap = "control/paper/latent/success_rate"
         if math.isfinite(ea) and ea < eb:
             verdict = (f"more accurate: {eb / ea:.2f}x lower error" if math.isfinite(eb)
                        else "more accurate: the single-step rollout diverged")
@@ -204,7 +205,8 @@ def _first_screen(r: Report, study: Study, figure: Path) -> None:
 def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
                  path: Path) -> Path:
     """Assemble and write report.html (self-contained) from the study and its output files."""
-    cfg, scale = study.config, study.config.preset
+    cfg = study.config
+    scale = study.config.preset
     seeds = ", ".join(map(str, cfg.seeds))
     data = summary["data"]
     r = Report(f"latent-sindy: the paper's study, reproduced ({cfg.scale} scale)")
@@ -283,7 +285,8 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     r.image(files["horizon"], "Open-loop prediction error against horizon on the test "
             "trajectories (mean ± std over seeds); dashed: predictors that learn nothing")
     if baselines := study.baselines.pred_err:
-        still, mean = baselines["still"], baselines["mean_image"]
+        still = baselines["still"]
+        mean = baselines["mean_image"]
         r.paragraph(
             "For scale, on the same test trajectories: predicting that nothing moves scores "
             f"{still[0]:.4f} one push ahead and {still[-1]:.4f} at the longest horizon; the "

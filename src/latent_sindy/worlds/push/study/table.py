@@ -222,7 +222,8 @@ def pooled_counts(per_seed: Sequence[Mapping[str, float | None]], rate_key: str,
     ``rate_key``) times its episode count (``episodes_key``); seeds without both are left out."""
     k = n = 0
     for m in per_seed:
-        rate, episodes = m.get(rate_key), m.get(episodes_key)
+        rate = m.get(rate_key)
+        episodes = m.get(episodes_key)
         if rate is None or episodes is None or not (math.isfinite(rate)
                                                     and math.isfinite(episodes)):
             continue
