@@ -88,17 +88,31 @@ def test_a_state_period_must_be_finite_and_positive(period: float) -> None:
 
 
 def test_a_study_refuses_a_folder_that_holds_another_study(tmp_path: Path) -> None:
+    from latent_sindy.study.runner import run_world_study
+    from latent_sindy.worlds.pendulum.plugin import VIDEO
     from latent_sindy.worlds.push.study.config import ReproduceConfig
-    from latent_sindy.worlds.push.study.pipeline import reproduce
 
     out = tmp_path / "study"
     out.mkdir()
     (out / "summary.json").write_text(json.dumps({"world": "pendulum", "rows": []}))
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     with pytest.raises(UserError, match="holds the pendulum study"):
+        run_world_study(VIDEO, ReproduceConfig(world="pendulum-video", scale="tiny", out=out),
+                        say=lambda *a, **k: None)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_the_push_study_runs_no_other_world_s_study(tmp_path: Path) -> None:
+    """Each world's study has one entry point: the push pipeline refuses a world with a study
+    of its own (the command reaches that one through its reproduce hook) and writes nothing."""
+    from latent_sindy.worlds.push.study.config import ReproduceConfig
+    from latent_sindy.worlds.push.study.pipeline import reproduce
+
+    out = tmp_path / "study"
+    with pytest.raises(UserError, match="--world pendulum-video has a study of its own"):
         reproduce(ReproduceConfig(world="pendulum-video", scale="tiny", out=out),
                   progress=lambda *a, **k: None)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert not out.exists()
 
 
 @pytest.mark.parametrize("argv, says", [

@@ -175,7 +175,7 @@ def test_the_tiny_pendulum_study_writes_what_it_found(tmp_path, monkeypatch):
     def no_rerun(*args, **kwargs):
         raise AssertionError("a finished seed was run again")
 
-    monkeypatch.setattr(study_module, "run_study", no_rerun)  # a re-run reads seed 0 back
+    monkeypatch.setattr(study_module, "compare_swing_ups", no_rerun)  # a re-run reads seed 0 back
     assert main(["reproduce", "--world", "pendulum", "--scale", "tiny", "--out", str(out),
                  "--device", "cpu"]) == 0
     again = json.loads((out / "summary.json").read_text())["results"]["per_seed"]["0"]

@@ -20,8 +20,8 @@ from latent_sindy.worlds.pendulum.state_sindy import StateSindy
 from latent_sindy.worlds.pendulum.study import (
     LatentSwingUp,
     StudyConfig,
+    compare_swing_ups,
     fit_image_model,
-    run_study,
 )
 
 
@@ -88,7 +88,7 @@ def test_the_study_runs_end_to_end_and_tabulates_every_model(one_torch_thread):
     cfg = StudyConfig(image_size=16, sequences=12, steps=3, epochs=1, window=2, episodes=2,
                       episode_steps=4, last=2, samples=16, horizon=3, nodes=20,
                       neighbours=4, cost_check=1)
-    result = run_study(cfg, report=lambda _: None)
+    result = compare_swing_ups(cfg, report=lambda _: None)
     names = [r.name for r in result.rows]
     assert names == ["state SINDy (true state)", "sindy (images)", "mlp (images)",
                      "linear (images)", "sindy (images, centroid latent)",

@@ -17,7 +17,7 @@ from latent_sindy.worlds.pendulum.centroid_sindy import (
     transitions,
 )
 from latent_sindy.worlds.pendulum.render import observe
-from latent_sindy.worlds.pendulum.study import StudyConfig, run_study
+from latent_sindy.worlds.pendulum.study import StudyConfig, compare_swing_ups
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_the_study_runs_the_centroid_rows_with_its_settings():
     cfg = StudyConfig(sequences=40, steps=6, window=2, models=(), centroid_models=("sindy",),
                       state_control=False, episodes=1, episode_steps=4, last=2, samples=8,
                       horizon=3, nodes=20, neighbours=4, grid=8, cost_check=0)
-    result = run_study(cfg, report=lambda _: None)
+    result = compare_swing_ups(cfg, report=lambda _: None)
     (row,) = result.rows
     assert row.name == "sindy (images, centroid latent)"
     assert len(row.episodes) == 1 and row.sparsity is not None

@@ -45,7 +45,7 @@ def test_1_pendulum_world_config_reaches_the_study_and_its_identity(tmp_path, mo
     """`reproduce --world pendulum --world-config ...`: the camera and the tasks' starts are
     the study's (recorded so), and another value is another study, not a reused one."""
     seen: list = []
-    monkeypatch.setattr(study_module, "run_study", _fake_study(seen))
+    monkeypatch.setattr(study_module, "compare_swing_ups", _fake_study(seen))
     out = tmp_path / "study"
 
     def run(*pairs: str) -> dict:
@@ -91,7 +91,7 @@ def test_1_model_based_worlds_take_a_given_size_even_the_default(tmp_path, monke
 
         monkeypatch.setattr(suite, "check_task", lambda config: None)  # (no dm-control here)
         pairs = []
-    monkeypatch.setattr(module.study if world == "dmc" else module, "run_study", stand_in)
+    monkeypatch.setattr(module.study if world == "dmc" else module, "run_loops", stand_in)
     out = tmp_path / "study"
     for given, expected in ((["size=64", "frames=2"], (64, 2)), (["frames=2"], (16, 2))):
         with pytest.raises(_Stop):

@@ -324,7 +324,7 @@ class Reproduce:
     dataclass, the others at their defaults), e.g. `task=reacher-easy` for dmc."""
 
     def run(self) -> None:
-        from latent_sindy.study.runner import reproduce_world, study_worlds
+        from latent_sindy.study.runner import run_world_study, study_worlds
 
         if not (self.config.executor == "ray" and self.config.ray_address):
             _check_threads(self.config.threads, auto=False)  # (else: another machine's)
@@ -335,7 +335,7 @@ class Reproduce:
                             f"{self.config.world} takes the options below")
         world = configured_world(self.config.world, self.world_config) if world else None
         report = (COMMAND_OF["reproduce"].run(self.config) if world is None
-                  else reproduce_world(world, self.config))
+                  else run_world_study(world, self.config))
         print(f"report: {report}")
 
 

@@ -6,7 +6,7 @@ world's study (the dmc and gym worlds') gives its world object, its scale and, f
 read from the frames rather than learned, its reader; :mod:`.model_based_report` makes the
 report of what it returns.
 
-    result = run_study(world, SCALE, "tiny", Path("/tmp/s"), "cpu", 1, print, name="gym",
+    result = run_loops(world, SCALE, "tiny", Path("/tmp/s"), "cpu", 1, print, name="gym",
                        header="gym Pendulum-v1, tiny scale")
 
 Each (seed, model) loop is its own resumable folder, ``OUT/seed<S>/<model>/`` (data.h5,
@@ -29,8 +29,16 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.errors import UserError
 
-__all__ = ["MODELS", "LoopScale", "loop_wall", "mean_interval", "pick_scale", "run_seed",
-           "run_study", "sized_config"]
+__all__ = [
+    "MODELS",
+    "LoopScale",
+    "loop_wall",
+    "mean_interval",
+    "pick_scale",
+    "run_loops",
+    "run_seed",
+    "sized_config",
+]
 
 Say = Callable[[str], None]
 
@@ -162,7 +170,7 @@ def _check_folder(out: Path, settings: dict[str, Any], name: str) -> None:
         write_atomic(path, lambda f: f.write(json.dumps(settings, indent=1)), binary=False)
 
 
-def run_study(world: Any, s: LoopScale, scale: str, out: Path, device: str, threads: int,
+def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, threads: int,
               say: Say, workers: int = 1, *, name: str, header: str,
               steps_per_action: int = 1, reader: Callable[[], Any] | None = None
               ) -> dict[str, Any]:

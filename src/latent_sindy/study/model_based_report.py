@@ -1,10 +1,10 @@
-"""The report of a model-based study (:func:`.model_based.run_study`'s runs) as ``latent-sindy
+"""The report of a model-based study (:func:`.model_based.run_loops`'s runs) as ``latent-sindy
 reproduce`` writes it: the :class:`~latent_sindy.world_study.WorldStudy` of tables of return
 against environment steps per model with intervals over seeds, the test episodes, published
 reference rows where the world has them, costs, active terms; the last SINDy equations; a
 figure. It knows no world: the world's study names its task and its published lines.
 
-    study = model_based_study(run_study(...), "tiny", out, "gym from pixels: Pendulum-v1",
+    study = model_based_study(run_loops(...), "tiny", out, "gym from pixels: Pendulum-v1",
                               "Pendulum-v1")
 """
 
@@ -156,7 +156,7 @@ def _rows(runs: dict[str, dict[int, dict[str, Any]]]) -> list[dict[str, Any]]:
 
 def model_based_study(result: dict[str, Any], scale: str, out: Path, title: str, task: str,
                       reference: Reference | None = None) -> WorldStudy:
-    """The WorldStudy of a model-based study's ``result`` (:func:`.model_based.run_study`)
+    """The WorldStudy of a model-based study's ``result`` (:func:`.model_based.run_loops`)
     at ``scale`` in ``out`` (its figure written there), of the world's ``task``, with the
     ``reference`` lines where the world has any."""
     runs = result["runs"]

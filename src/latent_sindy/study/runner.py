@@ -35,7 +35,7 @@ from latent_sindy.result_files import record_rows
 from latent_sindy.study.report import Report
 from latent_sindy.world_study import WorldStudy
 
-__all__ = ["check_study_folder", "json_safe", "machine", "reproduce_world", "study_folder",
+__all__ = ["check_study_folder", "json_safe", "machine", "run_world_study", "study_folder",
            "study_worlds", "versions", "write_world_study"]
 
 Say = Callable[[str], None]
@@ -210,7 +210,7 @@ def write_world_study(world: Any, settings: Any, say: Say, t_start: float | None
     return report, study, summary
 
 
-def reproduce_world(world: Any, settings: Any, say: Say | None = None) -> Path:
+def run_world_study(world: Any, settings: Any, say: Say | None = None) -> Path:
     """``latent-sindy reproduce`` of a world with a study of its own (:func:`study_worlds`):
     its study in ``settings.out``, held for it; returns the path of report.html. ``say``
     receives the study's lines (default: stderr when ``settings.verbose``, if it has one)."""

@@ -107,7 +107,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     loops at a time (1: one after another in this process; more: in worker processes that
     end with this one, each loop's numbers the same as in this process): the study's
     settings and, per model and seed, the log of its loop and its wall time
-    (:func:`latent_sindy.study.model_based.run_study`). ``given``: the fields of ``config``
+    (:func:`latent_sindy.study.model_based.run_loops`). ``given``: the fields of ``config``
     a user set (:func:`~latent_sindy.study.model_based.sized_config`)."""
     from latent_sindy.worlds.dmc.world import DmcWorld
 
@@ -115,7 +115,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
     world = sized_config(config, DmcConfig(task=config.task), s, given)
     header = (f"dmc {world.task}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
-    result = study.run_study(DmcWorld(world), s, scale, out, device, threads, say, workers,
+    result = study.run_loops(DmcWorld(world), s, scale, out, device, threads, say, workers,
                              name="dmc", header=header, steps_per_action=world.action_repeat,
                              reader=_reader(world))
     return {**result, "reference": {k: list(v) for k, v in REFERENCE.items()},

@@ -4,7 +4,7 @@ the generic model-based report (:mod:`latent_sindy.study.model_based_report`: ta
 return against environment steps per model with intervals over seeds, costs, active terms;
 the last SINDy equations; a figure) with the published reference rows of cartpole-swingup.
 
-    study = reproduce_dmc(DmcConfig(), "tiny", Path("/tmp/dmc"), None, "cpu", 1, print)
+    study = dmc_study(DmcConfig(), "tiny", Path("/tmp/dmc"), None, "cpu", 1, print)
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from latent_sindy.world_study import WorldStudy
 from latent_sindy.worlds.dmc.config import DmcConfig
 from latent_sindy.worlds.dmc.study import REFERENCE, REFERENCE_STEPS, REFERENCE_TASK, run_dmc_study
 
-__all__ = ["reproduce_dmc"]
+__all__ = ["dmc_study"]
 
 Say = Callable[[str], None]
 
@@ -27,9 +27,9 @@ _REFERENCE = Reference(REFERENCE_TASK, REFERENCE_STEPS, REFERENCE,
                         "CURL's paper, Table 1" for name in REFERENCE})
 
 
-def reproduce_dmc(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say, workers: int = 1,
-                  given: Collection[str] | None = None) -> WorldStudy:
+def dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+              device: str, threads: int, say: Say, workers: int = 1,
+              given: Collection[str] | None = None) -> WorldStudy:
     """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
     time), as a WorldStudy; ``given``: the fields of ``config`` a user set."""
     result = run_dmc_study(config, scale, out, seeds, device, threads, say, workers, given)

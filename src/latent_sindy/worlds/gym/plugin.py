@@ -42,10 +42,10 @@ class GymPlugin(GymWorld):
         (finished loops reused, ``workers`` loops at a time): a
         :class:`~latent_sindy.world_study.WorldStudy` for the report. The environment is
         made first: an id it cannot make or a missing renderer writes nothing in ``out``."""
-        from latent_sindy.worlds.gym.study import reproduce_gym
+        from latent_sindy.worlds.gym.study import gym_study
 
-        return reproduce_gym(self.config, scale, out, seeds, device, threads, say, workers,
-                             getattr(self, CONFIG_GIVEN, None))
+        return gym_study(self.config, scale, out, seeds, device, threads, say, workers,
+                         getattr(self, CONFIG_GIVEN, None))
 
 
 WORLD = GymPlugin()

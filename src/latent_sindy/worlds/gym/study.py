@@ -14,12 +14,12 @@ from __future__ import annotations
 from collections.abc import Callable, Collection
 from pathlib import Path
 
-from latent_sindy.study.model_based import LoopScale, pick_scale, run_study, sized_config
+from latent_sindy.study.model_based import LoopScale, pick_scale, run_loops, sized_config
 from latent_sindy.study.model_based_report import model_based_study
 from latent_sindy.world_study import WorldStudy
 from latent_sindy.worlds.gym.config import GymConfig
 
-__all__ = ["SCALES", "reproduce_gym", "study_scale"]
+__all__ = ["SCALES", "gym_study", "study_scale"]
 
 Say = Callable[[str], None]
 
@@ -42,9 +42,9 @@ def study_scale(scale: str, seeds: tuple[int, ...] | None) -> LoopScale:
     return pick_scale(SCALES, scale, seeds, "gym")
 
 
-def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
-                  device: str, threads: int, say: Say, workers: int = 1,
-                  given: Collection[str] | None = None) -> WorldStudy:
+def gym_study(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+              device: str, threads: int, say: Say, workers: int = 1,
+              given: Collection[str] | None = None) -> WorldStudy:
     """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
     time), as a WorldStudy; the environment is made first (nothing is written for an id
     gymnasium cannot make or a renderer that is missing); ``given``: the fields of ``config``
@@ -56,7 +56,7 @@ def reproduce_gym(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ..
     describe(world)
     header = (f"gym {world.id}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
-    result = run_study(GymWorld(world), s, scale, out, device, threads, say, workers,
+    result = run_loops(GymWorld(world), s, scale, out, device, threads, say, workers,
                        name="gym", header=header, steps_per_action=world.action_repeat)
     return model_based_study(result, scale, out, f"Gymnasium from pixels: {world.id}, "
                              "model-based, SINDy / linear / MLP", world.id)

@@ -4,7 +4,7 @@
 48×48 frames, to swing up and balance; ``pendulum_video`` (plug-in ``pendulum-video``) is the
 SINDy autoencoder's benchmark with exact image derivatives. Importing this package loads
 neither gymnasium nor the environment; ``PendulumImageEnv`` loads when first asked for.
-``study.run_study`` fits image models and swings up with latent MPPI from images
+``study.compare_swing_ups`` fits image models and swings up with latent MPPI from images
 (``python -m latent_sindy.worlds.pendulum.study --help``).
 
     from latent_sindy.worlds.pendulum import PendulumWorld, pendulum_video

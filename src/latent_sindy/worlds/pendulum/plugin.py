@@ -49,10 +49,10 @@ class PendulumPlugin(PendulumWorld):
         :class:`~latent_sindy.world_study.WorldStudy` for the report. The world's settings
         given on the command line (``--world-config``: image_size, start, perturbation)
         replace the scale's camera and the tasks' starts."""
-        from latent_sindy.worlds.pendulum.reproduce import reproduce_pendulum
+        from latent_sindy.worlds.pendulum.reproduce import pendulum_study
 
         given = {k: getattr(self.config, k) for k in getattr(self, CONFIG_GIVEN, ())}
-        return reproduce_pendulum(scale, out, seeds, device, threads, say, given)
+        return pendulum_study(scale, out, seeds, device, threads, say, given)
 
 
 @dataclass(frozen=True)
@@ -89,10 +89,10 @@ class PendulumVideo:
                   say: Callable[[str], None] = print) -> Any:
         """The recovery study at ``scale`` in ``out`` (finished seeds reused): a
         :class:`~latent_sindy.world_study.WorldStudy` for the report."""
-        from latent_sindy.worlds.pendulum.reproduce import reproduce_video
+        from latent_sindy.worlds.pendulum.reproduce import pendulum_video_study
 
-        return reproduce_video(scale, out, seeds, device, threads, say, self.config.omega2,
-                               self.config.starts)
+        return pendulum_video_study(scale, out, seeds, device, threads, say, self.config.omega2,
+                                    self.config.starts)
 
     @staticmethod
     def config_from_record(record: dict[str, Any], where: str) -> dict[str, Any]:

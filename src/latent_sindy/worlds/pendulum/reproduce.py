@@ -2,8 +2,8 @@
 hands back for the common report (tables, figures, equations, every number).
 
 ``reproduce --world pendulum-video`` runs :func:`.video_study.run_video_study` and
-``reproduce --world pendulum`` runs :func:`.study.run_study`, at a scale named here; the
-plug-ins (:mod:`.plugin`) call :func:`reproduce_video` and :func:`reproduce_pendulum`, and the
+``reproduce --world pendulum`` runs :func:`.study.compare_swing_ups`, at a scale named here; the
+plug-ins (:mod:`.plugin`) call :func:`pendulum_video_study` and :func:`pendulum_study`, and the
 command writes summary.json, table.md, report.html and equations_*.txt from the
 :class:`WorldStudy` they return (it knows nothing of pendulums).
 
@@ -29,7 +29,7 @@ from latent_sindy.training.config import resolve_device
 from latent_sindy.world_study import Table, WorldStudy
 
 __all__ = ["PENDULUM_SCALES", "VIDEO_SCALES", "Table", "WorldStudy", "pendulum_config",
-           "reproduce_pendulum", "reproduce_video", "video_config"]
+           "pendulum_study", "pendulum_video_study", "video_config"]
 
 Say = Callable[[str], None]
 
@@ -128,9 +128,9 @@ def _video_figure(rows: list[dict[str, Any]], path: Path) -> Path:
     return _save(fig, path)
 
 
-def reproduce_video(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
-                    device: str = "auto", threads: int = 1, say: Say = print,
-                    omega2: float = 1.0, starts: str = "own_time") -> WorldStudy:
+def pendulum_video_study(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
+                         device: str = "auto", threads: int = 1, say: Say = print,
+                         omega2: float = 1.0, starts: str = "own_time") -> WorldStudy:
     """The pendulum-video recovery study at ``scale`` in ``out`` (finished seeds reused), of
     the video at ``omega2`` (θ̈ = −ω² sin θ) with its ``starts``."""
     from latent_sindy.worlds.pendulum.video_study import run_video_study, to_record
@@ -252,7 +252,7 @@ def _pendulum_figure(per_seed: dict[int, list[dict[str, Any]]], path: Path) -> P
 def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
     """One seed's study: read back from OUT/pendulum_seed<S>.json when it was run there with
     these settings (the device aside), else run and kept there (atomically)."""
-    from latent_sindy.worlds.pendulum.study import run_study
+    from latent_sindy.worlds.pendulum.study import compare_swing_ups
 
     path = out / f"pendulum_seed{cfg.seed}.json"
     # (the hanging starts' perturbation keys a seed only where it is not the default, so a
@@ -266,7 +266,7 @@ def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
             return saved
     except (OSError, ValueError):
         pass  # none yet, or unreadable: run it
-    result = run_study(cfg, report=say)
+    result = compare_swing_ups(cfg, report=say)
     cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in result.table().splitlines()]
     record = {"settings": key, "rows": [_row_record(r) for r in result.rows],
               "header": cells[0], "table": cells[2:], "data_s": result.data_seconds}
@@ -275,9 +275,9 @@ def _seed_record(cfg, out: Path, say: Say) -> dict[str, Any]:
     return record
 
 
-def reproduce_pendulum(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
-                       device: str = "auto", threads: int = 1,
-                       say: Say = print, world: Mapping[str, Any] | None = None) -> WorldStudy:
+def pendulum_study(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
+                   device: str = "auto", threads: int = 1,
+                   say: Say = print, world: Mapping[str, Any] | None = None) -> WorldStudy:
     """The controlled-pendulum study at ``scale``, once per seed, in ``out`` (a seed run
     there before with the same settings is read back); ``world``: the pendulum world's
     settings given (:func:`pendulum_config`)."""

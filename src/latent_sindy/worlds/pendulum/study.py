@@ -15,7 +15,7 @@ sparsity and times; every model's equations are printed.
 
     python -m latent_sindy.worlds.pendulum.study --help
     python -m latent_sindy.worlds.pendulum.study --episodes 50        # the default run
-    >>> result = run_study(StudyConfig(episodes=5)); print(result.table())
+    >>> result = compare_swing_ups(StudyConfig(episodes=5)); print(result.table())
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from latent_sindy.worlds.pendulum.state_sindy import StateSindy
 from latent_sindy.worlds.pendulum.swing_up import StateMPPI, SwingUp, run_swing_up
 from latent_sindy.worlds.pendulum.world import UPRIGHT, PendulumWorld
 
-__all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "run_study"]
+__all__ = ["LatentSwingUp", "ModelRow", "StudyConfig", "StudyResult", "compare_swing_ups"]
 
 MODELS = ("sindy", "mlp", "linear")
 
@@ -268,8 +268,8 @@ def fit_image_model(data: SequenceData, kind: str, config: StudyConfig) -> Laten
     return model.fit(data, epochs=config.epochs, batch_size=64, window=config.window)
 
 
-def run_study(config: StudyConfig | None = None,
-              report: Callable[[str], None] = print) -> StudyResult:
+def compare_swing_ups(config: StudyConfig | None = None,
+                      report: Callable[[str], None] = print) -> StudyResult:
     """Collect, fit, swing up and tabulate (``report`` hears progress and equations)."""
     cfg = config or StudyConfig()
     t0 = time.perf_counter()
@@ -362,7 +362,7 @@ def main(argv: list[str] | None = None) -> StudyResult:
     cfg = tyro.cli(StudyConfig, args=argv, description=__doc__.split("\n\n")[0])
     t0 = time.perf_counter()
     try:
-        result = run_study(cfg)
+        result = compare_swing_ups(cfg)
     except UserError as err:
         raise SystemExit(f"error: {err}") from None
     print("\n" + result.table())

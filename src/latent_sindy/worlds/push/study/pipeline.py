@@ -33,10 +33,8 @@ OUT holds::
     sweep.md                     with --sweep: a row per variant (mean ± std, Wilson intervals)
 
 A world plug-in with a study of its own (``--world pendulum``, ``--world pendulum-video``;
-see :func:`latent_sindy.study.runner.study_worlds`) runs that study instead, and OUT holds
-what it returns in the same format: summary.json, table.md, report.html,
-equations_<name>.txt, figures/ and whatever the study keeps to resume
-(:func:`latent_sindy.study.runner.reproduce_world`).
+see :func:`latent_sindy.study.runner.study_worlds`) is not run here: the command reaches it
+through its ``reproduce`` hook (:func:`latent_sindy.study.runner.run_world_study`).
 
 The push pipeline reads as stages, each a function of what the earlier ones returned
 (:mod:`.stages`, :mod:`.outputs`): data (collect) -> train + evaluate + control (the
@@ -65,7 +63,7 @@ from latent_sindy.executors import ExecutorOptions, make_executor
 from latent_sindy.progress import say_stderr
 from latent_sindy.result_files import record_rows
 from latent_sindy.study.evaluation import BASELINES, Stat
-from latent_sindy.study.runner import json_safe, machine, reproduce_world, study_folder, versions
+from latent_sindy.study.runner import json_safe, machine, study_folder, versions
 from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
 from latent_sindy.worlds.push.study.outputs import output_stage, submit_model_figures
 from latent_sindy.worlds.push.study.results import Study
@@ -163,7 +161,8 @@ def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
     t_start = time.perf_counter()
     say = progress or (say_stderr if config.verbose else (lambda _: None))
     if config.study_world is not None:
-        return reproduce_world(config.study_world, config, say)
+        raise UserError(f"--world {config.world} has a study of its own: run it with "
+                        f"latent-sindy reproduce --world {config.world}")
     out = check_output_dir(config.out, "--out")
     if config.data is not None and config.data.exists():
         # a foreign or damaged file, or one of another image size, is refused before any output
