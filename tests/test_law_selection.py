@@ -109,7 +109,9 @@ def test_reselect_sets_the_chosen_law_on_a_trained_model():
 
     video = VideoDraw(system="pendulum", omega2=(1.2,), damping=(0.1,), size=12, width=0.05,
                       trajectories=8, frames=30, dt=0.1).video()
-    est = LatentSINDy(1, time="continuous", derivative_order=2, seed=0).fit(
+    # (no principal-component front: the recipe's geodesic start, which needs one, is not
+    # what this test is about, and costs most of its time)
+    est = LatentSINDy(1, time="continuous", derivative_order=2, seed=0, pca_components=0).fit(
         video, epochs=2, phases=[Phase(1, "calibration")], restarts=Restarts(count=0))
     model = est.model_
     split = [derivative_samples(video.split(s), est.normalizer_, 2, TrainConfig())
