@@ -44,21 +44,23 @@ def seed_range(text: str) -> list[int]:
     return seeds
 
 
-def positive_int(text: str) -> int:
+def _number(text: str, kind: type, what: str) -> int | float:
+    """``text`` read as ``kind``; argparse's error naming it as not ``what`` otherwise."""
     try:
-        value = int(text)
+        return kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+
+
+def positive_int(text: str) -> int:
+    value = _number(text, int, "an integer")
     if value < 1:
         raise argparse.ArgumentTypeError(f"{value}: use 1 or more")
     return value
 
 
 def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    value = _number(text, float, "a number")
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text}: use a finite number > 0")
     return value
