@@ -142,6 +142,16 @@ def test_suite(monkeypatch, capsys, tmp_path):
     assert len(rows) == 1 and math.isfinite(rows[0]["one_step"]) and rows[0]["terms"] > 0
 
 
+def test_latent_probe(monkeypatch, capsys):
+    pytest.importorskip("pygame", reason="the gym extra (classic-control rendering) is not "
+                        "installed")
+    out = _run("latent_probe", monkeypatch, capsys)
+    for probe in ("linear", "quadratic"):
+        values = _numbers(_row(out, f"| 2 | {probe} |"))
+        # the coordinates, R² of cos θ, sin θ and θ', the fit seconds
+        assert len(values) == 5 and all(math.isfinite(v) and v <= 1.0 for v in values[1:4])
+
+
 # ------------------------------------------------------------------ the dmc extra
 def _dm_control():
     pytest.importorskip("dm_control", reason="the dmc extra is not installed")

@@ -3,11 +3,8 @@
 import numpy as np
 import torch
 
-from latent_sindy.training.manifold_start import (
-    choose_rotation,
-    farthest_points,
-    geodesic_coordinates,
-)
+from latent_sindy.models.manifold import farthest_points, geodesic_coordinates
+from latent_sindy.training.manifold_start import choose_rotation
 
 
 def blob_frames(theta: np.ndarray, size: int = 24, width: float = 0.02) -> torch.Tensor:

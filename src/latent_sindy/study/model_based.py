@@ -22,6 +22,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ __all__ = [
     "pick_scale",
     "run_loops",
     "run_seed",
+    "scale_reader",
     "sized_config",
 ]
 
@@ -66,6 +68,8 @@ class LoopScale:
     """Updates of every later refit, continuing the last model."""
     window: int
     latent_dim: int
+    """The learned latent's size; a "geodesic" latent's coordinates (its latent is twice
+    that, positions and rates, and the action held)."""
     encoder: str
     samples: int
     horizon: int
@@ -91,9 +95,12 @@ class LoopScale:
     episodes_per_iteration: int = 1
     """Planned episodes between two fits."""
     latent: str = "learned"
-    """"learned": an autoencoder's latent, trained; "read": a pose read from the frames by
-    the world's reader (the dmc world's ``ColourPoseReader``), nothing learned but the
-    dynamics and the reward head, each fit from scratch (SINDy in the windowed form over
+    """"learned": an autoencoder's latent, trained with the dynamics; "read": a pose read
+    from the frames by the world's hand-made reader (the dmc world's ``ColourPoseReader``);
+    "geodesic": the frames' geodesic coordinates (``latent_dim`` of them), learned from the
+    random episodes' frames alone (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`,
+    no world knowledge). With "read" and "geodesic" the dynamics and the reward head are
+    fitted on that latent from scratch at each fit (SINDy in the windowed form over
     ``window`` steps, order ``order``, STLSQ's ``min_share``)."""
     order: int = 3
     min_share: float = 0.03
@@ -181,7 +188,7 @@ def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
     same as in this process): the study's settings and, per model and seed, the log of its
     loop and its wall time. ``name``: the world's, for the settings file and messages;
     ``header``: the first line said (the world, the scale, the images); ``reader``: makes
-    the reader of a ``latent="read"`` scale."""
+    the reader of a ``latent="read"`` or ``"geodesic"`` scale (:func:`scale_reader`)."""
     from latent_sindy.executors import ExecutorOptions, make_executor
     from latent_sindy.progress import say_stderr
     from latent_sindy.training.config import resolve_device
@@ -217,6 +224,18 @@ def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
             "interval": "mean ± t(0.975, n-1)·sd/√n over seeds"}
 
 
+def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None = None
+                 ) -> Callable[[], Any] | None:
+    """What makes the reader of scale ``s`` on observations of ``frames`` stacked frames: the
+    geodesic coordinates (``s.latent_dim`` of them) for a "geodesic" scale, the world's
+    ``hand_made`` reader for a "read" one, None for a learned latent."""
+    if s.latent == "geodesic":
+        from latent_sindy.models.geodesic_reader import GeodesicReader
+
+        return partial(GeodesicReader, frames=frames, dim=s.latent_dim)
+    return hand_made if s.latent == "read" else None
+
+
 def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: str,
              threads: int, say: Say, steps_per_action: int = 1,
              reader: Callable[[], Any] | None = None) -> dict[str, Any]:
@@ -231,11 +250,12 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
 
     t0 = time.perf_counter()
     torch.set_num_threads(threads)
-    if s.latent == "read":
+    if s.latent in ("read", "geodesic"):
         from latent_sindy.read_latent import ReadLatent, ReadLatentConfig
 
         if reader is None:
-            raise UserError("a scale of a read latent needs the world's reader of the frames")
+            raise UserError(f"a scale of a {s.latent} latent needs its reader of the frames "
+                            "from the world's study")
         fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
                                 min_share=s.min_share, reward_width=s.reward_head,
                                 reader_episodes=s.seed_episodes,  # (the random ones)

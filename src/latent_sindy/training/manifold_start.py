@@ -29,106 +29,21 @@ what is filmed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from latent_sindy.models.manifold import geodesic_coordinates
 from latent_sindy.training.reselect import latent_derivatives
 from latent_sindy.training.samples import CoordinateSamples
 
-__all__ = ["LANDMARKS", "NEIGHBOURS", "Manifold", "begin_session", "choose_rotation",
-           "geodesic_coordinates", "regress_encoder"]
+__all__ = ["begin_session", "choose_rotation", "regress_encoder"]
 
-#: Landmarks the geodesic coordinates are computed on (the others are interpolated).
-LANDMARKS = 1000
-#: Each landmark's graph neighbours.
-NEIGHBOURS = 10
 #: Updates of the regression onto the coordinates (batches of :data:`REGRESSION_BATCH`).
 REGRESSION_STEPS = 3000
 REGRESSION_BATCH = 100
 #: Samples the turn of two latents is chosen on at most (an even subsample beyond).
 TURN_SAMPLES = 5000
-
-
-@dataclass
-class Manifold:
-    """Geodesic coordinates on landmarks, and their interpolation elsewhere."""
-
-    landmarks: torch.Tensor   # (L, K)
-    coords: torch.Tensor      # (L, dim)
-    eigenvalues: torch.Tensor  # the scaling's leading eigenvalues (L,), largest first
-
-    def transform(self, points: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
-        """(N, dim): inverse-distance weighting of the nearest landmarks' coordinates."""
-        out = []
-        k = min(NEIGHBOURS, len(self.landmarks))
-        for part in points.split(chunk):
-            d = torch.cdist(part.double(), self.landmarks)
-            near, j = d.topk(k, largest=False)
-            w = 1.0 / (near + 1e-12)
-            w = w / w.sum(1, keepdim=True)
-            out.append((w.unsqueeze(-1) * self.coords[j]).sum(1))
-        return torch.cat(out)
-
-
-def farthest_points(points: torch.Tensor, count: int, first: int = 0) -> torch.Tensor:
-    """Indices of ``count`` points spread over ``points`` (N, K): each the farthest from
-    those chosen before it, from ``first``."""
-    chosen = [first]
-    nearest = (points - points[first]).square().sum(1)
-    for _ in range(min(count, len(points)) - 1):
-        j = int(nearest.argmax())
-        chosen.append(j)
-        nearest = torch.minimum(nearest, (points - points[j]).square().sum(1))
-    return torch.tensor(chosen)
-
-
-def _spanning_tree(d: torch.Tensor) -> list[tuple[int, int]]:
-    """The edges of a minimum spanning tree of the complete graph of distances ``d`` (Prim)."""
-    n = len(d)
-    inside = torch.zeros(n, dtype=torch.bool)
-    inside[0] = True
-    best = d[0].clone()
-    parent = torch.zeros(n, dtype=torch.long)
-    edges = []
-    for _ in range(n - 1):
-        cost = best.masked_fill(inside, math.inf)
-        j = int(cost.argmin())
-        edges.append((int(parent[j]), j))
-        inside[j] = True
-        closer = d[j] < best
-        best = torch.where(closer, d[j], best)
-        parent = torch.where(closer, torch.full_like(parent, j), parent)
-    return edges
-
-
-def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMARKS,
-                         neighbours: int = NEIGHBOURS, seed: int = 0) -> Manifold:
-    """Isomap coordinates (``dim`` of them) of ``points`` (N, K) on ``landmarks`` spread by
-    farthest-point sampling from a first point chosen by ``seed``."""
-    x = points.double()
-    first = int(torch.randint(len(x), (1,), generator=torch.Generator().manual_seed(seed)))
-    idx = farthest_points(x, landmarks, first)
-    lm = x[idx]
-    d = torch.cdist(lm, lm)
-    n = len(lm)
-    graph = torch.full_like(d, math.inf)
-    k = min(neighbours + 1, n)
-    near, j = d.topk(k, largest=False)
-    graph.scatter_(1, j, near)
-    graph = torch.minimum(graph, graph.T)
-    for a, b in _spanning_tree(d):
-        graph[a, b] = graph[b, a] = d[a, b]
-    graph.fill_diagonal_(0.0)
-    for m in range(n):  # Floyd-Warshall
-        graph = torch.minimum(graph, graph[:, m:m + 1] + graph[m:m + 1, :])
-    centre = torch.eye(n, dtype=x.dtype) - 1.0 / n
-    b = -0.5 * centre @ graph.square() @ centre
-    values, vectors = torch.linalg.eigh(b)
-    values, vectors = values.flip(0), vectors.flip(1)
-    coords = vectors[:, :dim] * values[:dim].clamp_min(0).sqrt()
-    return Manifold(lm, coords, values)
 
 
 def regress_encoder(encoder: nn.Module, decoder: nn.Module, inputs: torch.Tensor,

@@ -117,16 +117,18 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
               f"frame(s), repeat {world.action_repeat}")
     result = study.run_loops(DmcWorld(world), s, scale, out, device, threads, say, workers,
                              name="dmc", header=header, steps_per_action=world.action_repeat,
-                             reader=_reader(world))
+                             reader=_reader(world, s))
     return {**result, "reference": {k: list(v) for k, v in REFERENCE.items()},
             "reference_task": REFERENCE_TASK, "reference_steps": REFERENCE_STEPS}
 
 
-def _reader(world_config: DmcConfig) -> Callable[[], Any]:
-    """What makes the read latent's reader: the cart-pole's pose by image moments."""
+def _reader(world_config: DmcConfig, s: DmcScale) -> Callable[[], Any] | None:
+    """What makes the scale's reader: the frames' geodesic coordinates (learned), or the
+    cart-pole's pose by image moments (a hand-made reader)."""
     from latent_sindy.worlds.dmc.reader import ColourPoseReader
 
-    return partial(ColourPoseReader, world_config.size)
+    return study.scale_reader(s, world_config.frames,
+                              partial(ColourPoseReader, world_config.size))
 
 
 def run_seed(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Path,
@@ -137,4 +139,4 @@ def run_seed(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Pa
     from latent_sindy.worlds.dmc.world import DmcWorld
 
     return study.run_seed(DmcWorld(world_config), s, seed, kind, out, device, threads, say,
-                          world_config.action_repeat, _reader(world_config))
+                          world_config.action_repeat, _reader(world_config, s))

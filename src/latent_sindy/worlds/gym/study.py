@@ -14,7 +14,13 @@ from __future__ import annotations
 from collections.abc import Callable, Collection
 from pathlib import Path
 
-from latent_sindy.study.model_based import LoopScale, pick_scale, run_loops, sized_config
+from latent_sindy.study.model_based import (
+    LoopScale,
+    pick_scale,
+    run_loops,
+    scale_reader,
+    sized_config,
+)
 from latent_sindy.study.model_based_report import model_based_study
 from latent_sindy.world_study import WorldStudy
 from latent_sindy.worlds.gym.config import GymConfig
@@ -35,6 +41,20 @@ SCALES: dict[str, LoopScale] = {
         "pruned by 30% a refit, down to 48 terms), MPPI K 300 H 12 λ 0.1, moving pixels "
         "weighted 11x, 2 test episodes a fit; seed 0",
         (0,), 64, 2, 5, 3, 200, 15, 100, 4, 6, "conv", 300, 12),
+    "geodesic-tiny": LoopScale(
+        "seconds, for tests: the geodesic latent at 16x16, 2 frames, 3 seed episodes and 1 "
+        "planned one of 20 actions, MPPI K 32 H 3; seed 0",
+        (0,), 16, 2, 3, 1, 20, 1, 0, 5, 2, "none", 32, 3, eval_episodes=1,
+        latent="geodesic", lambda_=1.0),
+    "geodesic": LoopScale(
+        "the latent learned from the frames alone (2 geodesic coordinates of the newest "
+        "frame, their rates from the frame before, no world knowledge), sized for "
+        "Pendulum-v1: 64x64, 2 frames, 20 random seed episodes of 200 actions, then 8 fits "
+        "each followed by 5 planned episodes; SINDy order 3 over windows of 5 steps (STLSQ "
+        "min_share 0.03, trimmed), linear and MLP on the same latent; MPPI K 1000 H 20 λ 1; "
+        "4 test episodes a fit; seed 0",
+        (0,), 64, 2, 20, 8, 200, 1, 0, 5, 2, "none", 1000, 20, eval_episodes=4,
+        episodes_per_iteration=5, latent="geodesic", lambda_=1.0),
 }
 
 
@@ -57,6 +77,7 @@ def gym_study(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] |
     header = (f"gym {world.id}, {scale} scale: {world.size}x{world.size}, {world.frames} "
               f"frame(s), repeat {world.action_repeat}")
     result = run_loops(GymWorld(world), s, scale, out, device, threads, say, workers,
-                       name="gym", header=header, steps_per_action=world.action_repeat)
+                       name="gym", header=header, steps_per_action=world.action_repeat,
+                       reader=scale_reader(s, world.frames))
     return model_based_study(result, scale, out, f"Gymnasium from pixels: {world.id}, "
                              "model-based, SINDy / linear / MLP", world.id)

@@ -1,0 +1,117 @@
+"""How much of the physics state a latent learned from the frames alone holds: the geodesic
+reader (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`, no world knowledge)
+probed against the state a task's reward needs.
+
+Per task: random-action episodes seen as two stacked frames; the reader fitted on the first
+``--train`` of them; on the others (frames no fit saw), each state feature regressed on the
+latent (positions and rates, not the action) by least squares, once on the latent itself
+(a linear probe) and once on its monomials to degree 2 (a rate on a circle is a product of
+position and velocity, which a linear probe cannot see). Prints R² per feature and probe,
+and the reader's fitting time.
+
+Tasks: ``pendulum`` (Gymnasium's Pendulum-v1: cos θ, sin θ, θ̇) and ``cartpole``
+(DeepMind Control's cartpole-swingup: x, cos θ, sin θ, ẋ, θ̇; needs the dmc extra).
+
+    python benchmarks/latent_probe.py --task pendulum
+    python benchmarks/latent_probe.py --task cartpole --dim 2 3 4
+    python benchmarks/latent_probe.py --smoke          # tiny sizes, seconds (the tests)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+from latent_sindy.models.geodesic_reader import GeodesicReader
+from latent_sindy.script_args import parse_with_smoke, positive_int
+
+
+def _world(task: str, size: int):
+    """The task's world and how its state features come from the data's states."""
+    if task == "pendulum":
+        from latent_sindy.worlds.gym import GymConfig, GymWorld
+
+        world = GymWorld(GymConfig(id="Pendulum-v1", size=size, frames=2))
+        return world, ("cos θ", "sin θ", "θ'"), lambda s: s
+    from latent_sindy.worlds.dmc.config import DmcConfig
+    from latent_sindy.worlds.dmc.world import DmcWorld
+
+    world = DmcWorld(DmcConfig(task="cartpole-swingup", size=size, frames=2))
+    names = ("x", "cos θ", "sin θ", "x'", "θ'")
+    return world, names, lambda s: np.stack(
+        [s[..., 0], np.cos(s[..., 1]), np.sin(s[..., 1]), s[..., 2], s[..., 3]], -1)
+
+
+def _quadratic(z: np.ndarray) -> np.ndarray:
+    i, j = np.triu_indices(z.shape[1])
+    return np.column_stack([z, z[:, i] * z[:, j]])
+
+
+def _r2(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    a = np.column_stack([x, np.ones(len(x))])
+    coef = np.linalg.lstsq(a, y, rcond=None)[0]
+    return 1 - (y - a @ coef).var(0) / y.var(0)
+
+
+def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: list[int],
+          seed: int, landmarks: int) -> list[dict]:
+    world, names, features = _world(task, size)
+    data = world.collect(episodes, steps, seed=seed)
+    images = torch.from_numpy(np.asarray(data.images))
+    actions = torch.from_numpy(np.asarray(data.actions, np.float64))
+    y = features(np.asarray(data.states, np.float64)[train:]).reshape(-1, len(names))
+    dt = float(data.dt) if data.dt is not None else 1.0
+    rows = []
+    for dim in dims:
+        t0 = time.perf_counter()
+        reader = GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
+        reader.fit_episodes(images[:train])
+        fit_s = time.perf_counter() - t0
+        z = torch.cat([reader.episode(images[e], actions[e], dt)[0][:, :2 * dim]
+                       for e in range(train, episodes)]).numpy()
+        z = (z - z.mean(0)) / z.std(0).clip(1e-12)
+        for kind, x in (("linear", z), ("quadratic", _quadratic(z))):
+            rows.append({"task": task, "dim": dim, "probe": kind, "fit_s": fit_s,
+                         **dict(zip(names, _r2(x, y).tolist(), strict=True))})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", choices=("pendulum", "cartpole"), default="pendulum")
+    p.add_argument("--episodes", type=positive_int, default=30, help="random episodes in all")
+    p.add_argument("--train", type=positive_int, default=20,
+                   help="episodes the reader is fitted on (the rest are probed)")
+    p.add_argument("--steps", type=positive_int, default=None,
+                   help="actions an episode (default: 200 pendulum, 125 cartpole)")
+    p.add_argument("--size", type=positive_int, default=64)
+    p.add_argument("--dim", type=positive_int, nargs="+", default=[2],
+                   help="geodesic coordinates (several: one probe each)")
+    p.add_argument("--landmarks", type=positive_int, default=1000)
+    p.add_argument("--seed", type=int, default=0)
+    args = parse_with_smoke(p, argv, {"episodes": 4, "train": 3, "steps": 12, "size": 16,
+                                       "landmarks": 30})
+    if args.train >= args.episodes:
+        p.error(f"--train {args.train}: use fewer than --episodes {args.episodes}, so that "
+                "some episodes are probed")
+    steps = args.steps or (200 if args.task == "pendulum" else 125)
+    torch.set_num_threads(1)
+    rows = probe(args.task, args.episodes, args.train, steps, args.size, args.dim, args.seed,
+                 args.landmarks)
+    names = [k for k in rows[0] if k not in ("task", "dim", "probe", "fit_s")]
+    print(f"{args.task}: geodesic latent from {args.train} random episodes of {steps} actions "
+          f"({args.size}x{args.size}, 2 frames), probed on {args.episodes - args.train} others")
+    print("| coordinates | probe | " + " | ".join(names) + " | reader fit s |")
+    print("|---|---|" + "---|" * len(names) + "---|")
+    for r in rows:
+        print(f"| {r['dim']} | {r['probe']} | " + " | ".join(f"{r[n]:.3f}" for n in names)
+              + f" | {r['fit_s']:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

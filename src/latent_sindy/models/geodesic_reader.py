@@ -1,0 +1,162 @@
+"""A latent learned from the frames alone: the geodesic coordinates of what moves in them.
+
+Frames of a system lie on a low-dimensional surface in pixel space, one point per state of
+what is seen (a pendulum's frames on a circle, a cart-pole's on a cylinder). The reader
+learns that surface's coordinates from training frames (:mod:`latent_sindy.models.manifold`:
+principal components, then Isomap on landmarks) and reads any frame by interpolating its
+nearest landmarks' coordinates. Nothing in it knows what is filmed: its one structural
+setting is ``dim``, the number of coordinates (the motions' count, a turning one counted
+twice: a circle needs two).
+
+Observations are frames stacked as channels (``frames`` of them, oldest first). The latent
+of one is the newest frame's coordinates, their change per second since the frame before it,
+and the action held between the two (their change depends on it), so a first-order model
+of the latent sees positions, velocities and what pushed them. It serves
+:class:`~latent_sindy.read_latent.ReadLatent` like a world's hand-made reader, which fits
+dynamics and a reward head on it and plans.
+
+    >>> reader = GeodesicReader(frames=2, dim=2).fit_episodes(images)   # (E, T+1, C, H, W)
+    >>> z, seen = reader.episode(images[0], actions[0], dt=0.05)        # (T+1, 2·dim + nu)
+"""
+
+from __future__ import annotations
+
+import torch
+
+from latent_sindy.errors import UserError
+from latent_sindy.models.manifold import (
+    LANDMARKS,
+    NEIGHBOURS,
+    Manifold,
+    geodesic_coordinates,
+    principal_front,
+)
+
+__all__ = ["GeodesicReader"]
+
+#: Principal components the frames are projected on before their geodesic coordinates.
+COMPONENTS = 32
+#: Training frames the coordinates are learned from at most (an even subsample beyond).
+MAX_FRAMES = 20_000
+
+
+class GeodesicReader:
+    """Geodesic coordinates of each frame, learned from training frames; see the module
+    docstring.
+
+    Args:
+        frames: frames stacked as channels in one observation (their colours split evenly).
+        dim: coordinates of a frame (a circle's motion needs 2).
+        components: principal components of the frames the coordinates are learned on.
+        landmarks, neighbours: Isomap's landmarks and each one's graph neighbours.
+        seed: the landmarks' first point and the principal components' random start.
+    """
+
+    circle = None  # no coordinates are an angle's (cos, sin): all are standardised
+
+    def __init__(self, frames: int = 2, dim: int = 2, components: int = COMPONENTS,
+                 landmarks: int = LANDMARKS, neighbours: int = NEIGHBOURS, seed: int = 0
+                 ) -> None:
+        for name, value, low in (("frames", frames, 1), ("dim", dim, 1),
+                                 ("components", components, 1), ("landmarks", landmarks, 3),
+                                 ("neighbours", neighbours, 1)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise UserError(f"GeodesicReader {name}={value!r}: use an integer >= {low}")
+        if dim >= landmarks:
+            raise UserError(f"GeodesicReader dim={dim}: use fewer coordinates than the "
+                            f"{landmarks} landmarks")
+        self.frames = frames
+        self.dim = dim
+        self.components = components
+        self.landmarks = landmarks
+        self.neighbours = neighbours
+        self.seed = seed
+        self.names = tuple(f"g{i}" for i in range(dim)) + tuple(
+            f"g{i}'" for i in range(dim))
+
+    # ------------------------------------------------------------------ fitting
+    def _newest(self, obs: torch.Tensor, where: str) -> torch.Tensor:
+        """The newest frame of each observation (B, C, H, W) -> (B, C / frames · H · W) in
+        [0, 1]."""
+        if obs.ndim != 4 or obs.shape[1] % self.frames:
+            raise UserError(f"GeodesicReader.{where}: expected observations (B, C, H, W) of "
+                            f"{self.frames} stacked frames (C a multiple of {self.frames}), "
+                            f"got {tuple(obs.shape)}")
+        per = obs.shape[1] // self.frames
+        x = obs[:, -per:].reshape(len(obs), -1).double()
+        return x / 255.0 if obs.dtype == torch.uint8 else x
+
+    def _oldest_but_newest(self, obs: torch.Tensor) -> torch.Tensor:
+        """The frame before the newest one of each observation (the newest if only one)."""
+        per = obs.shape[1] // self.frames
+        if self.frames == 1:
+            return obs
+        return obs[:, -2 * per:-per]
+
+    def fit_episodes(self, images: torch.Tensor) -> GeodesicReader:
+        """Learn the coordinates from training episodes' observations (E, T+1, C, H, W)."""
+        images = torch.as_tensor(images)
+        if images.ndim != 5:
+            raise UserError(f"GeodesicReader.fit_episodes: expected episodes (E, T+1, C, H, "
+                            f"W), got {tuple(images.shape)}")
+        x = self._newest(images.flatten(0, 1), "fit_episodes")
+        if len(x) > MAX_FRAMES:
+            x = x[torch.linspace(0, len(x) - 1, MAX_FRAMES).round().long()]
+        if len(x) <= self.dim + 1:
+            raise UserError(f"GeodesicReader.fit_episodes: {len(x)} frames are too few for "
+                            f"{self.dim} coordinates; collect more episodes")
+        self.shape_ = tuple(images.shape[2:])
+        self.mean_, self.axes_ = principal_front(x, self.components, self.seed)
+        self.manifold_: Manifold = geodesic_coordinates(
+            (x - self.mean_) @ self.axes_, self.dim, self.landmarks, self.neighbours, self.seed)
+        return self
+
+    # ------------------------------------------------------------------ reading
+    def read(self, frames: torch.Tensor) -> torch.Tensor:
+        """Coordinates (B, dim) float64 of single frames (B, C / frames, H, W)."""
+        if not hasattr(self, "manifold_"):
+            raise UserError("GeodesicReader.read before fit_episodes: fit it on training "
+                            "episodes first")
+        frames = torch.as_tensor(frames)
+        x = frames.reshape(len(frames), -1).double()
+        x = x / 255.0 if frames.dtype == torch.uint8 else x
+        if x.shape[1] != len(self.mean_):
+            raise UserError(f"GeodesicReader.read: frames of {tuple(frames.shape[1:])} for a "
+                            f"reader fitted on observations {self.shape_} of {self.frames} "
+                            "frames")
+        return self.manifold_.transform((x - self.mean_) @ self.axes_)
+
+    def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
+                dt: float) -> torch.Tensor:
+        return torch.cat([now, (now - before) / dt,
+                          torch.as_tensor(previous).double().reshape(len(now), -1)], -1)
+
+    def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latents (B, 2·dim + nu) of observations (B, C, H, W) and the actions held since
+        the frame before the newest (B, nu); and (B,) True (every frame is read)."""
+        obs = torch.as_tensor(obs)
+        self._newest(obs, "latent")  # checks the shape
+        per = obs.shape[1] // self.frames
+        now = self.read(obs[:, -per:])
+        before = self.read(self._oldest_but_newest(obs)) if self.frames > 1 else now
+        return (self._latent(now, before, previous, dt),
+                torch.ones(len(obs), dtype=torch.bool))
+
+    def episode(self, images: torch.Tensor, actions: torch.Tensor, dt: float
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One episode's latents (T+1, 2·dim + nu) from its observations (T+1, C, H, W) and
+        actions (T, nu), each newest frame read once (a frame's earlier one is the last
+        step's; the first step's is its own observation's, with no action before it)."""
+        images, actions = torch.as_tensor(images), torch.as_tensor(actions)
+        if images.ndim != 4 or actions.ndim != 2 or len(actions) != len(images) - 1:
+            raise UserError(f"GeodesicReader.episode: expected observations (T+1, C, H, W) "
+                            f"and actions (T, nu), got {tuple(images.shape)} and "
+                            f"{tuple(actions.shape)}")
+        self._newest(images, "episode")
+        per = images.shape[1] // self.frames
+        now = self.read(images[:, -per:])
+        first = self.read(self._oldest_but_newest(images[:1])) if self.frames > 1 else now[:1]
+        previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
+        return (self._latent(now, torch.cat([first, now[:-1]]), previous, dt),
+                torch.ones(len(images), dtype=torch.bool))
