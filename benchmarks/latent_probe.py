@@ -14,6 +14,8 @@ Tasks: ``pendulum`` (Gymnasium's Pendulum-v1: cos θ, sin θ, θ̇) and ``cartpo
 
     python benchmarks/latent_probe.py --task pendulum
     python benchmarks/latent_probe.py --task cartpole --dim 2 3 4
+    python benchmarks/latent_probe.py --task pendulum --record results   # rows into
+                                 # results/gym/latent-probe.csv (cartpole: results/dmc/)
     python benchmarks/latent_probe.py --smoke          # tiny sizes, seconds (the tests)
 """
 
@@ -21,12 +23,18 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from latent_sindy.models.geodesic_reader import GeodesicReader
 from latent_sindy.script_args import parse_with_smoke, positive_int
+
+#: Each task's world (the result file's folder) and its features' column names.
+WORLDS = {"pendulum": "gym", "cartpole": "dmc"}
+COLUMNS = {"x": "x", "cos θ": "cos_theta", "sin θ": "sin_theta", "x'": "x_rate",
+           "θ'": "theta_rate"}
 
 
 def _world(task: str, size: int):
@@ -93,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="geodesic coordinates (several: one probe each)")
     p.add_argument("--landmarks", type=positive_int, default=1000)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--record", type=Path, default=None, metavar="DIR",
+                   help="also write the rows into DIR/<world>/latent-probe.csv (the tracked "
+                        "results: --record results)")
     args = parse_with_smoke(p, argv, {"episodes": 4, "train": 3, "steps": 12, "size": 16,
                                        "landmarks": 30})
     if args.train >= args.episodes:
@@ -110,6 +121,15 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         print(f"| {r['dim']} | {r['probe']} | " + " | ".join(f"{r[n]:.3f}" for n in names)
               + f" | {r['fit_s']:.1f} |")
+    if args.record is not None:
+        from latent_sindy.result_files import record_rows
+
+        path = record_rows(args.record, WORLDS[args.task], "latent-probe", [
+            {"model": f"geodesic, {r['dim']} coordinates", "seed": args.seed,
+             "case": f"{r['probe']} probe", "episodes": args.train, "steps": steps,
+             "size": args.size, **{COLUMNS[n]: r[n] for n in names}, "fit_s": r["fit_s"]}
+            for r in rows])
+        print(f"recorded in {path}")
     return 0
 
 
