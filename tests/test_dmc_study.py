@@ -18,8 +18,8 @@ def test_the_scales_and_the_benchmark_setting():
     from latent_sindy.worlds.dmc.study import SCALES
 
     assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
-                                            "read-demo", "read-benchmark"}
-    for name in ("benchmark", "read-benchmark"):
+                                            "read-demo", "read-100k"}
+    for name in ("benchmark", "read-100k"):
         b = SCALES[name]
         episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8

@@ -59,7 +59,7 @@ def test_the_tiny_video_study_writes_what_it_found(video_run):
     rows = summary["results"]["rows"]
     assert rows == json.loads(json.dumps(study.numbers["rows"]))  # every number, as returned
     assert summary["seeds"] == [0] and [r["seed"] for r in rows] == [0]
-    assert summary["study"]["schedule"] == "lite100" and summary["study"]["device"] == "cpu"
+    assert summary["study"]["schedule"] == "uncalibrated" and summary["study"]["device"] == "cpu"
     assert summary["versions"]["torch"] and summary["timings_s"]["total"] > 0
     got = summary["results"]["summary"]
     assert got["recovered"] == sum(r["recovered"] for r in rows)

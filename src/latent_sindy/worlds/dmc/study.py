@@ -80,7 +80,7 @@ SCALES: dict[str, DmcScale] = {
         "seen in training; 4 test episodes a fit",
         (0,), 64, 2, 30, 3, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=4,
         episodes_per_iteration=10, latent="read", lambda_=1.0),
-    "read-benchmark": DmcScale(
+    "read-100k": DmcScale(
         "the pose read by image moments at the 100k-step benchmark: as read-demo with 7 fits "
         "(30 random and 70 planned episodes, 100k environment steps), 5 test episodes a fit; "
         "seeds 0..4; hours on a CPU",

@@ -57,9 +57,9 @@ def _world_help() -> str:
 
 
 def _scale_help() -> str:
-    push = ("Push worlds: demo (the whole study in under 10 minutes on 2 cores); round-one "
+    push = ("Push worlds: demo (the whole study in under 10 minutes on 2 cores); demo-long "
             "(the demo's first, twice longer schedule: 60 epochs, 50 random tasks per "
-            "headline row); large (ten times the paper's data on the round-one schedule); "
+            "headline row); large (ten times the paper's data on the demo-long schedule); "
             "paper (the paper's sizes, many hours on a CPU); tiny (seconds, for tests).")
     others = " ".join(f"{name}: " + "; ".join(f"{s} ({what})" for s, what in w.scales.items())
                       + "." for name, w in study_worlds().items())

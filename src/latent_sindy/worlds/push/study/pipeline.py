@@ -115,7 +115,7 @@ def summary_record(study: Study, data: SequenceData, data_path: Path) -> dict[st
 
 def record_name(config: ReproduceConfig) -> str:
     """The study's result file name: its scale, then its world and image size where they
-    are not the default's (``round-one_textured``, ``demo_64px``)."""
+    are not the default's (``demo-long_textured``, ``demo_64px``)."""
     parts = [config.scale]
     if config.world != "symmetric":
         parts.append(config.world)
