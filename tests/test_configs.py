@@ -12,11 +12,12 @@ from latent_sindy.configs import from_json, to_json
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
+from latent_sindy.study.settings import StudySettings
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
-from latent_sindy.worlds.push.study.config import ReproduceConfig
+from latent_sindy.worlds.push.study.config import PushStudyConfig
 from latent_sindy.worlds.push.study.scales import DEMO_LONG, SCALES, Scale
 
 CONFIGS = [
@@ -28,7 +29,8 @@ CONFIGS = [
     TrainConfig(out=Path("runs/x"), model=ModelConfig(dynamics=MlpConfig()), window=3),
     ControlConfig(task="random", space="image", mppi=MPPIConfig(samples=7, sigma=(0.1, 0.2, 0.3))),
     SCALES["tiny"],
-    ReproduceConfig(scale="tiny", seeds=(0, 2), data=Path("d.h5")),
+    PushStudyConfig(scale="tiny", seeds=(0, 2), data=Path("d.h5")),
+    StudySettings(scale="tiny", seeds=(0, 2), world="pendulum", record=Path("results")),
 ]
 
 

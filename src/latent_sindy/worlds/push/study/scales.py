@@ -23,7 +23,7 @@ from latent_sindy.worlds.push.planner import world_planner
 if TYPE_CHECKING:
     from latent_sindy.worlds.push.study.spec import ModelSpec
 
-__all__ = ["DEMO_LONG", "SCALES", "Condition", "Scale"]
+__all__ = ["DEMO_LONG", "SCALES", "SCALE_ABOUT", "Condition", "Scale"]
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image"]
@@ -164,7 +164,7 @@ DEMO_LONG = dataclasses.replace(
     other_random_episodes=20, image_paper_episodes=5, image_random_episodes=20)
 
 #: Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the demo-long
-#: demo's schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five
+#: schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five
 #: times the data buys" and "Large scale".
 LARGE = dataclasses.replace(DEMO_LONG, trajectories=2000)
 
@@ -178,3 +178,13 @@ TINY = dataclasses.replace(
 #: The scales ``--scale`` names.
 SCALES: dict[str, Scale] = {"demo": DEMO, "paper": PAPER, "large": LARGE, "tiny": TINY,
                             "demo-long": DEMO_LONG}
+
+#: What each scale runs, in a phrase (``reproduce --help``).
+SCALE_ABOUT: dict[str, str] = {
+    "demo": "the whole study in under 10 minutes on 2 cores",
+    "paper": "the paper's sizes, many hours on a CPU",
+    "large": "ten times the paper's data on the demo-long schedule",
+    "tiny": "seconds, for tests",
+    "demo-long": "the demo's data on a twice longer schedule: 60 epochs at lr 1e-3, 50 random "
+                 "tasks per headline row",
+}

@@ -35,7 +35,7 @@ from latent_sindy.study.evaluation import aggregate, baseline_errors
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 from latent_sindy.worlds.push.study.catalogue import ModelSpec
-from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.config import PushStudyConfig, StudyPlan
 from latent_sindy.worlds.push.study.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
 from latent_sindy.worlds.push.study.probe import position_errors
 from latent_sindy.worlds.push.study.results import Baselines, Evaluations, RunResult
@@ -49,7 +49,7 @@ Say = Callable[[str], None]
 
 
 # ----------------------------------------------------------------------------- stage 1: data
-def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
+def collect_stage(cfg: PushStudyConfig, pool: Executor, say: Say) -> Path:
     """The trajectory file of the study: as given, reused, or collected for the scale."""
     path = cfg.data_path
     scale = cfg.preset
@@ -75,7 +75,7 @@ def _scale_name(trajectories: int, steps: int) -> str | None:
                  if (s.trajectories, s.steps) == (trajectories, steps)), None)
 
 
-def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) -> None:
+def check_reused_data(cfg: PushStudyConfig, plan: CollectionPlan, path: Path) -> None:
     """OUT/data.h5 of an earlier study is reused only if collected to ``plan``: UserError
     naming each option (--world, --image-size, --data-seed, --scale) it was collected with
     otherwise. A file without a readable plan is left to :func:`collect`, which refuses it."""
@@ -110,7 +110,7 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
                     "--out, or delete the file")
 
 
-def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
+def check_given_data(cfg: PushStudyConfig, data: SequenceData) -> None:
     """A given trajectory file must be of the study's ``--world``, hold images of
     ``--image-size`` (where that is given) and trajectories as long as every swept window."""
     env = data.world_config
