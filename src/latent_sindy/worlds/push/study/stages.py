@@ -54,14 +54,14 @@ def collect_stage(cfg: PushStudyConfig, pool: Executor, say: Say) -> Path:
     path = cfg.data_path
     scale = cfg.preset
     if cfg.data is not None and path.exists():
-        say(f"[1/4] data: using {path} as given")
+        say(f"[1/3] data: using {path} as given")
         return path
     plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
     if path.exists():  # collect() returns it if it was collected to this plan, else refuses
         check_reused_data(cfg, plan, path)
-        say(f"[1/4] data: reusing {path}")
+        say(f"[1/3] data: reusing {path}")
     else:
-        say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
+        say(f"[1/3] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
             f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
 
     def progress(it, total, initial):
@@ -143,7 +143,7 @@ def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say,
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.relative_time))
     jobs.sort(key=lambda j: -j.relative_time)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in plan.specs for c in scale.conditions(spec))
-    say(f"[2/4] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
+    say(f"[2/3] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
         f"({scale.epochs} epochs; {episodes} control episodes per seed), "
         f"{cfg.executor} executor, {min(pool.slots, len(jobs))} at once")
     results, per_seed, train_status, failures = _drain(pool, jobs, plan, data, say,
