@@ -12,7 +12,7 @@ import numpy as np
 
 from latent_sindy.stats import wilson_interval
 from latent_sindy.study.evaluation import aggregate
-from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.config import PushStudyConfig, StudyPlan
 from latent_sindy.worlds.push.study.results import CONTROL_METRICS, Baselines, Evaluations, Study
 
 
@@ -61,9 +61,9 @@ def _png(path: Path, width: int, height: int) -> Path:
 
 def fake_study(out: Path, seeds: tuple[int, ...] = (0,),
                models: tuple[str, ...] = ()) -> tuple[Study, dict[str, Any], dict[str, Any]]:
-    """(study, files, summary) as :func:`latent_sindy.worlds.push.study.study_report.write_report`
+    """(study, files, summary) as :func:`latent_sindy.worlds.push.study.study_report.study_page`
     takes them; the images are written under ``out/inputs``."""
-    plan = StudyPlan.of(ReproduceConfig(scale="tiny", out=out, seeds=seeds, models=models))
+    plan = StudyPlan.of(PushStudyConfig(scale="tiny", out=out, seeds=seeds, models=models))
     rng = np.random.default_rng(0)
     per_seed = {s: {spec.name: _metrics(spec, rng) for spec in plan.specs} for s in seeds}
     stats = {m: aggregate([per_seed[s][m] for s in seeds]) for m in plan.models}

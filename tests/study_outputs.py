@@ -23,10 +23,12 @@ def _untimed(obj: Any) -> Any:
 def summary_numbers(out: Path) -> dict[str, Any]:
     """The parts of OUT/summary.json that depend only on the data, seeds and settings."""
     s = json.loads((out / "summary.json").read_text())
-    keep = ("scale", "seeds", "models", "control", "train_status", "failures", "baselines",
-            "aggregate", "per_seed", "losses_per_seed")
-    record = {k: _untimed(s[k]) for k in keep}
-    record["data"] = {k: v for k, v in s["data"].items() if k != "path"}
+    study, results = s["study"], s["results"]
+    record = {k: _untimed(study[k]) for k in ("scale", "models", "control")}
+    record.update({k: _untimed(results[k]) for k in (
+        "train_status", "failures", "baselines", "aggregate", "per_seed", "losses_per_seed")})
+    record["seeds"] = s["seeds"]
+    record["data"] = {k: v for k, v in study["data"].items() if k != "path"}
     return record
 
 

@@ -25,8 +25,6 @@ from hypothesis import strategies as st
 from latent_sindy.cli import main
 from latent_sindy.training.runs import RunDir
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
-from latent_sindy.worlds.push.study.config import ReproduceConfig
-from latent_sindy.worlds.push.study.pipeline import reproduce
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 TINY = ["--latent-dim", "3", "--encoder-hidden", "8", "--decoder-hidden", "16"]
@@ -276,13 +274,13 @@ def test_13_a_study_never_reuses_models_trained_on_other_data(world: Path, tmp_p
 
 @pytest.mark.slow
 def test_13_reproduce_with_other_data_into_the_same_folder_is_refused(tmp_path: Path) -> None:
-    a = ReproduceConfig(scale="tiny", out=tmp_path / "study", workers=1, verbose=False)
-    reproduce(a)
+    from push_study import run_push
+
+    run_push(tmp_path / "study", scale="tiny", workers=1)
     other = collect(tmp_path / "b.h5", CollectionPlan(trajectories=6, steps=3, seed=5),
                     workers=1)
     with pytest.raises(Exception, match="other settings or data"):
-        reproduce(ReproduceConfig(scale="tiny", out=tmp_path / "study", workers=1,
-                                  verbose=False, data=other))
+        run_push(tmp_path / "study", scale="tiny", workers=1, data=other)
 
 
 # ----------------------------------------------------------------------------- properties

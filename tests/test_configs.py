@@ -12,12 +12,13 @@ from latent_sindy.configs import from_json, to_json
 from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.errors import UserError
 from latent_sindy.models import LinearConfig, MlpConfig, ModelConfig, SindyConfig
+from latent_sindy.study.settings import StudySettings
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.episodes import ControlConfig
-from latent_sindy.worlds.push.study.config import ReproduceConfig
-from latent_sindy.worlds.push.study.scales import ROUND_ONE, SCALES, Scale
+from latent_sindy.worlds.push.study.config import PushStudyConfig
+from latent_sindy.worlds.push.study.scales import DEMO_LONG, SCALES, Scale
 
 CONFIGS = [
     PushEnvConfig(channels=3, image_size=48),
@@ -28,7 +29,8 @@ CONFIGS = [
     TrainConfig(out=Path("runs/x"), model=ModelConfig(dynamics=MlpConfig()), window=3),
     ControlConfig(task="random", space="image", mppi=MPPIConfig(samples=7, sigma=(0.1, 0.2, 0.3))),
     SCALES["tiny"],
-    ReproduceConfig(scale="tiny", seeds=(0, 2), data=Path("d.h5")),
+    PushStudyConfig(scale="tiny", seeds=(0, 2), data=Path("d.h5")),
+    StudySettings(scale="tiny", seeds=(0, 2), world="pendulum", record=Path("results")),
 ]
 
 
@@ -74,7 +76,7 @@ def test_scales_are_named_overrides_of_the_demo() -> None:
                      "paper_episodes", "random_episodes", "other_random_episodes",
                      "image_paper_episodes", "image_random_episodes", "batching"}
     assert SCALES["tiny"].mppi == MPPIConfig(samples=8, horizon=2)
-    # the large scale: ten times the paper's trajectories on the round-one demo's schedule
-    assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == ROUND_ONE
-    assert (ROUND_ONE.epochs, ROUND_ONE.lr) == (2 * base.epochs, base.lr / 2)
+    # the large scale: ten times the paper's trajectories on the demo-long schedule
+    assert dataclasses.replace(SCALES["large"], trajectories=base.trajectories) == DEMO_LONG
+    assert (DEMO_LONG.epochs, DEMO_LONG.lr) == (2 * base.epochs, base.lr / 2)
     assert SCALES["large"].trajectories == 10 * SCALES["paper"].trajectories

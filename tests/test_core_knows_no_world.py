@@ -234,3 +234,45 @@ def test_the_default_world_is_the_one_its_plugin_names(monkeypatch) -> None:
         installed(a=World(default=True), b=World(default=True))
     with pytest.raises(UserError, match="no installed world offers"):
         installed(a=World(commands=False))
+
+
+NO_DEFAULT_PROBE = r"""
+import contextlib, io, json, sys
+import latent_sindy.plugins as plugins
+from latent_sindy.errors import UserError
+
+
+def no_default_world():
+    raise UserError("no installed world offers the commands collect and control (a commands "
+                    "hook): install a world plug-in that does")
+
+
+plugins.default_world = no_default_world
+from latent_sindy import cli  # noqa: E402  (must not fail: the commands that need it say so)
+
+said = {}
+for argv in (["collect", "--out", sys.argv[1] + "/c.h5"],
+             ["reproduce", "--scale", "tiny", "--out", sys.argv[1] + "/s"],
+             ["collect", "--world", "pendulum", "--trajectories", "2", "--steps", "2",
+              "--out", sys.argv[1] + "/p.h5"]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = cli.main(argv)
+    said[argv[0] + (" --world" if "--world" in argv else "")] = [code, err.getvalue()]
+print(json.dumps(said))
+"""
+
+
+def test_without_a_default_world_the_commands_that_need_one_say_so(tmp_path) -> None:
+    """No installed world offers commands: the command line still loads; collect and
+    reproduce without --world end with the one line saying what to install, and another
+    world's collection still runs."""
+    out = subprocess.run([sys.executable, "-c", NO_DEFAULT_PROBE, str(tmp_path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    said = json.loads(out.stdout.splitlines()[-1])
+    for command in ("collect", "reproduce"):
+        code, err = said[command]
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith("latent-sindy: error: no installed world offers"), err
+    assert said["collect --world"][0] == 0 and (tmp_path / "p.h5").exists()

@@ -18,8 +18,8 @@ def test_the_scales_and_the_benchmark_setting():
     from latent_sindy.worlds.dmc.study import SCALES
 
     assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
-                                            "read-demo", "read-benchmark"}
-    for name in ("benchmark", "read-benchmark"):
+                                            "read-demo", "read-100k"}
+    for name in ("benchmark", "read-100k"):
         b = SCALES[name]
         episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
@@ -57,11 +57,14 @@ def _returns(out):
 
 def test_workers_is_a_setting_of_the_worlds_whose_study_takes_it():
     from latent_sindy.errors import UserError
-    from latent_sindy.worlds.push.study.config import ReproduceConfig
+    from latent_sindy.plugins import get_world
+    from latent_sindy.study.runner import study_options
+    from latent_sindy.study.settings import StudySettings
 
-    assert ReproduceConfig(world="dmc", scale="tiny", workers=3).workers == 3
-    with pytest.raises(UserError, match="--workers is for the push study"):
-        ReproduceConfig(world="pendulum", scale="tiny", workers=3)
+    settings = StudySettings(scale="tiny", workers=3)
+    assert study_options("dmc", get_world("dmc"), settings, {})["workers"] == 3
+    with pytest.raises(UserError, match="--workers: the pendulum world's study does not take"):
+        study_options("pendulum", get_world("pendulum"), settings, {})
 
 
 def test_the_tiny_study_end_to_end_resumes_and_refuses_another_task(tmp_path, capfd):

@@ -88,31 +88,48 @@ def test_a_state_period_must_be_finite_and_positive(period: float) -> None:
 
 
 def test_a_study_refuses_a_folder_that_holds_another_study(tmp_path: Path) -> None:
-    from latent_sindy.study.runner import run_world_study
-    from latent_sindy.worlds.pendulum.plugin import VIDEO
-    from latent_sindy.worlds.push.study.config import ReproduceConfig
+    from latent_sindy.study.runner import run_study
+    from latent_sindy.study.settings import StudySettings
 
     out = tmp_path / "study"
     out.mkdir()
     (out / "summary.json").write_text(json.dumps({"world": "pendulum", "rows": []}))
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     with pytest.raises(UserError, match="holds the pendulum study"):
-        run_world_study(VIDEO, ReproduceConfig(world="pendulum-video", scale="tiny", out=out),
-                        say=lambda *a, **k: None)
+        run_study(StudySettings(world="pendulum-video", scale="tiny", out=out),
+                  say=lambda *a, **k: None)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
-def test_the_push_study_runs_no_other_world_s_study(tmp_path: Path) -> None:
-    """Each world's study has one entry point: the push pipeline refuses a world with a study
-    of its own (the command reaches that one through its reproduce hook) and writes nothing."""
-    from latent_sindy.worlds.push.study.config import ReproduceConfig
-    from latent_sindy.worlds.push.study.pipeline import reproduce
+def test_the_push_study_enters_through_its_reproduce_hook_as_every_world_s(
+        tmp_path: Path, monkeypatch) -> None:
+    """`latent-sindy reproduce` runs the default world's study as any other: its plug-in's
+    ``reproduce(scale, out, seeds, device, threads, say, **options)``, the push study's flags
+    (and the common options it takes) passed by name, what it returns written by the runner."""
+    from latent_sindy.cli import main
+    from latent_sindy.plugins import get_world
+    from latent_sindy.world_study import Table, WorldStudy
 
+    calls = []
+
+    def spy(scale, out, seeds, device, threads, say, **options):
+        calls.append((scale, out, seeds, device, threads, options))
+        return WorldStudy(title="t", settings={}, seeds=[0], numbers={}, findings=[],
+                          tables=[Table("h", ["a"], [["1"]])])
+
+    monkeypatch.setattr(type(get_world("push")), "reproduce",  # (named worlds: new instances)
+                        lambda self, *args, **options: spy(*args, **options))
     out = tmp_path / "study"
-    with pytest.raises(UserError, match="--world pendulum-video has a study of its own"):
-        reproduce(ReproduceConfig(world="pendulum-video", scale="tiny", out=out),
-                  progress=lambda *a, **k: None)
-    assert not out.exists()
+    assert main(["reproduce", "--scale", "tiny", "--out", str(out), "--models", "sindy2",
+                 "--workers", "1", "--seeds", "3"]) == 0
+    assert calls == [("tiny", out, (3,), "auto", 1, {
+        "workers": 1, "executor": "local", "ray_address": None, "gpus": 0.0,
+        "models": ("sindy2",)})]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["world"] == "push" and (out / "table.md").exists()
+    assert main(["reproduce", "--world", "paper", "--scale", "tiny", "--out",
+                 str(tmp_path / "paper")]) == 0  # a named world of push: push's study
+    assert len(calls) == 2
 
 
 @pytest.mark.parametrize("argv, says", [

@@ -59,7 +59,7 @@ def test_the_tiny_video_study_writes_what_it_found(video_run):
     rows = summary["results"]["rows"]
     assert rows == json.loads(json.dumps(study.numbers["rows"]))  # every number, as returned
     assert summary["seeds"] == [0] and [r["seed"] for r in rows] == [0]
-    assert summary["study"]["schedule"] == "lite100" and summary["study"]["device"] == "cpu"
+    assert summary["study"]["schedule"] == "uncalibrated" and summary["study"]["device"] == "cpu"
     assert summary["versions"]["torch"] and summary["timings_s"]["total"] > 0
     got = summary["results"]["summary"]
     assert got["recovered"] == sum(r["recovered"] for r in rows)
@@ -183,11 +183,12 @@ def test_the_tiny_pendulum_study_writes_what_it_found(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(("args", "needle"), [
-    (["--models", "sindy2"], "--models is for the push study"),
-    (["--sweep", "lambda_l1=1e-3,1e-2"], "--sweep is for the push study"),
-    (["--image-size", "64"], "--image-size is for the push study"),
-    (["--data", "x.h5", "--workers", "1"], "--data, --workers are for the push study"),
-    (["--executor", "ray"], "--executor is for the push study"),
+    (["--models", "sindy2"], "--models: the pendulum-video world's study does not take this"),
+    (["--sweep", "lambda_l1=1e-3,1e-2"], "--sweep: the pendulum-video world's study"),
+    (["--image-size", "64"], "--image-size: the pendulum-video world's study"),
+    (["--data", "x.h5", "--workers", "1"], "--workers, --data: the pendulum-video world's "
+                                           "study does not take these options"),
+    (["--executor", "ray"], "--executor: the pendulum-video world's study does not take"),
     (["--scale", "paper"], "the pendulum-video world's scales are tiny, demo, recovery, "
                            "recovery-frames, published"),
 ])
@@ -199,9 +200,9 @@ def test_push_settings_are_refused_with_a_pendulum_world(tmp_path, capsys, args,
 
 
 @pytest.mark.parametrize(("args", "needle"), [
-    (["--scale", "published"], "the push worlds' scales are"),
-    (["--device", "cuda"], "--device cuda is for a world with a study of its own"),
-    (["--world", "moon"], "--world moon: use a pushing world (symmetric, paper, marked"),
+    (["--scale", "published"], "the push world's scales are"),
+    (["--world", "moon"], "--world moon: use a world with a study of its own (dmc, gym, "),
+    (["--world", "moon"], "or a named world of one (symmetric, paper, marked"),
     (["--world", "pendulum", "--scale", "large"], "pendulum world's scales are tiny, demo"),
 ])
 def test_settings_of_the_other_kind_of_study_are_refused(tmp_path, capsys, args, needle):
@@ -231,11 +232,12 @@ def test_the_help_names_the_worlds_and_their_scales(capsys, monkeypatch):
 
 def test_each_scale_names_its_seeds_and_schedule():
     """Without --seeds a world study runs its scale's seeds; given ones win."""
+    from latent_sindy.study.runner import study_world
+    from latent_sindy.study.settings import StudySettings
     from latent_sindy.worlds.pendulum.reproduce import pendulum_config, video_config
-    from latent_sindy.worlds.push.study.config import ReproduceConfig
 
-    cfg = ReproduceConfig(world="pendulum-video", scale="demo")
-    assert cfg.seeds is None and cfg.study_world is VIDEO
+    cfg = StudySettings(world="pendulum-video", scale="demo")
+    assert cfg.seeds is None and study_world(cfg.world)[1] is VIDEO
     demo = video_config("demo", cfg.seeds, "auto", 1)
     assert demo.seeds == (0, 1, 2) and demo.schedule == "scalefree"
     assert demo.splits == (100, 10, 10)
@@ -250,7 +252,6 @@ def test_each_scale_names_its_seeds_and_schedule():
     cpu = pendulum_config("published-cpu", 0, "cpu")
     assert (cpu.image_size, cpu.sequences, cpu.models) == (48, 1000, ())
     assert cpu.centroid_models == ("sindy", "mlp", "linear") and cpu.start == "random"
-    assert ReproduceConfig(scale="tiny").seeds == (0,)  # the push study's default, as before
 
 
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="a CUDA device is here")

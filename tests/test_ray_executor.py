@@ -16,8 +16,7 @@ import pytest
 from latent_sindy.cli import main
 from latent_sindy.errors import UserError
 from latent_sindy.executors import EXECUTORS, ExecutorOptions, RayExecutor, make_executor
-from latent_sindy.worlds.push.study.config import ReproduceConfig
-from latent_sindy.worlds.push.study.pipeline import reproduce
+from push_study import run_push
 from study_outputs import assert_same_study
 
 ray = pytest.importorskip("ray")
@@ -70,7 +69,7 @@ def studies(tmp_path_factory) -> dict:
     from ray.cluster_utils import Cluster
 
     local = tmp_path_factory.mktemp("local")
-    reproduce(ReproduceConfig(scale="tiny", out=local, workers=1, verbose=False), lambda _: None)
+    run_push(local, scale="tiny", workers=1)
 
     t0 = time.perf_counter()
     cluster = Cluster(initialize_head=True,
@@ -86,9 +85,8 @@ def studies(tmp_path_factory) -> dict:
         lines: list[str] = []
         t1 = time.perf_counter()
         try:
-            reproduce(ReproduceConfig(scale="tiny", out=out, executor="ray",
-                                      ray_address=cluster.address, verbose=False),
-                      lines.append)
+            run_push(out, lines.append, scale="tiny", executor="ray",
+                     ray_address=cluster.address)
         finally:
             stop.set()
             killer.join()
@@ -104,7 +102,7 @@ def test_a_killed_worker_is_retried_and_the_study_equals_the_local_one(studies):
     assert len(studies["killed"]) == 1, "no training worker was seen to kill"
     with pytest.raises(ProcessLookupError):
         os.kill(studies["killed"][0], 0)
-    assert any(line.startswith("[4/4] report") for line in studies["lines"])
+    assert any(line.startswith("report: ") for line in studies["lines"])
     assert "ray executor, 2 at once" in " ".join(studies["lines"])  # both nodes' CPUs
     assert_same_study(studies["local"], studies["ray"])
 

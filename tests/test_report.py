@@ -13,7 +13,7 @@ import pytest
 
 from fake_study import fake_study
 from latent_sindy.study.report import Report
-from latent_sindy.worlds.push.study.study_report import write_report
+from latent_sindy.worlds.push.study.study_report import study_page
 
 CHECK = """
 <script>
@@ -106,7 +106,7 @@ def test_report_renders_in_headless_chromium(tmp_path, chromium):
 
 def test_study_report_opens_with_the_overview(tmp_path):
     study, files, summary = fake_study(tmp_path, models=("sindy2", "mlp", "state_sindy"))
-    text = write_report(study, files, summary, tmp_path / "report.html").read_text()
+    text = study_page(study, files, summary).write(tmp_path / "report.html").read_text()
     body = text.split("<body>", 1)[1]
     order = ['<figure class="overview">', '<table class="overview">',
              "How these numbers reproduce", "<h2>The study</h2>", "Table I",

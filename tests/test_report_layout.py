@@ -23,7 +23,7 @@ from latent_sindy.stats import wilson_interval
 from latent_sindy.study.evaluation import aggregate
 from latent_sindy.worlds.push.study import figures
 from latent_sindy.worlds.push.study.overview import overview, overview_table
-from latent_sindy.worlds.push.study.study_report import write_report
+from latent_sindy.worlds.push.study.study_report import study_page
 
 WIDTH, HEIGHT = 1280, 800
 
@@ -74,7 +74,7 @@ def _layout(page: Path, tmp_path: Path) -> dict:
 def report(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("study")
     study, files, summary = fake_study(out)
-    return write_report(study, files, summary, out / "report.html")
+    return study_page(study, files, summary).write(out / "report.html")
 
 
 def test_overview_pools_seeds_and_ranks_best_first(tmp_path):

@@ -16,15 +16,16 @@ from latent_sindy.data.windows import Normalizer
 from latent_sindy.errors import UserError
 from latent_sindy.executors import Inline
 from latent_sindy.study.evaluation import Stat, aggregate, baseline_errors, mean_std
+from latent_sindy.study.settings import StudySettings
 from latent_sindy.training import RunDir
 from latent_sindy.worlds.push.study.catalogue import model_specs
-from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.config import PushStudyConfig, StudyPlan
 from latent_sindy.worlds.push.study.jobs import ensure_trained
 from latent_sindy.worlds.push.study.outputs import model_figures, submit_model_figures
-from latent_sindy.worlds.push.study.pipeline import reproduce
 from latent_sindy.worlds.push.study.scales import SCALES
 from latent_sindy.worlds.push.study.stages import run_stage
 from latent_sindy.worlds.push.study.table import PAPER, ROWS, format_stat
+from push_study import run_push
 from test_report import CHECK, _chromium, _render_title
 
 SPECS = model_specs(SCALES["tiny"])
@@ -37,21 +38,21 @@ N_CONDITIONS = sum(len(c) for c in CONDITIONS.values())
 def study(tmp_path_factory) -> dict:
     """The tiny study run twice in one folder: progress lines and file mtimes."""
     out = tmp_path_factory.mktemp("study")
-    cfg = ReproduceConfig(scale="tiny", out=out, workers=1, verbose=False)
+    settings = {"scale": "tiny", "workers": 1}
     lines: list[str] = []
-    report = reproduce(cfg, lines.append)
+    report = run_push(out, lines.append, **settings)
     reused = [*out.glob("data.h5"), *out.glob("runs/seed0/*/model.pt"),
               *out.glob("runs/seed0/*/evaluation.json"),
               *out.glob("runs/seed0/*/control-*/results.json")]
     mtimes = {p: p.stat().st_mtime_ns for p in reused}
-    again = reproduce(cfg, lines.append)
-    return {"out": out, "cfg": cfg, "report": report, "again": again, "mtimes": mtimes,
+    again = run_push(out, lines.append, **settings)
+    return {"out": out, "settings": settings, "report": report, "again": again, "mtimes": mtimes,
             "lines": lines}
 
 
 def test_pipeline_writes_the_report_and_says_so(study):
     assert study["report"] == study["out"] / "report.html" == study["again"]
-    assert any(line.startswith("[4/4] report") for line in study["lines"])
+    assert any(line.startswith("report: ") for line in study["lines"])
 
 
 def test_rerun_reuses_data_runs_evaluations_and_episodes(study):
@@ -114,12 +115,13 @@ def test_every_figure_equation_and_summary_is_written(study):
         assert (out / f"equations_{m}.txt").read_text().startswith("# seed 0")
     summary = json.loads((out / "summary.json").read_text(),
                          parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"))
-    assert summary["seeds"] == [0]
+    assert summary["seeds"] == [0] and summary["world"] == "push"
     assert {"python", "torch", "pybullet", "latent-sindy"} <= set(summary["versions"])
-    assert set(summary["aggregate"]) == set(MODELS)
-    assert summary["aggregate"]["sindy4"]["control/discarded_total"]["mean"] == 0
-    assert set(summary["baselines"]["pred_err"]) == {"still", "mean_image"}
-    position = summary["baselines"]["position_cm"]
+    results = summary["results"]
+    assert set(results["aggregate"]) == set(MODELS)
+    assert results["aggregate"]["sindy4"]["control/discarded_total"]["mean"] == 0
+    assert set(results["baselines"]["pred_err"]) == {"still", "mean_image"}
+    position = results["baselines"]["position_cm"]
     assert len(position["still"]) == SCALES["tiny"].steps and 0 < position["reader"] < 2
     report = (out / "report.html").read_text()
     assert "nothing moves scores" in report and "What the latent knows" in report
@@ -208,25 +210,26 @@ def test_sparsity_never_rounds_up_to_100_percent(value: float, shown: str) -> No
 
 
 def test_config_is_validated(tmp_path):
-    for bad in ({"seeds": ()}, {"seeds": (0, 0)}, {"seeds": (-1,)}, {"workers": 0},
-                {"scale": "huge"}):
+    for bad in ({"seeds": ()}, {"scale": "huge"}, {"world": "moon"}, {"models": ("moon",)}):
         with pytest.raises(UserError):
-            ReproduceConfig(out=tmp_path, **bad)
+            PushStudyConfig(out=tmp_path, **bad)
+    for bad in ({"seeds": ()}, {"seeds": (0, 0)}, {"seeds": (-1,)}, {"workers": 0}):
+        with pytest.raises(UserError):
+            StudySettings(out=tmp_path, **bad)
 
 
 def test_image_size_sets_the_collected_world_and_must_match_given_data(study, tmp_path):
     """--image-size is the camera resolution of the data the study collects; a size the world
     cannot render, or a reused file of another size, is one clear error."""
-    assert ReproduceConfig(out=tmp_path, image_size=64).env_config().image_size == 64
-    assert ReproduceConfig(out=tmp_path).env_config().image_size == 32
+    assert PushStudyConfig(out=tmp_path, image_size=64).env_config().image_size == 64
+    assert PushStudyConfig(out=tmp_path).env_config().image_size == 32
     with pytest.raises(UserError, match="--image-size 7"):
-        ReproduceConfig(out=tmp_path, image_size=7)
+        PushStudyConfig(out=tmp_path, image_size=7)
     with pytest.raises(UserError, match="already exists with other collection settings"):
-        reproduce(replace(study["cfg"], image_size=16), lambda line: None)
-    given = replace(study["cfg"], out=tmp_path / "other", data=study["out"] / "data.h5",
-                    image_size=16)
+        run_push(study["out"], **study["settings"], image_size=16)
     with pytest.raises(UserError, match="holds 32x32 images"):
-        reproduce(given, lambda line: None)
+        run_push(tmp_path / "other", **study["settings"], data=study["out"] / "data.h5",
+                 image_size=16)
     assert not (tmp_path / "other").exists()
 
 
@@ -235,7 +238,7 @@ def test_reused_study_data_must_match_the_collection_plan(study):
     or world is refused, not silently used."""
     for other in ({"data_seed": 7}, {"world": "paper"}):
         with pytest.raises(UserError, match="already exists with other collection settings"):
-            reproduce(replace(study["cfg"], **other), lambda line: None)
+            run_push(study["out"], **{**study["settings"], **other})
 
 
 @pytest.mark.parametrize("name", ["sindy2", "sindy_moments", "state_sindy_frame"])
@@ -268,7 +271,7 @@ def test_figures_drawn_on_an_executor_are_the_pipelines(study, tmp_path):
     drawn in this process."""
     out = study["out"]
     shutil.copytree(out / "runs", tmp_path / "runs")
-    plan = StudyPlan.of(replace(study["cfg"], out=tmp_path))
+    plan = StudyPlan.of(PushStudyConfig(**study["settings"], out=tmp_path, verbose=False))
     pool = Inline()
     queued = set(MODELS) - {"state_sindy"}  # drawn here instead (not in the rollouts)
     started = submit_model_figures(plan, queued, out / "data.h5", pool)
@@ -285,7 +288,7 @@ def test_figures_drawn_on_an_executor_are_the_pipelines(study, tmp_path):
 def test_the_trained_hook_runs_once_after_the_last_training(study):
     """run_stage tells once, after every training and before the last evaluation, which of
     the first seed's models trained."""
-    plan = StudyPlan.of(study["cfg"])
+    plan = StudyPlan.of(PushStudyConfig(**study["settings"], out=study["out"], verbose=False))
     lines: list[str] = []
     calls: list[tuple[set[str], int, int]] = []
 

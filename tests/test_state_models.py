@@ -359,10 +359,10 @@ def test_the_frame_library_needs_a_block_whose_symmetry_counts_its_faces(
 
 
 def test_the_init_share_sweep_applies_to_fixed_encoders_only(tmp_path: Path) -> None:
-    from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
+    from latent_sindy.worlds.push.study.config import PushStudyConfig, study_specs
     from latent_sindy.worlds.push.study.sweeps import Sweep
 
-    cfg = ReproduceConfig(scale="tiny", out=tmp_path,
+    cfg = PushStudyConfig(scale="tiny", out=tmp_path,
                           models=("sindy2", "sindy_moments", "state_sindy"),
                           sweep=(Sweep.parse("init_share=0,0.2"),))
     names = [s.name for s in study_specs(cfg)]

@@ -16,15 +16,16 @@ from latent_sindy.cli import main
 from latent_sindy.configs import to_json
 from latent_sindy.data import write_sequences
 from latent_sindy.errors import UserError
+from latent_sindy.study.settings import StudySettings, parse_seeds
 from latent_sindy.worlds.push.collect import CollectionPlan
 from latent_sindy.worlds.push.config import PushEnvConfig
 from latent_sindy.worlds.push.data import push_data
 from latent_sindy.worlds.push.study.catalogue import model_specs
-from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
-from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.config import PushStudyConfig, study_specs
 from latent_sindy.worlds.push.study.scales import SCALES
 from latent_sindy.worlds.push.study.stages import check_given_data
-from latent_sindy.worlds.push.study.sweeps import SWEEPABLE, Sweep, parse_seeds
+from latent_sindy.worlds.push.study.sweeps import SWEEPABLE, Sweep
+from push_study import run_push
 from synthetic import make_trajectories
 
 
@@ -44,14 +45,15 @@ def test_a_given_file_of_another_world_is_refused(tmp_path):
     data = make_trajectories()
     write_sequences(path, data)
     out = tmp_path / "study"
-    cfg = ReproduceConfig(scale="tiny", out=out, world="paper", data=path, workers=1,
+    cfg = PushStudyConfig(scale="tiny", out=out, world="paper", data=path, workers=1,
                           verbose=False, models=("state_linear",))
     with pytest.raises(UserError, match=r"--world paper.*symmetric"):
         check_given_data(cfg, data)
     with pytest.raises(UserError, match=r"--world paper.*symmetric"):
-        reproduce(cfg, lambda line: None)
+        run_push(out, scale="tiny", world="paper", data=path, workers=1,
+                 models=("state_linear",))
     assert not out.exists()
-    check_given_data(ReproduceConfig(scale="tiny", out=out, data=path), data)  # its own world
+    check_given_data(PushStudyConfig(scale="tiny", out=out, data=path), data)  # its own world
 
 
 def test_a_textured_world_file_is_told_from_the_symmetric_world() -> None:
@@ -63,17 +65,17 @@ def test_a_textured_world_file_is_told_from_the_symmetric_world() -> None:
                          plain.split, PushEnvConfig.named("textured"), seed=0)
     with pytest.raises(UserError, match=r"--world symmetric.*the textured world.*--world "
                                         r"textured"):
-        check_given_data(ReproduceConfig(scale="tiny", data=Path("t.h5")), textured)
+        check_given_data(PushStudyConfig(scale="tiny", data=Path("t.h5")), textured)
     with pytest.raises(UserError, match=r"--world textured.*the symmetric world"):
-        check_given_data(ReproduceConfig(scale="tiny", world="textured", data=Path("s.h5")),
+        check_given_data(PushStudyConfig(scale="tiny", world="textured", data=Path("s.h5")),
                          plain)
-    check_given_data(ReproduceConfig(scale="tiny", world="textured", data=Path("t.h5")),
+    check_given_data(PushStudyConfig(scale="tiny", world="textured", data=Path("t.h5")),
                      textured)
 
 
 # ----------------------------------------------------------------------------- D3, D12: where
 def _names(**settings) -> list[str]:
-    return [s.name for s in study_specs(ReproduceConfig(scale="tiny", **settings))]
+    return [s.name for s in study_specs(PushStudyConfig(scale="tiny", **settings))]
 
 
 def test_a_sweep_varies_only_the_models_that_have_the_setting(tmp_path):
@@ -82,7 +84,7 @@ def test_a_sweep_varies_only_the_models_that_have_the_setting(tmp_path):
     otherwise only the SINDy models get variants."""
     l1 = (Sweep.parse("lambda_l1=1e-3,1e-2"),)
     with pytest.raises(UserError, match=r"--sweep lambda_l1.*none of the chosen models.*linear"):
-        ReproduceConfig(scale="tiny", out=tmp_path, models=("linear",), sweep=l1)
+        PushStudyConfig(scale="tiny", out=tmp_path, models=("linear",), sweep=l1)
     names = _names(out=tmp_path, sweep=l1)
     for plain in ("linear", "mlp", "state_linear", "state_mlp"):
         assert plain in names and not any(n.startswith(f"{plain}.") for n in names)
@@ -99,7 +101,7 @@ def test_an_order_sweep_skips_the_libraries_of_fixed_order(tmp_path):
     assert not any(n.startswith(("sindy_moments.", "state_sindy.", "sindy_pose.")) for n in names)
     with pytest.raises(UserError, match=r"--sweep order.*none of the chosen models.*"
                                         r"sindy_moments, state_sindy"):
-        ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy_moments", "state_sindy"),
+        PushStudyConfig(scale="tiny", out=tmp_path, models=("sindy_moments", "state_sindy"),
                         sweep=(Sweep.parse("order=2"),))
 
 
@@ -111,7 +113,7 @@ BAD_SWEEPS = ["prune_below=-1", "prune_below=nan", "init_share=-0.5", "window=10
 @pytest.mark.parametrize("sweep", BAD_SWEEPS)
 def test_every_sweep_value_is_checked_up_front_and_named_as_the_sweeps(tmp_path, sweep):
     with pytest.raises(UserError, match="^" + re.escape(f"--sweep {sweep}: ")):
-        ReproduceConfig(scale="tiny", out=tmp_path, sweep=(Sweep.parse(sweep),))
+        PushStudyConfig(scale="tiny", out=tmp_path, sweep=(Sweep.parse(sweep),))
 
 
 @pytest.mark.parametrize("sweep", ["prune_below=-1", "window=100"])
@@ -129,7 +131,7 @@ def test_a_swept_window_must_fit_a_given_files_trajectories(tmp_path):
     path = tmp_path / "d.h5"
     data = make_trajectories(steps=4)
     write_sequences(path, data)
-    cfg = ReproduceConfig(scale="tiny", out=tmp_path / "s", data=path, models=("sindy2",),
+    cfg = PushStudyConfig(scale="tiny", out=tmp_path / "s", data=path, models=("sindy2",),
                           sweep=(Sweep.parse("window=4,5"),))
     with pytest.raises(UserError, match=r"^--sweep window=4,5: .*4 pushes"):
         check_given_data(cfg, data)
@@ -171,11 +173,10 @@ def test_a_reused_folder_names_the_collection_setting_that_differs(tmp_path, oth
     out = tmp_path / "study"
     _study_file(out, CollectionPlan(tiny.trajectories, tiny.steps, 0,
                                     env=PushEnvConfig.named("symmetric")))
-    cfg = ReproduceConfig(**{"scale": "tiny", "out": out, "workers": 1, "verbose": False,
-                             "models": ("state_linear",), **other})
     lines: list[str] = []
     with pytest.raises(UserError, match="already exists with other collection settings") as e:
-        reproduce(cfg, lines.append)
+        run_push(out, lines.append, **{"scale": "tiny", "workers": 1,
+                                       "models": ("state_linear",), **other})
     assert named in str(e.value), str(e.value)
     assert not any("reusing" in line for line in lines)
 
@@ -183,7 +184,7 @@ def test_a_reused_folder_names_the_collection_setting_that_differs(tmp_path, oth
 # ----------------------------------------------------------------------------- D18, D22
 def test_a_ray_address_needs_the_ray_executor(tmp_path, capsys):
     with pytest.raises(UserError, match=r"--ray-address localhost:6379 is for --executor ray"):
-        ReproduceConfig(out=tmp_path, ray_address="localhost:6379")
+        StudySettings(out=tmp_path, ray_address="localhost:6379")
     out = tmp_path / "study"
     line = _error_line(capsys, "reproduce", "--scale", "tiny", "--out", str(out),
                        "--ray-address", "auto")
@@ -196,22 +197,58 @@ def test_reproduce_help_lists_every_sweepable_setting(capsys, monkeypatch):
         main(["reproduce", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
     start = text.index("--sweep SETTING=V1,V2")
-    sweep_help = text[start:text.index("--executor", start)]
+    sweep_help = text[start:]
     for name, setting in SWEEPABLE.items():
         assert re.search(rf"\b{name}\b", sweep_help), name
         assert setting.label in sweep_help, (name, setting.label)
 
 
 def test_the_catalogue_without_sweeps_is_as_it_was(tmp_path):
-    assert study_specs(ReproduceConfig(scale="tiny", out=tmp_path)) == model_specs(SCALES["tiny"])
+    assert study_specs(PushStudyConfig(scale="tiny", out=tmp_path)) == model_specs(SCALES["tiny"])
 
 
 def test_every_named_world_is_described_for_the_report_and_help() -> None:
     """The study's report and --help describe each pushing world; a world without its phrase
     crashed the textured world's report."""
+    from latent_sindy.study.runner import world_help
     from latent_sindy.worlds.push.config import ENV_PRESETS, WORLD_ABOUT
-    from latent_sindy.worlds.push.study.config import _world_help
+    from latent_sindy.worlds.push.study.scales import SCALE_ABOUT
 
-    assert set(WORLD_ABOUT) == set(ENV_PRESETS)
-    text = _world_help()
+    assert set(WORLD_ABOUT) == set(ENV_PRESETS) and set(SCALE_ABOUT) == set(SCALES)
+    text = world_help()
     assert all(f"{name} ({about})" in text for name, about in WORLD_ABOUT.items())
+
+
+def test_the_push_study_trains_on_the_cpu_and_runs_a_named_world(tmp_path):
+    """Its reproduce hook refuses --device cuda (it trains on the CPU; on Ray, --gpus) and a
+    world rebuilt on settings that make no named world, before anything is written."""
+    from latent_sindy.plugins import get_world
+    from latent_sindy.worlds.push.plugin import PushWorld
+
+    out = tmp_path / "study"
+    with pytest.raises(UserError, match="--device cuda: the push study trains on the CPU"):
+        get_world("push").reproduce("tiny", out, None, "cuda", 1, print)
+    odd = PushWorld(PushEnvConfig(block_look="marked"))  # a marked block, symmetric pushes
+    with pytest.raises(UserError, match="runs a named world as it is"):
+        odd.reproduce("tiny", out, None, "cpu", 1, print)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("world", "old"), [("push", "round-one"), ("dmc", "read-benchmark")])
+def test_an_old_scale_name_is_refused_as_an_unknown_one(tmp_path, capsys, world, old):
+    """Scales were renamed for what they run (demo-long, read-100k): no alias keeps the old
+    name, which meets the error of any unknown one."""
+    old_line, unknown = (_error_line(capsys, "reproduce", "--world", world, "--scale", name,
+                                     "--out", str(tmp_path / "s")) for name in (old, "nonsense"))
+    assert old_line == unknown.replace("nonsense", old) and not (tmp_path / "s").exists()
+
+
+def test_an_old_schedule_name_is_refused_as_an_unknown_one():
+    from latent_sindy.worlds.pendulum.video_study import VideoStudyConfig
+
+    said = []
+    for name in ("lite100", "nonsense"):
+        with pytest.raises(UserError) as e:
+            VideoStudyConfig(schedule=name)
+        said.append(str(e.value))
+    assert said[0] == said[1].replace("nonsense", "lite100") and "uncalibrated" in said[0]

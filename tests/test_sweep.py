@@ -10,13 +10,14 @@ import pytest
 
 from latent_sindy.errors import UserError
 from latent_sindy.stats import wilson_interval
+from latent_sindy.study.settings import parse_seeds
 from latent_sindy.training import RunDir
 from latent_sindy.worlds.push.study.catalogue import model_specs
-from latent_sindy.worlds.push.study.config import ReproduceConfig, study_specs
-from latent_sindy.worlds.push.study.pipeline import reproduce
+from latent_sindy.worlds.push.study.config import PushStudyConfig, study_specs
 from latent_sindy.worlds.push.study.scales import SCALES
-from latent_sindy.worlds.push.study.sweeps import Sweep, parse_seeds
+from latent_sindy.worlds.push.study.sweeps import Sweep
 from latent_sindy.worlds.push.study.table import sweep_rows
+from push_study import run_push
 
 
 @pytest.mark.parametrize(("args", "seeds"), [
@@ -27,7 +28,7 @@ def test_seed_ranges_and_lists(args, seeds):
 
 
 def test_a_sweep_makes_one_variant_per_value_of_the_models_it_applies_to(tmp_path):
-    cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
+    cfg = PushStudyConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
                           sweep=(Sweep.parse("lambda_pred_x=1e-3,1e-2"),
                                  Sweep.parse("order=1,3")))
     specs = {s.name: s for s in study_specs(cfg)}
@@ -40,7 +41,7 @@ def test_a_sweep_makes_one_variant_per_value_of_the_models_it_applies_to(tmp_pat
     assert s.loss.lambda_pred_x == 0.01 and s.model.dynamics.order == 3
     assert s.label == "SINDy-2, λ1=0.01, order=3"
     assert specs["linear.lambda_pred_x=0.001"].loss.lambda_pred_x == 0.001
-    plain = ReproduceConfig(scale="tiny", out=tmp_path)
+    plain = PushStudyConfig(scale="tiny", out=tmp_path)
     assert study_specs(plain) == model_specs(SCALES["tiny"])  # no sweep or --models: as it was
 
 
@@ -68,9 +69,8 @@ def test_sweep_table_means_stds_and_pooled_wilson_interval():
 
 def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
     out = tmp_path / "sweep"
-    cfg = ReproduceConfig(scale="tiny", out=out, workers=1, verbose=False, seeds=(0, 1),
-                          models=("state_sindy",), sweep=(Sweep.parse("lambda_l1=1e-4,1e-2"),))
-    reproduce(cfg, lambda _: None)
+    run_push(out, scale="tiny", workers=1, seeds=(0, 1), models=("state_sindy",),
+             sweep=(Sweep.parse("lambda_l1=1e-4,1e-2"),))
     names = ["state_sindy.lambda_l1=0.0001", "state_sindy.lambda_l1=0.01"]
     for s in (0, 1):
         for name, lam in zip(names, (1e-4, 1e-2), strict=True):
@@ -80,8 +80,9 @@ def test_a_tiny_sweep_trains_each_variant_with_its_value(tmp_path):
         "| SINDy (face library), state, λ3=0.0001", "| SINDy (face library), state, λ3=0.01"]
     assert all(" | 2 | " in r for r in table[2:4])  # both seeds finished
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["aggregate"]) == set(names)
-    assert summary["config"]["sweep"] == [{"setting": "lambda_l1", "values": [1e-4, 1e-2]}]
+    assert set(summary["results"]["aggregate"]) == set(names)
+    assert summary["config"]["options"]["sweep"] == [{"setting": "lambda_l1",
+                                                      "values": [1e-4, 1e-2]}]
 
 
 def test_the_pruning_cut_is_a_sindy_setting_the_study_trains_with(tmp_path):
@@ -90,11 +91,11 @@ def test_the_pruning_cut_is_a_sindy_setting_the_study_trains_with(tmp_path):
     from latent_sindy.worlds.push.study.config import StudyPlan
     from latent_sindy.worlds.push.study.stages import train_config
 
-    cfg = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
+    cfg = PushStudyConfig(scale="tiny", out=tmp_path, models=("sindy2", "linear"),
                           sweep=(Sweep.parse("prune_below=0.01,0.1"),))
     specs = {s.name: s for s in study_specs(cfg)}
     assert list(specs) == ["sindy2.prune_below=0.01", "sindy2.prune_below=0.1", "linear"]
-    plain = ReproduceConfig(scale="tiny", out=tmp_path, models=("sindy2", "sindy_moments"))
+    plain = PushStudyConfig(scale="tiny", out=tmp_path, models=("sindy2", "sindy_moments"))
     for config in (cfg, plain):
         chosen = study_specs(config)
         plan = StudyPlan(config, chosen, {0: {s.name: tmp_path / s.name for s in chosen}})

@@ -32,23 +32,75 @@ from typing import Annotated
 import tyro
 
 from latent_sindy.atomic import check_output_dir, check_output_file
+from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.errors import CarriedUserError, UserError, carried_through_parsers
 from latent_sindy.models.autoencoder_flags import CLI_REGISTRY
 from latent_sindy.plugins import default_world, get_world, hook
 from latent_sindy.progress import bar
 from latent_sindy.study.commands import configured_world
+from latent_sindy.study.runner import given_options, scale_help, world_help
+from latent_sindy.study.settings import StudySettings
 from latent_sindy.training.config import TrainConfig
 
 Flat = tyro.conf.OmitArgPrefixes
 
-DEFAULT_WORLD = default_world()
-"""The world plug-in whose settings collect, control and reproduce take as flags (its
-``commands`` hook): the one the installed plug-ins name (:func:`~latent_sindy.plugins.
-default_world`); the commands reach other worlds through the generic hooks."""
-COMMAND_OF = hook(get_world(DEFAULT_WORLD), "commands")
-CollectSettings = COMMAND_OF["collect"].settings
-ControlSettings = COMMAND_OF["control"].settings
-StudySettings = COMMAND_OF["reproduce"].settings
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """What collect takes of any world: the flags collect keeps where no installed world
+    gives its own (no default world)."""
+
+    trajectories: int = 200
+    """Sequences to collect."""
+    steps: int = 10
+    """Actions per sequence."""
+    seed: int = 0
+    """Seed of every random choice."""
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """What control takes of any world's run: the flags control keeps where no installed
+    world gives its own (no default world)."""
+
+    episodes: int = 10
+    max_steps: int = 20
+    seed: int = 0
+    space: str = "latent"
+    """latent or image."""
+    mppi: MPPIConfig = field(default_factory=MPPIConfig)
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """No study options of a default world (none is installed)."""
+
+
+try:
+    DEFAULT_WORLD: str | None = default_world()
+    """The world plug-in whose settings collect and control take as flags, and whose study
+    reproduce runs without --world (its ``commands`` and ``study_flags`` hooks): the one the
+    installed plug-ins name (:func:`~latent_sindy.plugins.default_world`); the commands reach
+    other worlds through the generic hooks. None where no installed world has commands: the
+    commands that need one say so when run."""
+    NO_DEFAULT_WORLD = ""
+except UserError as e:
+    DEFAULT_WORLD = None
+    NO_DEFAULT_WORLD = str(e)
+DEFAULT = None if DEFAULT_WORLD is None else get_world(DEFAULT_WORLD)
+COMMAND_OF = {} if DEFAULT is None else hook(DEFAULT, "commands")
+CollectSettings = COMMAND_OF["collect"].settings if COMMAND_OF else SequencePlan
+ControlSettings = COMMAND_OF["control"].settings if COMMAND_OF else ClosedLoop
+WorldOptions = (hook(DEFAULT, "study_flags") if DEFAULT is not None else None) or NoOptions
+DATA = Path(f"data/{DEFAULT_WORLD or 'sequences'}.h5")
+"""The data file collect writes and train reads by default."""
+
+
+def _default_command(name: str):
+    """The default world's ``name`` command; the one-line reason where there is none."""
+    if name not in COMMAND_OF:
+        raise UserError(NO_DEFAULT_WORLD or f"the {DEFAULT_WORLD} world has no {name} command")
+    return COMMAND_OF[name]
 
 
 #: The control settings every world's closed loop takes (the rest are the default world's).
@@ -85,7 +137,7 @@ class Collect:
     re-run to finish); with --world, random-action sequences of any world that collects (its
     collect hook)."""
 
-    world: str = DEFAULT_WORLD
+    world: str | None = DEFAULT_WORLD
     """The world to collect from: the default world (the options below), or another installed
     world with a collect hook (e.g. pendulum), which takes --trajectories, --steps and --seed
     only."""
@@ -93,7 +145,7 @@ class Collect:
     """KEY=VALUE settings of a --world other than the default world (fields of its config
     dataclass, the others at their defaults), e.g. `image_size=32` for pendulum or
     `task=reacher-easy size=32` for dmc."""
-    out: Path = Path(f"data/{DEFAULT_WORLD}.h5")
+    out: Path = DATA
     """Trajectory file to write (.h5). An interrupted run keeps its progress in OUT.partial/."""
     plan: Annotated[CollectSettings, tyro.conf.arg(name=""), Flat] = field(
         default_factory=CollectSettings)
@@ -104,9 +156,10 @@ class Collect:
     """Show a progress bar."""
 
     def run(self) -> None:
-        if self.world != DEFAULT_WORLD:
+        if self.world is not None and self.world != DEFAULT_WORLD:
             self._collect_world()
             return
+        command = _default_command("collect")
         if self.world_config:
             raise UserError(f"--world-config sets another world's settings: the "
                             f"{DEFAULT_WORLD} world takes the options below")
@@ -116,8 +169,8 @@ class Collect:
             print(f"latent-sindy: note: --workers {self.workers} for {workers} "
                   f"trajector{'y' if workers == 1 else 'ies'}: using {workers} worker "
                   f"process{'' if workers == 1 else 'es'}", file=sys.stderr)
-        COMMAND_OF["collect"].run(self.plan, self.out, workers,
-                                  _bar("collect", "traj") if self.progress else None)
+        command.run(self.plan, self.out, workers,
+                    _bar("collect", "traj") if self.progress else None)
 
     def _collect_world(self) -> None:
         from latent_sindy.data.store import write_sequences
@@ -213,7 +266,7 @@ class Train:
     """
 
     config: Annotated[TrainConfig, tyro.conf.arg(name=""), Flat] = field(
-        default_factory=lambda: TrainConfig(data=Path(f"data/{DEFAULT_WORLD}.h5")))
+        default_factory=lambda: TrainConfig(data=DATA))
     # A second thread pays on a machine of one's own; while other jobs hold the cores it
     # measured 0.86-1.06x of one (BENCHMARKS.md). A CPU result's bits depend on the count.
     threads: int = 0
@@ -285,7 +338,6 @@ class Control:
         _check_threads(self.threads, auto=False)
         torch.set_num_threads(self.threads)
         run_dir = RunDir(self.run_dir)
-        out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
         run = run_dir.load()
         if run.world is not None and run.world != DEFAULT_WORLD:
             from latent_sindy.study.commands import control_world
@@ -294,48 +346,51 @@ class Control:
                 self.out or run_dir.path / f"control-{s.space}", "--out"),
                 ControlSettings(), GENERIC, DEFAULT_WORLD)
             return
-        COMMAND_OF["control"].run(self.run_dir, run, s, out,
-                                  _bar("episodes", "ep") if self.progress else None)
+        command = _default_command("control")
+        out = check_output_dir(self.out or run_dir.control_dir(s.task, s.space), "--out")
+        command.run(self.run_dir, run, s, out, _bar("episodes", "ep") if self.progress else None)
+
+
+@dataclass(frozen=True)
+class ReproduceSettings(StudySettings):
+    """:class:`~latent_sindy.study.settings.StudySettings` with the installed worlds, their
+    scales and the default world in its --help."""
+
+    scale: Annotated[str, tyro.conf.arg(help=scale_help(), metavar="SCALE")] = "demo"
+    world: Annotated[str | None, tyro.conf.arg(help=world_help(), metavar="WORLD")] = (
+        DEFAULT_WORLD)
 
 
 @dataclass
 class Reproduce:
-    """Reproduce the paper's study and our additions in one command, and write the report.
+    """Run a world's study in one command and write its report: without --world, the
+    default world's (the paper's study: data, every model, evaluation, control, Table I
+    beside the paper's, figures, equations). Every study writes summary.json, table.md and
+    a self-contained report.html into --out; a re-run reuses finished pieces.
 
-    Collects the data if missing; trains SINDy orders 1-4, a multi-step SINDy, the linear (E2C)
-    and the MLP baselines on the same data, splits and seeds; evaluates losses, prediction
-    error against horizon, sparsity and closed-loop control (latent and image-space MPPI);
-    writes table1.md/csv, figures/, equations, summary.json and a self-contained report.html.
-    A re-run reuses finished pieces.
-
-    --world pendulum-video runs the SINDy autoencoder's pendulum-video recovery study over
-    seeds (per-seed equation, FVU of x, ẍ, z̈ beside the published and replicated figures;
-    finished seeds are reused); --world pendulum runs the controlled pendulum's swing-up study
-    (SINDy, MLP and linear image models, a state SINDy; success with Wilson intervals). Both
-    take --scale tiny|demo|published and --device, and write summary.json, table.md,
-    equations_*.txt and report.html.
+    --world names a world with a study of its own (or a named world of one): e.g.
+    pendulum-video, the SINDy autoencoder's pendulum-video recovery over seeds; pendulum, the
+    controlled pendulum's swing-up; dmc, a DeepMind Control task from pixels; gym, any
+    Gymnasium environment. Its settings: --world-config KEY=VALUE.
     """
 
-    # No default instance: its fields' own defaults show (--seeds: the scale's, not the push
-    # study's 0 that a constructed default would hold).
-    config: Annotated[StudySettings, tyro.conf.arg(name=""), Flat]
+    settings: Annotated[ReproduceSettings, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=ReproduceSettings)
+    options: Annotated[WorldOptions, tyro.conf.arg(name=""), Flat] = field(
+        default_factory=WorldOptions)
     world_config: tuple[str, ...] = ()
-    """KEY=VALUE settings of a --world with a study of its own (fields of its config
-    dataclass, the others at their defaults), e.g. `task=reacher-easy` for dmc."""
+    """KEY=VALUE settings of the --world (fields of its config dataclass, the others at
+    their defaults, or at its named world's), e.g. `task=reacher-easy` for dmc."""
 
     def run(self) -> None:
-        from latent_sindy.study.runner import run_world_study, study_worlds
+        from latent_sindy.study.runner import run_study
 
-        if not (self.config.executor == "ray" and self.config.ray_address):
-            _check_threads(self.config.threads, auto=False)  # (else: another machine's)
-        world = study_worlds().get(self.config.world)
-        if self.world_config and world is None:
-            raise UserError(f"--world-config sets the settings of a world with a study of "
-                            f"its own ({', '.join(study_worlds())}); --world "
-                            f"{self.config.world} takes the options below")
-        world = configured_world(self.config.world, self.world_config) if world else None
-        report = (COMMAND_OF["reproduce"].run(self.config) if world is None
-                  else run_world_study(world, self.config))
+        s = self.settings
+        if not (s.executor == "ray" and s.ray_address):
+            _check_threads(s.threads, auto=False)  # (else: another machine's)
+        if s.world is None:
+            raise UserError(NO_DEFAULT_WORLD)
+        report = run_study(s, given_options(self.options), self.world_config)
         print(f"report: {report}")
 
 

@@ -71,22 +71,29 @@ HOOKS: dict[str, str] = {
     "about": "a line on the world's own study, for --help [none]",
     "scales": "{scale: what it runs} of the world's own study [no study of its own]",
     "reproduce": "(scale, out, seeds, device, threads, say, **study options) -> the world's "
-                 "own study, a latent_sindy.world_study.WorldStudy [none]",
-    "study_options": "names of `reproduce` settings its study takes besides the ones every "
-                     "study does, passed to the reproduce hook by name, e.g. ('workers',) "
-                     "[none: those settings are refused]",
+                 "own study, a latent_sindy.world_study.WorldStudy; `latent-sindy reproduce` "
+                 "runs it through latent_sindy.study.runner.run_study [none]",
+    "study_options": "names of the options its study takes besides the six every study "
+                     "does, passed to the reproduce hook by name: settings every study may "
+                     "take (latent_sindy.study.settings.OPTIONS, e.g. 'workers') and the "
+                     "fields of its study_flags [none: those options are refused when given]",
+    "study_flags": "a dataclass of its study's own options (fields with defaults and "
+                   "docstrings): where this is the CLI's default world, its fields are flags "
+                   "of reproduce, and those given reach the reproduce hook by name [none]",
+    "named_worlds": "{name: the world's settings} ready-made settings its study runs on "
+                    "as `reproduce --world NAME` (the world's class built on them; "
+                    "--world-config changes fields of them; its about names them) [none]",
     "data": "(**settings) -> SequenceData the world's study is made of [none]",
     "default": "True: this world is the CLI's default world, whose commands hook gives "
-               "collect, control and reproduce their flags (one installed world at most) "
+               "collect and control their flags and whose study reproduce runs without "
+               "--world, with its study_flags as flags (one installed world at most) "
                "[the first installed world, by name, with a commands hook]",
-    "commands": "{'collect' | 'control' | 'reproduce': Command} the CLI's commands as this "
-                "world runs them, with settings of its own (a Command's settings type: its "
-                "fields are the command's flags where this is the CLI's default world); "
-                "collect: run(settings, out, workers, progress) for --world of this world; "
-                "control: run(run folder, loaded run, settings, out, progress) for its runs; "
-                "reproduce: run(settings) -> report.html for a --world that names no world "
-                "with a study of its own [collect: the collect hook; control: the closed "
-                "loop of control.episodes; reproduce: a world's reproduce hook]",
+    "commands": "{'collect' | 'control': Command} the CLI's commands as this world runs "
+                "them, with settings of its own (a Command's settings type: its fields are "
+                "the command's flags where this is the CLI's default world); collect: "
+                "run(settings, out, workers, progress) for --world of this world; control: "
+                "run(run folder, loaded run, settings, out, progress) for its runs "
+                "[collect: the collect hook; control: the closed loop of control.episodes]",
 }
 
 
@@ -135,8 +142,8 @@ def default_world() -> str:
                         "uninstall all but one")
     found = [name for name in said or worlds if hook(worlds[name], "commands") is not None]
     if not found:
-        raise UserError("no installed world offers the commands collect, control and "
-                        "reproduce (a commands hook): install a world plug-in that does")
+        raise UserError("no installed world offers the commands collect and control (a "
+                        "commands hook): install a world plug-in that does")
     return found[0]
 
 

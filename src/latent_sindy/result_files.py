@@ -6,9 +6,9 @@ no world: what a world's figures mean (its published baselines, whether a model'
 learned or read by a hand-made reader, its known limits) is data in ``results/<world>/world.json``.
 
     rows = [{"model": "sindy", "seed": 0, "return": 808.5, "active_terms": 37}]
-    record_rows(Path("results"), "dmc", "read-benchmark", rows,
-                command="latent-sindy reproduce --world dmc --scale read-benchmark --seeds 0")
-    read_rows(Path("results/dmc/read-benchmark.csv"))   # the rows, figures parsed back
+    record_rows(Path("results"), "dmc", "read-100k", rows,
+                command="latent-sindy reproduce --world dmc --scale read-100k --seeds 0")
+    read_rows(Path("results/dmc/read-100k.csv"))   # the rows, figures parsed back
 
 A study records its rows with ``latent-sindy reproduce ... --record results``; a benchmark
 script calls :func:`record_rows` the same way.

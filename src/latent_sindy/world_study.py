@@ -45,3 +45,10 @@ class WorldStudy:
     rows: list[dict[str, Any]] = field(default_factory=list)
     """One per model and seed (``model``, ``seed``, then its figures): what ``reproduce
     --record`` writes into the tracked result files (:mod:`latent_sindy.result_files`)."""
+    record_name: str | None = None
+    """The name of those rows' file (RECORD/<world>/<name>.csv) where the study names it;
+    None: its scale, then each world setting given as key=value."""
+    report: Any = None
+    """The world's own page, not yet written (an object with ``write(path) -> path``, e.g. a
+    :class:`latent_sindy.study.report.Report`): written as report.html in place of the page
+    made of the findings, tables, figures and equations above."""

@@ -43,7 +43,7 @@ class DmcPlugin(DmcWorld):
         loops reused, ``workers`` loops at a time): a
         :class:`~latent_sindy.world_study.WorldStudy` for the report. The suite and the
         task are checked first: without them nothing is written in ``out``."""
-        from latent_sindy.worlds.dmc.study_report import dmc_study
+        from latent_sindy.worlds.dmc.study import dmc_study
         from latent_sindy.worlds.dmc.suite import check_task
 
         check_task(self.config)

@@ -3,6 +3,11 @@ loop from pixels (seed episodes of random actions, then fit, plan with MPPI agai
 learned reward, collect, refit warm-started) with three latent dynamics side by side, SINDy,
 linear (E2C-like) and MLP, on the same seed episodes, planner and seeds; the return against
 environment steps per model, beside the published lines at 100k steps (CURL's table).
+:func:`dmc_study` is what the world's ``reproduce`` hook returns: the runs as a
+:class:`~latent_sindy.world_study.WorldStudy`, made by the generic model-based report
+(:mod:`latent_sindy.study.model_based_report`: tables of return against environment steps
+per model with intervals over seeds, costs, active terms; the last SINDy equations; a figure)
+with the published reference rows of cartpole-swingup.
 
     latent-sindy reproduce --world dmc --scale tiny --out /tmp/dmc
     latent-sindy reproduce --world dmc --world-config task=cartpole-swingup --scale demo \\
@@ -28,10 +33,12 @@ from latent_sindy.study.model_based import (
     pick_scale,
     sized_config,
 )
+from latent_sindy.study.model_based_report import Reference, model_based_study
+from latent_sindy.world_study import WorldStudy
 from latent_sindy.worlds.dmc.config import DmcConfig
 
-__all__ = ["MODELS", "SCALES", "DmcScale", "mean_interval", "run_dmc_study", "run_seed",
-           "study_scale"]
+__all__ = ["MODELS", "SCALES", "DmcScale", "dmc_study", "mean_interval", "run_dmc_study",
+           "run_seed", "study_scale"]
 
 Say = Callable[[str], None]
 
@@ -80,7 +87,7 @@ SCALES: dict[str, DmcScale] = {
         "seen in training; 4 test episodes a fit",
         (0,), 64, 2, 30, 3, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=4,
         episodes_per_iteration=10, latent="read", lambda_=1.0),
-    "read-benchmark": DmcScale(
+    "read-100k": DmcScale(
         "the pose read by image moments at the 100k-step benchmark: as read-demo with 7 fits "
         "(30 random and 70 planned episodes, 100k environment steps), 5 test episodes a fit; "
         "seeds 0..4; hours on a CPU",
@@ -120,6 +127,24 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
                              reader=_reader(world, s))
     return {**result, "reference": {k: list(v) for k, v in REFERENCE.items()},
             "reference_task": REFERENCE_TASK, "reference_steps": REFERENCE_STEPS}
+
+
+#: The published lines with where each was published.
+_REFERENCE = Reference(REFERENCE_TASK, REFERENCE_STEPS, REFERENCE,
+                       {name: "DrQ's paper, Table 1" if name == "DrQ" else
+                        "CURL's paper, Table 1" for name in REFERENCE})
+
+
+def dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] | None,
+              device: str, threads: int, say: Say, workers: int = 1,
+              given: Collection[str] | None = None) -> WorldStudy:
+    """The study at ``scale`` in ``out`` (finished loops reused, ``workers`` loops at a
+    time), as a WorldStudy; ``given``: the fields of ``config`` a user set."""
+    result = run_dmc_study(config, scale, out, seeds, device, threads, say, workers, given)
+    task = result["settings"]["world"]["task"]
+    return model_based_study(
+        result, scale, out, f"DeepMind Control from pixels: {task}, model-based, SINDy / "
+        "linear / MLP", task, _REFERENCE)
 
 
 def _reader(world_config: DmcConfig, s: DmcScale) -> Callable[[], Any] | None:

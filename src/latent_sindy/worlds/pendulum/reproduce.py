@@ -35,7 +35,7 @@ Say = Callable[[str], None]
 
 VIDEO_SCALES = {
     "tiny": "seconds, for tests: 4/2/2 trajectories of 50 frames, 8 components, 3 epochs of "
-            "the lite100 schedule, seed 0",
+            "the uncalibrated schedule, seed 0",
     "demo": "the scalefree schedule (250 + 50 + 300 epochs, every 5th frame, 48 "
             "components) on seeds 0..2; about 10 minutes a seed on a CPU core",
     "recovery": "the scalefree schedule on seeds 0..9: the ten-seed recovery rate on a CPU",
@@ -88,7 +88,7 @@ def video_config(scale: str, seeds: tuple[int, ...] | None, device: str, threads
     from latent_sindy.worlds.pendulum.video_study import VideoStudyConfig
 
     _scale(scale, VIDEO_SCALES, "pendulum-video")
-    base = {"tiny": dict(seeds=(0,), schedule="lite100", components=8, epochs=3,
+    base = {"tiny": dict(seeds=(0,), schedule="uncalibrated", components=8, epochs=3,
                          splits=(4, 2, 2), steps=50),
             "demo": dict(seeds=(0, 1, 2), schedule="scalefree"),
             "recovery": dict(seeds=tuple(range(10)), schedule="scalefree"),

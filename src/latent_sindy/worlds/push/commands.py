@@ -1,10 +1,10 @@
-"""The CLI's collect, control and reproduce as the pushing world runs them (its ``commands``
-hook, :data:`latent_sindy.plugins.HOOKS`): each with settings of its own, whose fields are the
-command's flags while push is the CLI's default world.
+"""The CLI's collect and control as the pushing world runs them (its ``commands`` hook,
+:data:`latent_sindy.plugins.HOOKS`): each with settings of its own, whose fields are the
+command's flags while push is the CLI's default world. Its study, ``reproduce``, enters
+through the plug-in's ``reproduce`` hook as every world's does (:mod:`.plugin`).
 
     latent-sindy collect --out data/push.h5 --trajectories 200 --workers 2 --seed 0
     latent-sindy control runs/sindy2 --task paper --episodes 1
-    latent-sindy reproduce --scale demo --out results/demo
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ from latent_sindy.worlds.push.episodes import (
     run_control,
 )
 from latent_sindy.worlds.push.planner import world_planner
-from latent_sindy.worlds.push.study.config import ReproduceConfig
 
-__all__ = ["COMMANDS", "collect_command", "control_command", "reproduce_command"]
+__all__ = ["COMMANDS", "collect_command", "control_command"]
 
 
 def collect_command(plan: CollectionPlan, out: Path, workers: int, progress: Any) -> None:
@@ -60,13 +59,5 @@ def control_command(run_dir: Path, run: Any, s: ControlConfig, out: Path, progre
           + (", episode GIFs" if s.gif_episodes else ""))
 
 
-def reproduce_command(config: ReproduceConfig) -> Path:
-    """The push study (:func:`~latent_sindy.worlds.push.study.pipeline.reproduce`)."""
-    from latent_sindy.worlds.push.study.pipeline import reproduce
-
-    return reproduce(config)
-
-
 COMMANDS = {"collect": Command(CollectionPlan, collect_command),
-            "control": Command(ControlConfig, control_command),
-            "reproduce": Command(ReproduceConfig, reproduce_command)}
+            "control": Command(ControlConfig, control_command)}

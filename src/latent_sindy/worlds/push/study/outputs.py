@@ -1,7 +1,8 @@
 """The study's last stage: figures, equations and tables of a finished :class:`~.results.Study`.
 
-:func:`output_stage` writes them under OUT and returns the files the report shows (the report
-itself, and summary.json: :mod:`latent_sindy.worlds.push.study.pipeline`).
+:func:`output_stage` writes them under OUT and returns the files the report shows (the page:
+:mod:`.study_report`; summary.json and report.html are written by ``latent-sindy reproduce``
+from what :mod:`latent_sindy.worlds.push.study.pipeline` returns).
 
     latent-sindy reproduce --scale tiny --out /tmp/tiny   # OUT/figures/, table1.md, equations_*.txt
 """
@@ -102,7 +103,7 @@ def output_stage(study: Study, data: SequenceData, say: Say,
             files["rollouts"] = path
         elif path is not None:
             files["coefficients"][key] = path
-    say(f"[3/4] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
+    say(f"[3/3] wrote {files['table_md']}, {files['table_csv']}, figures/ and equations")
     return files
 
 

@@ -1,23 +1,25 @@
-"""One command reproduces the paper's study, and what we add to it, into one folder and report.
+"""The push study: the paper's, and what we add to it, in one folder and report.
 
 It collects the data if missing, trains SINDy orders 1-4, the linear (E2C) and the MLP
 baselines and a multi-step-trained SINDy on the same data, splits and seeds, evaluates every
 model on the same footing (losses on H = 1 windows, prediction error against horizon,
 sparsity, closed-loop control with latent and image-space MPPI on the paper task and random
-tasks) and writes Table I beside the paper's, the figures, the equations and the report.
-A re-run reuses every finished piece (data, trained runs, evaluations, control episodes);
-an interrupted training run resumes from its checkpoint.
+tasks) and writes Table I beside the paper's, the figures and the equations; it returns the
+study as a :class:`~latent_sindy.world_study.WorldStudy` (every number, its page), which
+``latent-sindy reproduce`` writes as every world's study (summary.json, table.md,
+report.html: :func:`latent_sindy.study.runner.run_study`). The push world's ``reproduce``
+hook is its one entry (:mod:`latent_sindy.worlds.push.plugin`). A re-run reuses every
+finished piece (data, trained runs, evaluations, control episodes); an interrupted training
+run resumes from its checkpoint.
 
     latent-sindy reproduce --scale demo --out results
     latent-sindy reproduce --scale paper --out results-paper --seeds 0..2
     latent-sindy reproduce --scale paper --out /shared/paper --executor ray --ray-address auto
     latent-sindy reproduce --scale demo --out results/l1 --models sindy2 --sweep lambda_l1=1e-3,1e-2
-    latent-sindy reproduce --world pendulum-video --scale demo --out results/pendulum-video
-    latent-sindy reproduce --world pendulum --scale tiny --out /tmp/pendulum
 
-    from latent_sindy.worlds.push.study.config import ReproduceConfig
-    from latent_sindy.worlds.push.study.pipeline import reproduce
-    report = reproduce(ReproduceConfig(scale="demo", out=Path("results")))
+    from latent_sindy.study.runner import run_study
+    from latent_sindy.study.settings import StudySettings
+    report = run_study(StudySettings(scale="demo", out=Path("results")), {"models": ("sindy2",)})
 
 OUT holds::
 
@@ -28,25 +30,20 @@ OUT holds::
     figures/                     loss histories, rollouts, coefficient maps, prediction error,
                                  control, gifs/
     equations_<model>.txt        discovered equations (every seed)
-    summary.json                 every number, the config, versions, seeds, timings
+    summary.json, table.md       every number, the settings, versions, seeds, timings; the tables
     report.html                  all of it in one self-contained page
     sweep.md                     with --sweep: a row per variant (mean ± std, Wilson intervals)
 
-A world plug-in with a study of its own (``--world pendulum``, ``--world pendulum-video``;
-see :func:`latent_sindy.study.runner.study_worlds`) is not run here: the command reaches it
-through its ``reproduce`` hook (:func:`latent_sindy.study.runner.run_world_study`).
-
-The push pipeline reads as stages, each a function of what the earlier ones returned
+The pipeline reads as stages, each a function of what the earlier ones returned
 (:mod:`.stages`, :mod:`.outputs`): data (collect) -> train + evaluate + control (the
 evaluations) -> baselines -> the :class:`~.results.Study` they make -> outputs (figures,
-equations, tables) -> summary.json and report.html. Collection shards and the
-(model, seed) jobs run on the study's executor (latent_sindy.executors: local processes or Ray).
+equations, tables) -> the study's record and page. Collection shards and the (model, seed)
+jobs run on the study's executor (latent_sindy.executors: local processes or Ray).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -55,16 +52,14 @@ from typing import Any
 
 import torch
 
-from latent_sindy.atomic import check_output_dir, write_atomic
 from latent_sindy.configs import to_json
 from latent_sindy.data import SequenceData, read_sequences
 from latent_sindy.errors import UserError
 from latent_sindy.executors import ExecutorOptions, make_executor
-from latent_sindy.progress import say_stderr
-from latent_sindy.result_files import record_rows
 from latent_sindy.study.evaluation import BASELINES, Stat
-from latent_sindy.study.runner import json_safe, machine, study_folder, versions
-from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.study.runner import json_safe, machine, versions
+from latent_sindy.world_study import WorldStudy
+from latent_sindy.worlds.push.study.config import PushStudyConfig, StudyPlan
 from latent_sindy.worlds.push.study.outputs import output_stage, submit_model_figures
 from latent_sindy.worlds.push.study.results import Study
 from latent_sindy.worlds.push.study.stages import (
@@ -73,9 +68,14 @@ from latent_sindy.worlds.push.study.stages import (
     collect_stage,
     run_stage,
 )
-from latent_sindy.worlds.push.study.study_report import write_report
+from latent_sindy.worlds.push.study.study_report import (
+    findings,
+    study_figures,
+    study_page,
+    study_tables,
+)
 
-__all__ = ["record_name", "record_of", "reproduce", "summary_record"]
+__all__ = ["SETTINGS", "push_study", "record_name", "record_of", "study_record"]
 
 Say = Callable[[str], None]
 
@@ -84,8 +84,15 @@ def _stat_dict(s: Stat) -> dict[str, Any]:
     return {"mean": s.mean, "std": s.std, "n": s.n}
 
 
-def summary_record(study: Study, data: SequenceData, data_path: Path) -> dict[str, Any]:
-    """Everything summary.json holds: every number, the config, versions, seeds, timings."""
+#: The keys of :func:`study_record` that are the study's settings (summary.json's
+#: ``study``); the others are its numbers (``results``).
+SETTINGS = ("config", "scale", "models", "data", "control")
+
+
+def study_record(study: Study, data: SequenceData, data_path: Path) -> dict[str, Any]:
+    """Everything the study measured and ran on: every number, the config, versions, seeds,
+    timings (summary.json holds its :data:`SETTINGS` as the study's settings, the rest but
+    versions and machine as its results; the page shows it)."""
     scale = study.scale
     return json_safe({
         "config": {**to_json(study.config), "data": str(data_path)},
@@ -113,9 +120,9 @@ def summary_record(study: Study, data: SequenceData, data_path: Path) -> dict[st
     })
 
 
-def record_name(config: ReproduceConfig) -> str:
+def record_name(config: PushStudyConfig) -> str:
     """The study's result file name: its scale, then its world and image size where they
-    are not the default's (``round-one_textured``, ``demo_64px``)."""
+    are not the default's (``demo-long_textured``, ``demo_64px``)."""
     parts = [config.scale]
     if config.world != "symmetric":
         parts.append(config.world)
@@ -152,27 +159,16 @@ def record_of(study: Study) -> list[dict[str, Any]]:
 
 
 # ----------------------------------------------------------------------------- the pipeline
-def reproduce(config: ReproduceConfig, progress: Say | None = None) -> Path:
-    """Run (or complete) the whole study in ``config.out``; returns the path of report.html.
-
-    ``progress`` receives one line per stage and per finished job; None prints them to
-    stderr when ``config.verbose`` (training milestones are printed by the workers).
-    """
+def push_study(config: PushStudyConfig, say: Say) -> WorldStudy:
+    """Run (or complete) the whole study in ``config.out`` (held by the caller: the push
+    world's ``reproduce`` hook, through :func:`latent_sindy.study.runner.run_study`);
+    ``say`` receives one line per stage and per finished job (training milestones are
+    printed by the workers). Returns the study: its numbers, rows and page."""
     t_start = time.perf_counter()
-    say = progress or (say_stderr if config.verbose else (lambda _: None))
-    if config.study_world is not None:
-        raise UserError(f"--world {config.world} has a study of its own: run it with "
-                        f"latent-sindy reproduce --world {config.world}")
-    out = check_output_dir(config.out, "--out")
     if config.data is not None and config.data.exists():
         # a foreign or damaged file, or one of another image size, is refused before any output
         check_given_data(config, read_sequences(config.data))
-    with study_folder(out, "push"):
-        return _study(config, out, say, t_start)
-
-
-def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path:
-    """The study of :func:`reproduce`, once its folder ``out`` is this process's."""
+    out = config.out
     out.mkdir(parents=True, exist_ok=True)
     plan = StudyPlan.of(config)
     threads = torch.get_num_threads()
@@ -207,15 +203,14 @@ def _study(config: ReproduceConfig, out: Path, say: Say, t_start: float) -> Path
         study = dataclasses.replace(study, timings={
             **timings, "outputs": time.perf_counter() - t,
             "total": time.perf_counter() - t_start})
-        summary = summary_record(study, data, data_path)
-        text = json.dumps(summary, indent=1, allow_nan=False)
-        write_atomic(out / "summary.json", lambda f: f.write(text), binary=False)
-        report = write_report(study, files, summary, out / "report.html")
-        if config.record is not None:
-            rows = record_of(study)
-            path = record_rows(config.record, "push", record_name(config), rows)
-            say(f"recorded {len(rows)} row(s) in {path}")
+        record = study_record(study, data, data_path)
     finally:
         torch.set_num_threads(threads)
-    say(f"[4/4] report: {report} (this run took {time.perf_counter() - t_start:.0f} s)")
-    return report
+    return WorldStudy(
+        title=f"latent-sindy: the paper's study, reproduced ({config.scale} scale)",
+        settings={k: record[k] for k in SETTINGS}, seeds=list(config.seeds),
+        numbers={k: v for k, v in record.items()
+                 if k not in (*SETTINGS, "seeds", "versions", "machine")},
+        findings=findings(study), tables=study_tables(study),
+        figures=study_figures(files), rows=record_of(study), record_name=record_name(config),
+        report=study_page(study, files, record))

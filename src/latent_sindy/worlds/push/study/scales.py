@@ -23,7 +23,7 @@ from latent_sindy.worlds.push.planner import world_planner
 if TYPE_CHECKING:
     from latent_sindy.worlds.push.study.spec import ModelSpec
 
-__all__ = ["ROUND_ONE", "SCALES", "Condition", "Scale"]
+__all__ = ["DEMO_LONG", "SCALES", "SCALE_ABOUT", "Condition", "Scale"]
 
 Task = Literal["paper", "random"]
 Space = Literal["latent", "image"]
@@ -72,7 +72,7 @@ class Scale:
     # 30 epochs of batch 64 are 480 updates at twice the paper's learning rate, pruning every
     # 6 epochs (5 times; pruning every 3 left SINDy-1 no term in one run): sized for the demo's 10
     # minutes on 2 cores, at a cost in validation loss (BENCHMARKS.md, "Where the demo's time
-    # goes"); the round-one scale keeps 60 epochs at 1e-3. Fewer training trajectories than
+    # goes"); the demo-long scale keeps 60 epochs at 1e-3. Fewer training trajectories than
     # the paper's 100 overfitted every model (RESULTS.md, "What changed since the first demo
     # run"), hence its data even in the demo.
     epochs: int = 30
@@ -158,15 +158,15 @@ PAPER = dataclasses.replace(
     image_random_episodes=50)
 
 #: The demo's first schedule (60 epochs; 5 paper-task episodes, 50 / 20 random tasks, 5 / 20
-#: image-space episodes), the one every round-one figure used.
-ROUND_ONE = dataclasses.replace(
+#: image-space episodes), the one the first round of figures used.
+DEMO_LONG = dataclasses.replace(
     DEMO, epochs=60, lr=1e-3, paper_episodes=5, random_episodes=50,
     other_random_episodes=20, image_paper_episodes=5, image_random_episodes=20)
 
-#: Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the round-one
-#: demo's schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five
+#: Ten times the paper's data (1000 / 500 / 500 trajectories of 10 pushes) on the demo-long
+#: schedule: ten times the updates. What data buys (issue 11): RESULTS.md, "What five
 #: times the data buys" and "Large scale".
-LARGE = dataclasses.replace(ROUND_ONE, trajectories=2000)
+LARGE = dataclasses.replace(DEMO_LONG, trajectories=2000)
 
 #: Seconds: only checks that the pipeline runs end to end (tests).
 TINY = dataclasses.replace(
@@ -177,4 +177,14 @@ TINY = dataclasses.replace(
 
 #: The scales ``--scale`` names.
 SCALES: dict[str, Scale] = {"demo": DEMO, "paper": PAPER, "large": LARGE, "tiny": TINY,
-                            "round-one": ROUND_ONE}
+                            "demo-long": DEMO_LONG}
+
+#: What each scale runs, in a phrase (``reproduce --help``).
+SCALE_ABOUT: dict[str, str] = {
+    "demo": "the whole study in under 10 minutes on 2 cores",
+    "paper": "the paper's sizes, many hours on a CPU",
+    "large": "ten times the paper's data on the demo-long schedule",
+    "tiny": "seconds, for tests",
+    "demo-long": "the demo's data on a twice longer schedule: 60 epochs at lr 1e-3, 50 random "
+                 "tasks per headline row",
+}

@@ -35,7 +35,7 @@ from latent_sindy.study.evaluation import aggregate, baseline_errors
 from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.push.collect import CollectionPlan, collect
 from latent_sindy.worlds.push.study.catalogue import ModelSpec
-from latent_sindy.worlds.push.study.config import ReproduceConfig, StudyPlan
+from latent_sindy.worlds.push.study.config import PushStudyConfig, StudyPlan
 from latent_sindy.worlds.push.study.jobs import EvalJob, TrainJob, eval_job, held_out, train_job
 from latent_sindy.worlds.push.study.probe import position_errors
 from latent_sindy.worlds.push.study.results import Baselines, Evaluations, RunResult
@@ -49,19 +49,19 @@ Say = Callable[[str], None]
 
 
 # ----------------------------------------------------------------------------- stage 1: data
-def collect_stage(cfg: ReproduceConfig, pool: Executor, say: Say) -> Path:
+def collect_stage(cfg: PushStudyConfig, pool: Executor, say: Say) -> Path:
     """The trajectory file of the study: as given, reused, or collected for the scale."""
     path = cfg.data_path
     scale = cfg.preset
     if cfg.data is not None and path.exists():
-        say(f"[1/4] data: using {path} as given")
+        say(f"[1/3] data: using {path} as given")
         return path
     plan = CollectionPlan(scale.trajectories, scale.steps, cfg.data_seed, env=cfg.env_config())
     if path.exists():  # collect() returns it if it was collected to this plan, else refuses
         check_reused_data(cfg, plan, path)
-        say(f"[1/4] data: reusing {path}")
+        say(f"[1/3] data: reusing {path}")
     else:
-        say(f"[1/4] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
+        say(f"[1/3] data: collecting {plan.trajectories} trajectories x {plan.steps} pushes "
             f"into {path} ({cfg.executor} executor, {pool.slots} at once)")
 
     def progress(it, total, initial):
@@ -75,7 +75,7 @@ def _scale_name(trajectories: int, steps: int) -> str | None:
                  if (s.trajectories, s.steps) == (trajectories, steps)), None)
 
 
-def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) -> None:
+def check_reused_data(cfg: PushStudyConfig, plan: CollectionPlan, path: Path) -> None:
     """OUT/data.h5 of an earlier study is reused only if collected to ``plan``: UserError
     naming each option (--world, --image-size, --data-seed, --scale) it was collected with
     otherwise. A file without a readable plan is left to :func:`collect`, which refuses it."""
@@ -110,7 +110,7 @@ def check_reused_data(cfg: ReproduceConfig, plan: CollectionPlan, path: Path) ->
                     "--out, or delete the file")
 
 
-def check_given_data(cfg: ReproduceConfig, data: SequenceData) -> None:
+def check_given_data(cfg: PushStudyConfig, data: SequenceData) -> None:
     """A given trajectory file must be of the study's ``--world``, hold images of
     ``--image-size`` (where that is given) and trajectories as long as every swept window."""
     env = data.world_config
@@ -143,7 +143,7 @@ def run_stage(plan: StudyPlan, data: Path, pool: Executor, say: Say,
             jobs.append(TrainJob(tc, spec.name, seed, cfg.threads, cfg.verbose, spec.relative_time))
     jobs.sort(key=lambda j: -j.relative_time)  # longest first: the pool's tail stays short
     episodes = sum(c.episodes for spec in plan.specs for c in scale.conditions(spec))
-    say(f"[2/4] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
+    say(f"[2/3] training and evaluating {len(plan.specs)} models x {len(cfg.seeds)} seed(s) "
         f"({scale.epochs} epochs; {episodes} control episodes per seed), "
         f"{cfg.executor} executor, {min(pool.slots, len(jobs))} at once")
     results, per_seed, train_status, failures = _drain(pool, jobs, plan, data, say,

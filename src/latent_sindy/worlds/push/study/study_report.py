@@ -4,8 +4,10 @@ against prediction error) and a short table of the models (:mod:`.overview`). Ho
 reproduce, the setting, then Table I, control results, findings beyond the paper, figures,
 GIFs, equations, configuration and versions.
 
-Written by :func:`latent_sindy.worlds.push.study.pipeline.reproduce`; the findings are sentences
-computed from the measured numbers, never fixed text.
+Made by :func:`latent_sindy.worlds.push.study.pipeline.push_study` (:func:`study_page`, with
+the tables and figures the study hands on: :func:`study_tables`, :func:`study_figures`) and
+written by ``latent-sindy reproduce``; the findings are sentences computed from the measured
+numbers, never fixed text.
 
     latent-sindy reproduce --scale demo --out results   # writes results/report.html
 """
@@ -19,6 +21,7 @@ from typing import Any
 
 from latent_sindy.study.evaluation import Stat
 from latent_sindy.study.report import Report
+from latent_sindy.world_study import Table
 from latent_sindy.worlds.push.config import WORLD_ABOUT
 from latent_sindy.worlds.push.study import figures
 from latent_sindy.worlds.push.study.overview import overview, overview_table, reproduction_notes
@@ -26,7 +29,7 @@ from latent_sindy.worlds.push.study.results import Study
 from latent_sindy.worlds.push.study.scales import SCALES
 from latent_sindy.worlds.push.study.table import format_stat, table1_rows
 
-__all__ = ["findings", "write_report"]
+__all__ = ["findings", "study_figures", "study_page", "study_tables"]
 
 #: Equations longer than this are cut in the report (the .txt files hold them whole).
 MAX_EQUATION_CHARS = 6000
@@ -202,15 +205,55 @@ def _first_screen(r: Report, study: Study, figure: Path) -> None:
         r.paragraph(text, cls="note")
 
 
-def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
-                 path: Path) -> Path:
-    """Assemble and write report.html (self-contained) from the study and its output files."""
+#: What Table I's figures are, under the table.
+TABLE1_NOTE = ("Losses: the objective without the L1 term (reconstruction + image prediction "
+               "+ latent prediction, mean squared error per normalised pixel or latent "
+               "coordinate) on the single-step windows of each split, for every model alike. "
+               "Steps to goal: mean over successful episodes (course criterion: within 0.1 m); "
+               "strict criterion: within 0.02 m and 10°. Ours: mean ± sample std over seeds; "
+               "n/a: does not apply; —: no value.")
+
+#: The closed-loop table's columns and what its figures are.
+CONTROL_HEADER = ["model", "task", "MPPI", "episodes", "success (course)", "95% CI",
+                  "success (strict)", "95% CI", "steps to goal", "final distance (cm)",
+                  "final angle error (°)", "pushes executed", "plan ms/step",
+                  "discarded samples", "left workspace"]
+CONTROL_NOTE = ("95% CI: the Wilson score interval of the first seed's success rate over its "
+                "episodes. The strict criterion (2 cm, 10°) compares orientations modulo the "
+                "block's visible symmetry. Planning time excludes the one-time warm-up (numba "
+                "compiling the SINDy kernel). State rows see the block's true pose: they are "
+                "the upper bound of what the image models could reach.")
+
+
+def study_tables(study: Study) -> list[Table]:
+    """Table I beside the paper's and the closed-loop table, as table.md holds them."""
+    header = ["metric", *(study.labels[m] for m in study.models)]
+    return [Table("Table I: the paper's values beside ours", header,
+                  table1_rows(study.models, study.stats, len(study.config.seeds)), TABLE1_NOTE),
+            Table("Closed-loop control", CONTROL_HEADER, _control_rows(study), CONTROL_NOTE)]
+
+
+def study_figures(files: dict[str, Any]) -> list[tuple[Path, str]]:
+    """The study's figures (PNG) among its output files, with captions."""
+    captions = {"loss": "training and validation loss per epoch",
+                "horizon": "open-loop prediction error against horizon",
+                "position": "block position error of the decoded predictions against horizon",
+                "control": "success rate per condition and planning time",
+                "rollouts": "a test trajectory and open-loop rollouts"}
+    found = [(files[k], caption) for k, caption in captions.items() if k in files]
+    return found + [(p, f"active coefficients of {m}")
+                    for m, p in files.get("coefficients", {}).items()]
+
+
+def study_page(study: Study, files: dict[str, Any], summary: dict[str, Any]) -> Report:
+    """The study's page (report.html, self-contained; not yet written) from the study, its
+    output files and its record (:func:`~.pipeline.study_record`)."""
     cfg = study.config
     scale = study.config.preset
     seeds = ", ".join(map(str, cfg.seeds))
     data = summary["data"]
     r = Report(f"latent-sindy: the paper's study, reproduced ({cfg.scale} scale)")
-    _first_screen(r, study, path.parent / "figures" / "overview.png")
+    _first_screen(r, study, cfg.out / "figures" / "overview.png")
     train_s = sum(m.get("train/seconds") or 0.0 for d in study.per_seed.values()
                   for m in d.values())
     load = ", ".join(f"{v:.1f}" for v in summary["machine"]["load_average"])
@@ -249,26 +292,14 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     if failures := study.evaluations.failures:
         r.paragraph("Failed runs (left out of the averages): " + "; ".join(failures))
 
-    r.heading("Table I: the paper's values beside ours")
-    header = ["metric", *(study.labels[m] for m in study.models)]
-    r.table(header, table1_rows(study.models, study.stats, len(cfg.seeds)), cls="wide")
-    r.paragraph("Losses: the objective without the L1 term (reconstruction + image prediction "
-                "+ latent prediction, mean squared error per normalised pixel or latent "
-                "coordinate) on the single-step windows of each split, for every model alike. "
-                "Steps to goal: mean over successful episodes (course criterion: within 0.1 m); "
-                "strict criterion: within 0.02 m and 10°. Ours: mean ± sample std over seeds; "
-                "n/a: does not apply; —: no value.")
+    table1, control = study_tables(study)
+    r.heading(table1.heading)
+    r.table(table1.header, table1.rows, cls="wide")
+    r.paragraph(table1.note)
 
-    r.heading("Closed-loop control")
-    r.table(["model", "task", "MPPI", "episodes", "success (course)", "95% CI",
-             "success (strict)", "95% CI", "steps to goal", "final distance (cm)",
-             "final angle error (°)", "pushes executed", "plan ms/step", "discarded samples",
-             "left workspace"], _control_rows(study))
-    r.paragraph("95% CI: the Wilson score interval of the first seed's success rate over its "
-                "episodes. The strict criterion (2 cm, 10°) compares orientations modulo the "
-                "block's visible symmetry. Planning time excludes the one-time warm-up (numba "
-                "compiling the SINDy kernel). State rows see the block's true pose: they are "
-                "the upper bound of what the image models could reach.")
+    r.heading(control.heading)
+    r.table(control.header, control.rows)
+    r.paragraph(control.note)
     r.image(files["control"], "Success rate per condition and latent-MPPI planning time")
 
     r.heading("Beyond the paper")
@@ -323,4 +354,4 @@ def write_report(study: Study, files: dict[str, Any], summary: dict[str, Any],
     r.preformatted(json.dumps({k: summary[k] for k in (
         "config", "scale", "seeds", "models", "data", "versions", "machine", "timings_s",
         "train_status")}, indent=1))
-    return r.write(path)
+    return r

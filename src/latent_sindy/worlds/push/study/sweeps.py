@@ -1,4 +1,5 @@
-"""What ``--sweep`` and ``--seeds`` accept: the sweepable settings, sweeps and seed lists.
+"""What ``--sweep`` accepts: the sweepable settings and sweeps (``--seeds``:
+:mod:`latent_sindy.study.settings`).
 
 A sweep names one model setting (:data:`SWEEPABLE`) and its values; the study trains every
 chosen model that has the setting once per value (:func:`.catalogue.study_specs`). Every
@@ -9,8 +10,6 @@ what ``reproduce --help`` lists (:func:`sweep_help`).
 
     >>> Sweep.parse("order=1,2").variants()
     [('order=1', 1), ('order=2', 2)]
-    >>> parse_seeds(["0..2", "5"])
-    (0, 1, 2, 5)
 """
 
 from __future__ import annotations
@@ -29,39 +28,8 @@ from latent_sindy.sindy import VALID_ORDERS
 if TYPE_CHECKING:
     from latent_sindy.worlds.push.study.spec import ModelSpec
 
-__all__ = ["MAX_SEEDS", "SWEEPABLE", "Seeds", "Sweep", "Sweepable", "Sweeps",
-           "check_windows", "parse_seeds", "parse_sweeps", "sweep_help", "sweepable"]
-
-#: The most seeds a study takes (each trains and evaluates every model).
-MAX_SEEDS = 1000
-
-
-def parse_seeds(args: list[str]) -> tuple[int, ...]:
-    """Seeds from the command line: ``0 1 2``, ``0,1,2``, ranges ``0..9`` (both ends
-    included), or a mix; UserError naming the bad part. A list longer than
-    :data:`MAX_SEEDS` is refused from the ranges' sizes, before it is built."""
-    ranges: list[range] = []
-    for arg in args:
-        for part in arg.split(","):
-            lo, dots, hi = part.partition("..")
-            try:
-                ranges.append(range(int(lo), int(hi) + 1) if dots else range(int(part),
-                                                                              int(part) + 1))
-            except ValueError:
-                raise UserError(f"--seeds {part!r}: give integers (0 1 2), a list (0,1,2) or "
-                                "a range (0..9)") from None
-            if dots and int(hi) < int(lo):
-                raise UserError(f"--seeds {part}: a range runs from low to high (e.g. 0..9)")
-    total = sum(r.stop - r.start for r in ranges)  # len() overflows past 2**63
-    if total > MAX_SEEDS:
-        raise UserError(f"--seeds {' '.join(args)}: {total} seeds; a study takes at most "
-                        f"{MAX_SEEDS} (each trains and evaluates every model)")
-    return tuple(s for r in ranges for s in r)
-
-
-Seeds = Annotated[tuple[int, ...], tyro.constructors.PrimitiveConstructorSpec(
-    nargs="*", metavar="SEED|A..B", instance_from_str=parse_seeds,
-    is_instance=lambda v: isinstance(v, tuple), str_from_instance=lambda v: [str(s) for s in v])]
+__all__ = ["SWEEPABLE", "Sweep", "Sweepable", "Sweeps", "check_windows", "parse_sweeps",
+           "sweep_help", "sweepable"]
 
 
 @dataclass(frozen=True)
