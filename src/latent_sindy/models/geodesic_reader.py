@@ -11,15 +11,25 @@ twice: a circle needs two).
 Observations are frames stacked as channels (``frames`` of them, oldest first). The latent
 of one is the newest frame's coordinates, their change per second since the frame before it,
 and the action held between the two (their change depends on it), so a first-order model
-of the latent sees positions, velocities and what pushed them. It serves
+of the latent sees positions, velocities and what pushed them.
+
+A closed curve (two coordinates that wind once around their centre: a thing that turns
+all the way round) is read as the angle φ about that centre instead: the latent is cos φ,
+sin φ, the turn per second and the action, and the pair is the ``circle`` that the dynamics
+keep on the unit circle at every step. Whether the curve is closed is the data's: every
+twelfth of the turn holds training frames, and none lies near the centre
+(:func:`winds_round`). φ is the curve's own angle, a smooth monotone function of the
+thing's (Isomap's coordinates bend a little where the frames are sparse). It serves
 :class:`~latent_sindy.read_latent.ReadLatent` like a world's hand-made reader, which fits
 dynamics and a reward head on it and plans.
 
     >>> reader = GeodesicReader(frames=2, dim=2).fit_episodes(images)   # (E, T+1, C, H, W)
-    >>> z, seen = reader.episode(images[0], actions[0], dt=0.05)        # (T+1, 2·dim + nu)
+    >>> z, seen = reader.episode(images[0], actions[0], dt=0.05)        # (T+1, nz)
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -32,7 +42,7 @@ from latent_sindy.models.manifold import (
     principal_front,
 )
 
-__all__ = ["GeodesicReader"]
+__all__ = ["GeodesicReader", "winds_round"]
 
 #: Principal components the frames are projected on before their geodesic coordinates.
 COMPONENTS = 32
@@ -50,13 +60,14 @@ class GeodesicReader:
         components: principal components of the frames the coordinates are learned on.
         landmarks, neighbours: Isomap's landmarks and each one's graph neighbours.
         seed: the landmarks' first point and the principal components' random start.
+        angle: read two coordinates as an angle about their centre (True; needs dim 2),
+            never (False), or where they wind round it (None: :func:`winds_round`).
     """
 
-    circle = None  # no coordinates are an angle's (cos, sin): all are standardised
 
     def __init__(self, frames: int = 2, dim: int = 2, components: int = COMPONENTS,
-                 landmarks: int = LANDMARKS, neighbours: int = NEIGHBOURS, seed: int = 0
-                 ) -> None:
+                 landmarks: int = LANDMARKS, neighbours: int = NEIGHBOURS, seed: int = 0,
+                 angle: bool | None = None) -> None:
         for name, value, low in (("frames", frames, 1), ("dim", dim, 1),
                                  ("components", components, 1), ("landmarks", landmarks, 3),
                                  ("neighbours", neighbours, 1)):
@@ -70,9 +81,14 @@ class GeodesicReader:
         self.components = components
         self.landmarks = landmarks
         self.neighbours = neighbours
+        if angle not in (None, True, False) or (angle and dim != 2):
+            raise UserError(f"GeodesicReader angle={angle!r}: use None (from the data), "
+                            "False, or True with dim=2")
         self.seed = seed
+        self.angle = angle
         self.names = tuple(f"g{i}" for i in range(dim)) + tuple(
             f"g{i}'" for i in range(dim))
+        self.circle: tuple[int, int] | None = None  # set by fit_episodes
 
     # ------------------------------------------------------------------ fitting
     def _newest(self, obs: torch.Tensor, where: str) -> torch.Tensor:
@@ -109,6 +125,14 @@ class GeodesicReader:
         self.mean_, self.axes_ = principal_front(x, self.components, self.seed)
         self.manifold_: Manifold = geodesic_coordinates(
             (x - self.mean_) @ self.axes_, self.dim, self.landmarks, self.neighbours, self.seed)
+        coords = self.manifold_.coords
+        self.centre_ = coords.mean(0)
+        closed = self.dim == 2 and winds_round(coords - self.centre_)
+        self.turns_ = bool(closed if self.angle is None else self.angle)
+        self.circle = (0, 1) if self.turns_ else None
+        self.names = (("cos φ", "sin φ", "φ'") if self.turns_ else
+                      tuple(f"g{i}" for i in range(self.dim))
+                      + tuple(f"g{i}'" for i in range(self.dim)))
         return self
 
     # ------------------------------------------------------------------ reading
@@ -128,13 +152,20 @@ class GeodesicReader:
 
     def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
                 dt: float) -> torch.Tensor:
-        return torch.cat([now, (now - before) / dt,
-                          torch.as_tensor(previous).double().reshape(len(now), -1)], -1)
+        held = torch.as_tensor(previous).double().reshape(len(now), -1)
+        if not self.turns_:
+            return torch.cat([now, (now - before) / dt, held], -1)
+        a, b = now - self.centre_, before - self.centre_
+        unit = a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        turn = torch.atan2(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0],
+                           b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1])
+        return torch.cat([unit, (turn / dt)[:, None], held], -1)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Latents (B, 2·dim + nu) of observations (B, C, H, W) and the actions held since
-        the frame before the newest (B, nu); and (B,) True (every frame is read)."""
+        """Latents (B, 2·dim + nu; a closed curve's 3 + nu) of observations (B, C, H, W)
+        and the actions held since the frame before the newest (B, nu); and (B,) True
+        (every frame is read)."""
         obs = torch.as_tensor(obs)
         self._newest(obs, "latent")  # checks the shape
         per = obs.shape[1] // self.frames
@@ -145,9 +176,10 @@ class GeodesicReader:
 
     def episode(self, images: torch.Tensor, actions: torch.Tensor, dt: float
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        """One episode's latents (T+1, 2·dim + nu) from its observations (T+1, C, H, W) and
-        actions (T, nu), each newest frame read once (a frame's earlier one is the last
-        step's; the first step's is its own observation's, with no action before it)."""
+        """One episode's latents (T+1, 2·dim + nu; a closed curve's 3 + nu) from its
+        observations (T+1, C, H, W) and actions (T, nu), each newest frame read once (a
+        frame's earlier one is the last step's; the first step's is its own
+        observation's, with no action before it)."""
         images, actions = torch.as_tensor(images), torch.as_tensor(actions)
         if images.ndim != 4 or actions.ndim != 2 or len(actions) != len(images) - 1:
             raise UserError(f"GeodesicReader.episode: expected observations (T+1, C, H, W) "
@@ -160,3 +192,15 @@ class GeodesicReader:
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         return (self._latent(now, torch.cat([first, now[:-1]]), previous, dt),
                 torch.ones(len(images), dtype=torch.bool))
+
+
+def winds_round(coords: torch.Tensor, sectors: int = 12, inner: float = 0.3) -> bool:
+    """Whether points (N, 2) about their centre (0, 0) trace a closed curve: each of
+    ``sectors`` equal turns about the centre holds some, and none lies within ``inner`` of
+    the median distance from it."""
+    radius = coords.norm(dim=1)
+    if len(coords) < sectors or float(radius.min()) < inner * float(radius.median()):
+        return False
+    phase = torch.atan2(coords[:, 1], coords[:, 0])
+    held = ((phase + math.pi) / (2 * math.pi) * sectors).long().clamp(0, sectors - 1)
+    return len(torch.unique(held)) == sectors

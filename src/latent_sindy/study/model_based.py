@@ -86,6 +86,8 @@ class LoopScale:
     planned the cartpole to 814 where 1 gave about 700; the read scales plan over H 20 at 1,
     where 0.1 made every command its one best sample, the held pole's control noise;
     RESULTS.md)."""
+    sigma: float = 0.3
+    """MPPI's exploration noise, in the action's units."""
     foreground_weight: float = 10.0
     """Extra weight of the moving pixels in the image terms (the cartpole's pole is a line of
     about one pixel at 32x32; with 10 the latent held more of the state and planned better,
@@ -279,7 +281,7 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
         episode_steps=s.episode_steps, steps_per_action=steps_per_action,
         warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
         prune_rate=s.prune_rate, prune_to=s.prune_to, eval_episodes=s.eval_episodes,
-        mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=0.3,
+        mppi=MPPIConfig(samples=s.samples, horizon=s.horizon, sigma=s.sigma,
                         lambda_=s.lambda_, shift="repeat"))
     result = compare_models(world, {kind: maker}, cfg, out=out / f"seed{seed}",
                             progress=lambda name: _Say(say, f"seed {seed} {name}"),
