@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from latent_sindy.errors import UserError
-from latent_sindy.models.geodesic_reader import GeodesicReader
+from latent_sindy.models.geodesic_reader import GeodesicReader, winds_round
 
 SIZE = 20
 DT = 0.1
@@ -47,18 +47,47 @@ def fitted():
     return GeodesicReader(frames=2, dim=2, landmarks=300, seed=0).fit_episodes(obs)
 
 
-def test_the_coordinates_of_held_out_frames_hold_the_angle_and_its_rate(fitted):
+def _true_rate(theta: np.ndarray) -> np.ndarray:
+    """Each frame's turn since the frame before it, per second (E·(T+1),)."""
+    before = np.concatenate([2 * theta[:, :1] - theta[:, 1:2], theta[:, :-1]], axis=1)
+    return ((theta - before) / DT).ravel()
+
+
+def test_a_turning_thing_is_read_as_its_angle_and_turn_rate(fitted):
     obs, actions, theta = episodes(10, 30, seed=1)
+    assert fitted.circle == (0, 1)  # the coordinates wind round: an angle
     z = torch.cat([fitted.episode(obs[e], actions[e], DT)[0] for e in range(len(obs))]).numpy()
+    assert z.shape[1] == 3 + 1
+    np.testing.assert_allclose(np.hypot(z[:, 0], z[:, 1]), 1.0, atol=1e-9)
     angle = np.column_stack([np.cos(theta.ravel()), np.sin(theta.ravel())])
+    assert probe_r2(z[:, :2], angle).min() > 0.97
+    assert probe_r2(z[:, 2:3], _true_rate(theta)[:, None])[0] > 0.95
+    np.testing.assert_allclose(z[:, 3:], np.concatenate(
+        [np.vstack([[0.0], a.numpy()]) for a in actions]))
+
+
+def test_without_the_angle_the_coordinates_and_their_rates_hold_the_state():
+    obs, actions, theta = episodes(40, 30, seed=0)
+    reader = GeodesicReader(landmarks=300, angle=False).fit_episodes(obs[:30])
+    assert reader.circle is None
+    z = torch.cat([reader.episode(obs[e], actions[e], DT)[0] for e in range(30, 40)]).numpy()
+    assert z.shape[1] == 2 * 2 + 1
+    th = theta[30:]
+    angle = np.column_stack([np.cos(th.ravel()), np.sin(th.ravel())])
     assert probe_r2(z[:, :2], angle).min() > 0.97
     # a turn's rate is the cross product of position and velocity on the circle
     g, v = z[:, :2] - z[:, :2].mean(0), z[:, 2:4]
     cross = g[:, :1] * v[:, 1:] - g[:, 1:] * v[:, :1]
-    rate = np.diff(theta, axis=1, prepend=theta[:, :1] - (theta[:, 1:2] - theta[:, :1]))
-    assert probe_r2(cross, rate.reshape(-1, 1) / DT)[0] > 0.9
-    np.testing.assert_allclose(z[:, 4:], np.concatenate(
-        [np.vstack([[0.0], a.numpy()]) for a in actions]))
+    assert probe_r2(cross, _true_rate(th)[:, None])[0] > 0.9
+
+
+def test_only_coordinates_that_wind_round_their_centre_are_an_angle():
+    turn = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    ring = torch.from_numpy(np.column_stack([np.cos(turn), 2 * np.sin(turn)]))
+    assert winds_round(ring)
+    assert not winds_round(ring[:150])  # an arc: a quarter of the turn holds nothing
+    disc = torch.from_numpy(np.random.default_rng(0).uniform(-1, 1, (500, 2)))
+    assert not winds_round(disc)  # frames near the centre: no angle about it
 
 
 def test_one_observation_reads_as_in_its_episode(fitted):
@@ -83,6 +112,8 @@ def test_same_seed_same_coordinates_and_another_seed_still_a_circle():
 def test_bad_settings_and_shapes_are_refused_in_words(fitted):
     with pytest.raises(UserError, match="dim=0"):
         GeodesicReader(dim=0)
+    with pytest.raises(UserError, match="angle=True"):
+        GeodesicReader(dim=3, angle=True)
     with pytest.raises(UserError, match="before fit_episodes"):
         GeodesicReader().read(torch.zeros(1, 1, SIZE, SIZE))
     with pytest.raises(UserError, match="multiple of 2"):
