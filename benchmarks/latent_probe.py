@@ -4,9 +4,10 @@ probed against the state a task's reward needs.
 
 Per task: random-action episodes seen as two stacked frames; the reader fitted on the first
 ``--train`` of them; on the others (frames no fit saw), each state feature regressed on the
-latent (positions and rates, not the action) by least squares, once on the latent itself
-(a linear probe) and once on its monomials to degree 2 (a rate on a circle is a product of
-position and velocity, which a linear probe cannot see). Prints R² per feature and probe,
+latent (positions and rates, or an angle's cos, sin and turn rate where the coordinates
+wind round; not the action) by least squares, once on the latent itself (a linear probe)
+and once on its monomials to degree 2 (a rate on a circle is a product of position and
+velocity, which a linear probe cannot see). Prints R² per feature and probe,
 and the reader's fitting time.
 
 Tasks: ``pendulum`` (Gymnasium's Pendulum-v1: cos θ, sin θ, θ̇) and ``cartpole``
@@ -78,11 +79,13 @@ def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: lis
         reader = GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
         reader.fit_episodes(images[:train])
         fit_s = time.perf_counter() - t0
-        z = torch.cat([reader.episode(images[e], actions[e], dt)[0][:, :2 * dim]
+        nu = actions.shape[-1]  # (the latent ends with the action held: not probed)
+        z = torch.cat([reader.episode(images[e], actions[e], dt)[0][:, :-nu]
                        for e in range(train, episodes)]).numpy()
         z = (z - z.mean(0)) / z.std(0).clip(1e-12)
         for kind, x in (("linear", z), ("quadratic", _quadratic(z))):
             rows.append({"task": task, "dim": dim, "probe": kind, "fit_s": fit_s,
+                         "read": "angle" if reader.circle else "coordinates",
                          **dict(zip(names, _r2(x, y).tolist(), strict=True))})
     return rows
 
@@ -113,19 +116,21 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     rows = probe(args.task, args.episodes, args.train, steps, args.size, args.dim, args.seed,
                  args.landmarks)
-    names = [k for k in rows[0] if k not in ("task", "dim", "probe", "fit_s")]
+    names = [k for k in rows[0] if k not in ("task", "dim", "probe", "fit_s", "read")]
     print(f"{args.task}: geodesic latent from {args.train} random episodes of {steps} actions "
           f"({args.size}x{args.size}, 2 frames), probed on {args.episodes - args.train} others")
-    print("| coordinates | probe | " + " | ".join(names) + " | reader fit s |")
-    print("|---|---|" + "---|" * len(names) + "---|")
+    print("| coordinates | read as | probe | " + " | ".join(names) + " | reader fit s |")
+    print("|---|---|---|" + "---|" * len(names) + "---|")
     for r in rows:
-        print(f"| {r['dim']} | {r['probe']} | " + " | ".join(f"{r[n]:.3f}" for n in names)
+        print(f"| {r['dim']} | {r['read']} | {r['probe']} | "
+              + " | ".join(f"{r[n]:.3f}" for n in names)
               + f" | {r['fit_s']:.1f} |")
     if args.record is not None:
         from latent_sindy.result_files import record_rows
 
         path = record_rows(args.record, WORLDS[args.task], "latent-probe", [
-            {"model": f"geodesic, {r['dim']} coordinates", "seed": args.seed,
+            {"model": f"geodesic, {r['dim']} coordinates read as {r['read']}",
+             "seed": args.seed,
              "case": f"{r['probe']} probe", "episodes": args.train, "steps": steps,
              "size": args.size, **{COLUMNS[n]: r[n] for n in names}, "fit_s": r["fit_s"]}
             for r in rows])

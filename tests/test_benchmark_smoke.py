@@ -147,7 +147,9 @@ def test_latent_probe(monkeypatch, capsys):
                         "installed")
     out = _run("latent_probe", monkeypatch, capsys)
     for probe in ("linear", "quadratic"):
-        values = _numbers(_row(out, f"| 2 | {probe} |"))
+        row = [ln for ln in out.splitlines() if ln.startswith("| 2 |") and f"| {probe} |" in ln]
+        assert len(row) == 1, out
+        values = _numbers(row[0])
         # the coordinates, R² of cos θ, sin θ and θ', the fit seconds
         assert len(values) == 5 and all(math.isfinite(v) and v <= 1.0 for v in values[1:4])
 
