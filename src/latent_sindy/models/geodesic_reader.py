@@ -150,6 +150,16 @@ class GeodesicReader:
                             "frames")
         return self.manifold_.transform((x - self.mean_) @ self.axes_)
 
+    def position(self, frames: torch.Tensor) -> torch.Tensor:
+        """What the latent holds of single frames (B, C / frames, H, W): the angle's
+        (cos φ, sin φ) (B, 2) where the coordinates wind round, else the coordinates
+        (B, dim)."""
+        g = self.read(frames)
+        if not self.turns_:
+            return g
+        a = g - self.centre_
+        return a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
+
     def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
                 dt: float) -> torch.Tensor:
         held = torch.as_tensor(previous).double().reshape(len(now), -1)

@@ -28,6 +28,9 @@ On these latents the dynamics are fitted by regression on the encoded transition
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 import torch
 from torch import nn
@@ -36,13 +39,15 @@ import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.models.encoders import image_coordinates
+from latent_sindy.models.geodesic_reader import GeodesicReader
 from latent_sindy.sindy import Polynomial, SindyLibrary, StepwiseSR, select_on_rollouts
 from latent_sindy.sindy.fit import fit_state_data
 from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.selection import TOLERANCES
 from latent_sindy.worlds.pendulum.state_sindy import sindy_step
 
-__all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "frame_centroids", "transitions"]
+__all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "Encode", "frame_centroids",
+           "geodesic_latent", "transitions"]
 
 SPARSIFIERS = ("stepwise", "stlsq")
 """The sparse regressions of :class:`CentroidSindy`: :class:`~latent_sindy.sindy.StepwiseSR`
@@ -67,11 +72,41 @@ def frame_centroids(images: np.ndarray | torch.Tensor) -> torch.Tensor:
     return torch.stack([cx, cy], -1).reshape(*lead, 2 * c)
 
 
-def transitions(data: SequenceData) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+Encode = Callable[[Any], torch.Tensor]
+"""A fixed latent of images (..., C, H, W) -> (..., nz): :func:`frame_centroids` by default,
+or a latent learned from the frames beforehand (:func:`geodesic_latent`)."""
+
+
+def geodesic_latent(images: np.ndarray, seed: int = 0) -> Encode:
+    """The latent learned from training images (N, T+1, C, H, W) alone, per channel (frame):
+    the angle (cos φ, sin φ) of its geodesic coordinates about their centre
+    (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`, no world knowledge), in
+    the place of each frame's centroid. UserError where the coordinates do not wind round
+    (no angle to read)."""
+    x = torch.as_tensor(np.asarray(images))
+    c = x.shape[2]
+    reader = GeodesicReader(frames=c, dim=2, seed=seed).fit_episodes(x)
+    if not reader.turns_:
+        raise UserError("the frames' geodesic coordinates do not wind round their centre: "
+                        "no angle to read; plan on the centroid latent instead")
+
+    @torch.no_grad()
+    def encode(images: Any) -> torch.Tensor:
+        y = torch.as_tensor(np.asarray(images))
+        *lead, ch, h, w = y.shape
+        flat = y.reshape(-1, ch, h, w)
+        z = torch.cat([reader.position(flat[:, i:i + 1]) for i in range(ch)], -1)
+        return z.float().reshape(*lead, 2 * ch)
+
+    return encode
+
+
+def transitions(data: SequenceData, encode: Encode = frame_centroids
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The training split's encoded transitions (z, u, z_next), float64, leaving out steps
     where the rate hit its clip (a different law there)."""
     train = data.split("train")
-    z = frame_centroids(train.images).double()  # (N, T+1, 2C)
+    z = encode(train.images).double()  # (N, T+1, nz)
     nz = z.shape[-1]
     keep = torch.as_tensor(np.abs(train.states[:, 1:, 1]).reshape(-1) < physics.MAX_SPEED) \
         if train.states is not None else torch.ones(z[:, 1:].numel() // nz, dtype=torch.bool)
@@ -96,17 +131,18 @@ class CentroidSindy:
     """
 
     def __init__(self, order: int = 4, min_share: float | None = None,
-                 sparsifier: str = "stepwise") -> None:
+                 sparsifier: str = "stepwise", encode: Encode = frame_centroids) -> None:
         if sparsifier not in SPARSIFIERS:
             raise UserError(f"centroid SINDy sparsifier {sparsifier!r}: choose from "
                             f"{', '.join(SPARSIFIERS)}")
         self.order = order
         self.min_share = min_share
         self.sparsifier = sparsifier
+        self.encode = encode
         self.library: SindyLibrary | None = None
 
     def fit(self, data: SequenceData) -> CentroidSindy:
-        z, u, z_next = transitions(data)
+        z, u, z_next = transitions(data, self.encode)
         self.library = SindyLibrary(Polynomial("z,u", self.order), n_state=z.shape[1],
                                     n_control=u.shape[1])
 
@@ -118,7 +154,7 @@ class CentroidSindy:
         if self.min_share is None:
             held = data.split("val") if data.split_counts()["val"] else data.split("train")
             self.selection_ = select_on_rollouts(
-                self.library, z, u, z_next, frame_centroids(held.images).double(),
+                self.library, z, u, z_next, self.encode(held.images).double(),
                 torch.as_tensor(held.actions, dtype=torch.float64),
                 TOLERANCES if self.sparsifier == "stepwise" else STLSQ_SHARES, make)
             fit = self.selection_.model
@@ -154,11 +190,13 @@ class CentroidMlp:
     """z' = z + MLP([z, u]) on the centroid latents (two hidden layers of ``width``, tanh),
     trained by Adam on the one-step error of the latent scaled to unit spread."""
 
-    def __init__(self, width: int = 128, epochs: int = 1000, seed: int = 0) -> None:
+    def __init__(self, width: int = 128, epochs: int = 1000, seed: int = 0,
+                 encode: Encode = frame_centroids) -> None:
         self.width, self.epochs, self.seed = width, epochs, seed
+        self.encode = encode
 
     def fit(self, data: SequenceData) -> CentroidMlp:
-        z, u, z_next = (a.float() for a in transitions(data))
+        z, u, z_next = (a.float() for a in transitions(data, self.encode))
         gen = torch.Generator().manual_seed(self.seed)
         torch.manual_seed(self.seed)
         nz, nu = z.shape[1], u.shape[1]

@@ -346,8 +346,11 @@ def pendulum_study(scale: str, out: Path, seeds: tuple[int, ...] | None = None,
 
 
 def _model_id(label: str) -> str:
-    """A row's name for its label: ``state_sindy``, or the model and ``_centroid`` when it
-    plans on the centroid latent (``sindy_centroid``)."""
+    """A row's name for its label: ``state_sindy``, or the model and the fixed latent it
+    plans on (``sindy_centroid``, ``sindy_geodesic``)."""
     if label.startswith("state"):
         return "state_sindy"
-    return label.split(" ")[0] + ("_centroid" if "centroid" in label else "")
+    for latent in ("centroid", "geodesic"):
+        if f"{latent} latent" in label:
+            return f"{label.split(' ')[0]}_{latent}"
+    return label.split(" ")[0]

@@ -42,7 +42,9 @@ from latent_sindy.training import TrainConfig
 from latent_sindy.worlds.pendulum.centroid_sindy import (
     CentroidMlp,
     CentroidSindy,
+    Encode,
     frame_centroids,
+    geodesic_latent,
 )
 from latent_sindy.worlds.pendulum.config import PendulumConfig
 from latent_sindy.worlds.pendulum.diagnostics import TrueDynamicsImageCost
@@ -83,6 +85,11 @@ class StudyConfig:
     centroid_models: tuple[str, ...] = MODELS
     """Models fitted on the fixed centroid latent of the images (:mod:`.centroid_sindy`):
     any of sindy, mlp, linear (empty: none)."""
+    centroid_latent: Literal["centroid", "geodesic"] = "centroid"
+    """The fixed latent of the centroid rows: each frame's intensity centroid (a reader
+    chosen knowing that one bright object moves on a plain background), or ``geodesic``:
+    each frame's angle about the centre of its geodesic coordinates, learned from the
+    training frames alone (:func:`~.centroid_sindy.geodesic_latent`; no world knowledge)."""
     centroid_order: int = 4
     """The centroid SINDy's polynomial order (order 2 diverged within 8 steps)."""
     centroid_sparsifier: Literal["stepwise", "stlsq"] = "stepwise"
@@ -320,11 +327,19 @@ def compare_swing_ups(config: StudyConfig | None = None,
         report(f"{kind}: {row.successes} of {cfg.episodes} swing-ups "
                f"({row.control_seconds:.0f} s); with the true dynamics and this cost "
                f"{sum(e.success for e in row.cost_check)} of {len(row.cost_check)}")
-    codes = frame_centroids(frames).numpy()
+    if not cfg.centroid_models:
+        return result
+    t0 = time.perf_counter()
+    encode = (frame_centroids if cfg.centroid_latent == "centroid"
+              else geodesic_latent(train.images, cfg.seed))
+    if cfg.centroid_latent == "geodesic":
+        report(f"geodesic latent learned from {len(frames)} training frames "
+               f"({time.perf_counter() - t0:.0f} s)")
+    codes = encode(frames).numpy()
     for kind in cfg.centroid_models:
-        row = centroid_row(kind, data, cfg, report)
+        row = centroid_row(kind, data, cfg, report, encode)
         t0 = time.perf_counter()
-        policy = LatentSwingUp(None, codes, cfg, encode=lambda x: frame_centroids(x).numpy(),
+        policy = LatentSwingUp(None, codes, cfg, encode=lambda x: encode(x).numpy(),
                                step=row.step)
         row.episodes = run_swing_up(tasks, policy, cfg.episodes, cfg.episode_steps,
                                     cfg.seed, cfg.last)
@@ -336,17 +351,20 @@ def compare_swing_ups(config: StudyConfig | None = None,
 
 
 def centroid_row(kind: str, data: SequenceData, cfg: StudyConfig,
-                 report: Callable[[str], None] = print) -> ModelRow:
-    """Fit one model on the centroid latent; its row, with ``step`` set, not yet run."""
+                 report: Callable[[str], None] = print, encode: Encode = frame_centroids
+                 ) -> ModelRow:
+    """Fit one model on the fixed latent ``encode`` (the config's ``centroid_latent``); its
+    row, with ``step`` set, not yet run."""
     t0 = time.perf_counter()
     if kind == "mlp":
-        model = CentroidMlp(seed=cfg.seed).fit(data)
+        model = CentroidMlp(seed=cfg.seed, encode=encode).fit(data)
         eq = ["(an MLP: no equations)"]
     else:
-        model = (CentroidSindy(1, 0.0, "stlsq") if kind == "linear" else CentroidSindy(
-            cfg.centroid_order, cfg.centroid_min_share, cfg.centroid_sparsifier)).fit(data)
+        model = (CentroidSindy(1, 0.0, "stlsq", encode) if kind == "linear" else CentroidSindy(
+            cfg.centroid_order, cfg.centroid_min_share, cfg.centroid_sparsifier, encode)
+        ).fit(data)
         eq = model.equations()
-    row = ModelRow(f"{kind} (images, centroid latent)", [], eq,
+    row = ModelRow(f"{kind} (images, {cfg.centroid_latent} latent)", [], eq,
                    sparsity=model.sparsity() if kind == "sindy" else None,
                    fit_seconds=time.perf_counter() - t0)
     row.step = model.step
