@@ -252,6 +252,11 @@ def test_each_scale_names_its_seeds_and_schedule():
     cpu = pendulum_config("published-cpu", 0, "cpu")
     assert (cpu.image_size, cpu.sequences, cpu.models) == (48, 1000, ())
     assert cpu.centroid_models == ("sindy", "mlp", "linear") and cpu.start == "random"
+    assert cpu.centroid_latent == "centroid"
+    learned = pendulum_config("geodesic-published", 0, "cpu")
+    assert (learned.image_size, learned.sequences, learned.models) == (48, 1000, ())
+    assert learned.centroid_latent == "geodesic"
+    assert pendulum_config("geodesic", 0, "cpu").centroid_latent == "geodesic"
 
 
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="a CUDA device is here")

@@ -54,6 +54,11 @@ PENDULUM_SCALES = {
     "published-cpu": "the published camera and data without the autoencoder rows (hours "
                      "of training on a CPU): the state row and the centroid-latent rows, "
                      "about 10 minutes a seed on a CPU core",
+    "geodesic": "as demo, the SINDy, MLP and linear rows planning on a latent learned from "
+                "the training frames alone (each frame's angle of its geodesic coordinates) "
+                "in the place of the intensity centroid; no autoencoder or state rows",
+    "geodesic-published": "as published-cpu, on the latent learned from the frames alone "
+                          "(geodesic) in the place of the centroid",
 }
 
 
@@ -204,7 +209,11 @@ def pendulum_config(scale: str, seed: int, device: str,
                          nodes=20, neighbours=4, cost_check=1, centroid_models=()),
             "demo": {},
             "published": dict(image_size=48, sequences=1000, epochs=100),
-            "published-cpu": dict(image_size=48, sequences=1000, models=())}[scale]
+            "published-cpu": dict(image_size=48, sequences=1000, models=()),
+            "geodesic": dict(models=(), centroid_latent="geodesic", state_control=False,
+                             cost_check=0),
+            "geodesic-published": dict(image_size=48, sequences=1000, models=(),
+                                       centroid_latent="geodesic")}[scale]
     for key, value in (world or {}).items():
         if key not in WORLD_TO_STUDY:
             raise UserError(f"--world-config {key}: the pendulum study takes "
