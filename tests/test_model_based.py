@@ -209,3 +209,17 @@ def test_test_episodes_are_planned_without_noise_and_kept_out_of_the_data():
         **{**cfg.__dict__, "explore": 0.9, "iterations": 1}), fit_settings=fit)
     assert noisier.log["iterations"][0]["evaluation"] == its[0]["evaluation"]
     assert noisier.returns[-1] != tested.returns[3]
+
+
+def test_random_actions_held_for_several_steps_and_one_step_as_before():
+    world = Rail()
+    once = collect_random(world, 3, 12, seed=0)
+    assert np.array_equal(once.actions, collect_random(world, 3, 12, seed=0, hold=1).actions)
+    held = collect_random(world, 3, 12, seed=0, hold=4).actions  # (3, 12, nu)
+    blocks = held.reshape(3, 3, 4, -1)
+    assert np.array_equal(blocks, np.repeat(blocks[:, :, :1], 4, axis=2))
+    assert not np.array_equal(blocks[:, 0, 0], blocks[:, 1, 0])  # a new draw each block
+    with pytest.raises(UserError, match="hold=0"):
+        collect_random(world, 1, 2, seed=0, hold=0)
+    with pytest.raises(UserError, match="seed_hold"):
+        ModelBasedConfig(seed_hold=0)

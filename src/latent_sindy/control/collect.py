@@ -11,14 +11,21 @@ import numpy as np
 
 from latent_sindy.control.world import World
 from latent_sindy.data import SequenceData
+from latent_sindy.errors import UserError
 
 __all__ = ["collect_random"]
 
 
-def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> SequenceData:
-    """``sequences`` episodes of ``steps`` actions drawn uniformly from the world's box, from
-    the starts of tasks the world samples; images, actions, true states and the rewards the
-    environment's ``step`` returned (left out where any of them is not a finite number)."""
+def collect_random(world: World, sequences: int, steps: int, seed: int = 0, hold: int = 1
+                   ) -> SequenceData:
+    """``sequences`` episodes of ``steps`` actions drawn uniformly from the world's box, each
+    held for ``hold`` steps (1: a new one every step), from the starts of tasks the world
+    samples; images, actions, true states and the rewards the environment's ``step``
+    returned (left out where any of them is not a finite number). Actions held longer push
+    a system further from where it rests: independent draws every step mostly cancel."""
+    if isinstance(hold, bool) or not isinstance(hold, int) or hold < 1:
+        raise UserError(f"collect_random hold={hold!r}: use an integer >= 1 (steps an "
+                        "action is held)")
     rng = np.random.default_rng(seed)
     low, high = np.asarray(world.action_low, float), np.asarray(world.action_high, float)
     env = world.make_env()
@@ -32,8 +39,9 @@ def collect_random(world: World, sequences: int, steps: int, seed: int = 0) -> S
             frames = [world.reset(env, task, seed * 100_003 + i)]
             us = []
             xs = [world.state(env)]
-            for _ in range(steps):
-                u = rng.uniform(low, high).astype(np.float32)
+            for t in range(steps):
+                if t % hold == 0:
+                    u = rng.uniform(low, high).astype(np.float32)
                 obs, reward, *_ = env.step(u)
                 frames.append(world.image(obs))
                 rewards.append(reward)

@@ -75,6 +75,9 @@ class ModelBasedConfig:
 
     seed_episodes: int = 5
     """Episodes of uniformly random actions before the first fit."""
+    seed_hold: int = 1
+    """Steps each random action of the seed episodes is held (1: a new one every step;
+    independent draws mostly cancel, so a system stays near where it rests)."""
     iterations: int = 10
     """Fit-and-plan rounds after the seed episodes."""
     episodes_per_iteration: int = 1
@@ -117,10 +120,12 @@ class ModelBasedConfig:
     """The planner's settings (λ on the scale of a horizon's summed reward)."""
 
     def __post_init__(self) -> None:
-        for name in ("seed_episodes", "iterations", "episodes_per_iteration", "episode_steps",
-                     "validation_every", "steps_per_action", "warm_updates", "eval_episodes"):
+        for name in ("seed_episodes", "seed_hold", "iterations", "episodes_per_iteration",
+                     "episode_steps", "validation_every", "steps_per_action", "warm_updates",
+                     "eval_episodes"):
             v = getattr(self, name)
-            least = 1 if name in ("seed_episodes", "episode_steps", "steps_per_action") else 0
+            least = 1 if name in ("seed_episodes", "seed_hold", "episode_steps",
+                                  "steps_per_action") else 0
             if isinstance(v, bool) or not isinstance(v, int) or v < least:
                 raise UserError(f"model_based {name} {v!r}: use an integer >= {least}")
         if not (0 <= self.explore < float("inf")):
@@ -249,7 +254,8 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
     per_action = cfg.steps_per_action
     if data is None:
         t0 = time.perf_counter()
-        data = collect_random(world, cfg.seed_episodes, cfg.episode_steps, cfg.seed)
+        data = collect_random(world, cfg.seed_episodes, cfg.episode_steps, cfg.seed,
+                              cfg.seed_hold)
         if data.rewards is None:
             raise UserError(f"world {world.name}: its env.step gives no numeric rewards: "
                             "model-based learning needs them")

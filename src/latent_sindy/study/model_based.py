@@ -88,6 +88,8 @@ class LoopScale:
     RESULTS.md)."""
     sigma: float = 0.3
     """MPPI's exploration noise, in the action's units."""
+    seed_hold: int = 1
+    """Steps each random action of the seed episodes is held (``ModelBasedConfig``)."""
     foreground_weight: float = 10.0
     """Extra weight of the moving pixels in the image terms (the cartpole's pole is a line of
     about one pixel at 32x32; with 10 the latent held more of the state and planned better,
@@ -276,7 +278,7 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
             return LatentSINDy(model=model, seed=seed * 1000 + iteration, device=device,
                                loss=loss)
     cfg = ModelBasedConfig(
-        seed_episodes=s.seed_episodes, iterations=s.iterations,
+        seed_episodes=s.seed_episodes, seed_hold=s.seed_hold, iterations=s.iterations,
         episodes_per_iteration=s.episodes_per_iteration,
         episode_steps=s.episode_steps, steps_per_action=steps_per_action,
         warm_updates=s.warm_updates, seed=seed, batch_size=s.batch_size,
