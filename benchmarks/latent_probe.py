@@ -129,9 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         from latent_sindy.result_files import record_rows
 
         path = record_rows(args.record, WORLDS[args.task], "latent-probe", [
-            {"model": f"geodesic, {r['dim']} coordinates read as {r['read']}",
-             "seed": args.seed,
-             "case": f"{r['probe']} probe", "episodes": args.train, "steps": steps,
+            {"model": f"geodesic, {r['dim']} coordinates read as {r['read']}, {r['probe']} "
+                      "probe", "seed": args.seed, "episodes": args.train, "steps": steps,
              "size": args.size, **{COLUMNS[n]: r[n] for n in names}, "fit_s": r["fit_s"]}
             for r in rows])
         print(f"recorded in {path}")

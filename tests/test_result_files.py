@@ -260,10 +260,12 @@ def test_the_model_based_study_rows_are_each_loops_last_test():
 
     log = {"iterations": [{"evaluation": [100.0, 200.0], "fit_env_steps": 10, "active_terms": 40},
                           {"evaluation": [300.0, 500.0], "fit_env_steps": 20, "active_terms": 30},
-                          {"evaluation": None, "fit_env_steps": 30, "active_terms": 20}]}
+                          {"evaluation": None, "fit_env_steps": 30, "active_terms": 20}],
+           "episodes": [{"kind": "random", "return": -10.0}, {"kind": "random", "return": -30.0},
+                        {"kind": "planned", "return": 50.0}]}
     rows = _rows({"sindy": {1: {"log": log, "wall_s": 5.0}},
-                  "mlp": {0: {"log": {"iterations": []}, "wall_s": 1.0}}})
-    assert rows == [{"model": "sindy", "seed": 1, "test_return": 400.0, "env_steps": 20,
-                     "active_terms": 30, "wall_s": 5.0},
-                    {"model": "mlp", "seed": 0, "test_return": None, "env_steps": None,
-                     "active_terms": None, "wall_s": 1.0}]
+                  "mlp": {0: {"log": {"iterations": [], "episodes": []}, "wall_s": 1.0}}})
+    assert rows == [{"model": "sindy", "seed": 1, "test_return": 400.0, "random_return": -20.0,
+                     "env_steps": 20, "active_terms": 30, "wall_s": 5.0},
+                    {"model": "mlp", "seed": 0, "test_return": None, "random_return": None,
+                     "env_steps": None, "active_terms": None, "wall_s": 1.0}]

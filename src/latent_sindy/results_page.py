@@ -151,7 +151,7 @@ def _provenance(rows: Sequence[dict[str, Any]], command: str) -> list[str]:
             when.append(w)
     lines = [f"To run it again: `{command}`." if command else ""]
     ran = distinct("command")
-    if ran:
+    if ran and ran != [command]:  # (the command as run, where it differs)
         lines.append("As run: " + "; ".join(f"`{c}`" for c in ran) + ".")
     lines.append(f"Commit (date): {', '.join(when)}. Machine: {'; '.join(distinct('machine'))}."
                  f" Device: {', '.join(distinct('device'))}.")

@@ -139,15 +139,18 @@ def _figure(curves: dict[str, list[dict[str, Any]]], reference: dict[str, list[f
 
 def _rows(runs: dict[str, dict[int, dict[str, Any]]]) -> list[dict[str, Any]]:
     """A row per model and seed: the mean test return of its last fit with test episodes,
-    the environment steps that fit saw, its active terms, the loop's wall seconds."""
+    the mean return of the random seed episodes, the environment steps that fit saw, its
+    active terms, the loop's wall seconds."""
     rows = []
     for model, by_seed in runs.items():
         for seed, run in sorted(by_seed.items()):
             tested = [it for it in run["log"]["iterations"] if it.get("evaluation")]
             last = tested[-1] if tested else None
+            random = [e["return"] for e in run["log"]["episodes"] if e["kind"] == "random"]
             rows.append({"model": model, "seed": seed,
                          "test_return": None if last is None
                          else sum(last["evaluation"]) / len(last["evaluation"]),
+                         "random_return": sum(random) / len(random) if random else None,
                          "env_steps": None if last is None else last["fit_env_steps"],
                          "active_terms": None if last is None else last["active_terms"],
                          "wall_s": run["wall_s"]})
