@@ -40,7 +40,9 @@ device and command) and each world's `results/<world>/world.json` (what the figu
 published baselines, whether a latent is learned or read by a hand-made reader, the known
 limits). Do not edit by hand: change the files and run the command again
 (`--check` tells whether this page is stale; a test does too). A study adds its rows with
-`latent-sindy reproduce ... --record results`.
+`latent-sindy reproduce ... --record results`. Every figure was measured by the command shown
+as run, except where a table's "Source" says how it came here (rows transcribed from earlier
+notes).
 
 Several seeds: their mean and, in brackets, the range the seeds span (lowest–highest);
 counts (k of n) pooled over seeds with their 95 % Wilson interval. One seed: its figure and,
@@ -156,7 +158,7 @@ def _provenance(rows: Sequence[dict[str, Any]], command: str) -> list[str]:
     lines.append(f"Commit (date): {', '.join(when)}. Machine: {'; '.join(distinct('machine'))}."
                  f" Device: {', '.join(distinct('device'))}.")
     sources = distinct("source")
-    if sources:
+    if sources and sources != ["measured"]:  # (said only where a row was not measured here)
         lines.append("Source: " + "; ".join(sources) + ".")
     return [ln for ln in lines if ln]
 
