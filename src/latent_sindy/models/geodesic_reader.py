@@ -55,7 +55,8 @@ class GeodesicReader:
     docstring.
 
     Args:
-        frames: frames stacked as channels in one observation (their colours split evenly).
+        frames: frames stacked as channels in one observation (their colours split evenly;
+            with one frame the rates are 0: nothing shows them).
         dim: coordinates of a frame (a circle's motion needs 2).
         components: principal components of the frames the coordinates are learned on.
         landmarks, neighbours: Isomap's landmarks and each one's graph neighbours.
@@ -63,7 +64,6 @@ class GeodesicReader:
         angle: read two coordinates as an angle about their centre (True; needs dim 2),
             never (False), or where they wind round it (None: :func:`winds_round`).
     """
-
 
     def __init__(self, frames: int = 2, dim: int = 2, components: int = COMPONENTS,
                  landmarks: int = LANDMARKS, neighbours: int = NEIGHBOURS, seed: int = 0,
@@ -76,14 +76,14 @@ class GeodesicReader:
         if dim >= landmarks:
             raise UserError(f"GeodesicReader dim={dim}: use fewer coordinates than the "
                             f"{landmarks} landmarks")
+        if angle not in (None, True, False) or (angle and dim != 2):
+            raise UserError(f"GeodesicReader angle={angle!r}: use None (from the data), "
+                            "False, or True with dim=2")
         self.frames = frames
         self.dim = dim
         self.components = components
         self.landmarks = landmarks
         self.neighbours = neighbours
-        if angle not in (None, True, False) or (angle and dim != 2):
-            raise UserError(f"GeodesicReader angle={angle!r}: use None (from the data), "
-                            "False, or True with dim=2")
         self.seed = seed
         self.angle = angle
         self.names = tuple(f"g{i}" for i in range(dim)) + tuple(
@@ -102,11 +102,10 @@ class GeodesicReader:
         x = obs[:, -per:].reshape(len(obs), -1).double()
         return x / 255.0 if obs.dtype == torch.uint8 else x
 
-    def _oldest_but_newest(self, obs: torch.Tensor) -> torch.Tensor:
-        """The frame before the newest one of each observation (the newest if only one)."""
+    def _before_newest(self, obs: torch.Tensor) -> torch.Tensor:
+        """The frame before the newest one of each observation (B, C, H, W), stacks of two
+        frames or more."""
         per = obs.shape[1] // self.frames
-        if self.frames == 1:
-            return obs
         return obs[:, -2 * per:-per]
 
     def fit_episodes(self, images: torch.Tensor) -> GeodesicReader:
@@ -180,7 +179,7 @@ class GeodesicReader:
         self._newest(obs, "latent")  # checks the shape
         per = obs.shape[1] // self.frames
         now = self.read(obs[:, -per:])
-        before = self.read(self._oldest_but_newest(obs)) if self.frames > 1 else now
+        before = self.read(self._before_newest(obs)) if self.frames > 1 else now
         return (self._latent(now, before, previous, dt),
                 torch.ones(len(obs), dtype=torch.bool))
 
@@ -198,7 +197,7 @@ class GeodesicReader:
         self._newest(images, "episode")
         per = images.shape[1] // self.frames
         now = self.read(images[:, -per:])
-        first = self.read(self._oldest_but_newest(images[:1])) if self.frames > 1 else now[:1]
+        first = self.read(self._before_newest(images[:1])) if self.frames > 1 else now[:1]
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         return (self._latent(now, torch.cat([first, now[:-1]]), previous, dt),
                 torch.ones(len(images), dtype=torch.bool))
