@@ -91,22 +91,22 @@ class GeodesicReader:
         self.circle: tuple[int, int] | None = None  # set by fit_episodes
 
     # ------------------------------------------------------------------ fitting
-    def _newest(self, obs: torch.Tensor, where: str) -> torch.Tensor:
-        """The newest frame of each observation (B, C, H, W) -> (B, C / frames · H · W) in
-        [0, 1]."""
+    @staticmethod
+    def _pixels(frames: torch.Tensor) -> torch.Tensor:
+        """Frames (B, ...) -> (B, pixels) float64, in [0, 1] where they are uint8."""
+        x = frames.reshape(len(frames), -1).double()
+        return x / 255.0 if frames.dtype == torch.uint8 else x
+
+    def _split(self, obs: torch.Tensor, where: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """Observations (B, C, H, W) -> their newest frames and the frames before those
+        (the newest again where one frame is stacked), each (B, C / frames, H, W)."""
         if obs.ndim != 4 or obs.shape[1] % self.frames:
             raise UserError(f"GeodesicReader.{where}: expected observations (B, C, H, W) of "
                             f"{self.frames} stacked frames (C a multiple of {self.frames}), "
                             f"got {tuple(obs.shape)}")
         per = obs.shape[1] // self.frames
-        x = obs[:, -per:].reshape(len(obs), -1).double()
-        return x / 255.0 if obs.dtype == torch.uint8 else x
-
-    def _before_newest(self, obs: torch.Tensor) -> torch.Tensor:
-        """The frame before the newest one of each observation (B, C, H, W), stacks of two
-        frames or more."""
-        per = obs.shape[1] // self.frames
-        return obs[:, -2 * per:-per]
+        newest = obs[:, -per:]
+        return newest, (obs[:, -2 * per:-per] if self.frames > 1 else newest)
 
     def fit_episodes(self, images: torch.Tensor) -> GeodesicReader:
         """Learn the coordinates from training episodes' observations (E, T+1, C, H, W)."""
@@ -114,7 +114,7 @@ class GeodesicReader:
         if images.ndim != 5:
             raise UserError(f"GeodesicReader.fit_episodes: expected episodes (E, T+1, C, H, "
                             f"W), got {tuple(images.shape)}")
-        x = self._newest(images.flatten(0, 1), "fit_episodes")
+        x = self._pixels(self._split(images.flatten(0, 1), "fit_episodes")[0])
         if len(x) > MAX_FRAMES:
             x = x[torch.linspace(0, len(x) - 1, MAX_FRAMES).round().long()]
         if len(x) <= self.dim + 1:
@@ -141,8 +141,7 @@ class GeodesicReader:
             raise UserError("GeodesicReader.read before fit_episodes: fit it on training "
                             "episodes first")
         frames = torch.as_tensor(frames)
-        x = frames.reshape(len(frames), -1).double()
-        x = x / 255.0 if frames.dtype == torch.uint8 else x
+        x = self._pixels(frames)
         if x.shape[1] != len(self.mean_):
             raise UserError(f"GeodesicReader.read: frames of {tuple(frames.shape[1:])} for a "
                             f"reader fitted on observations {self.shape_} of {self.frames} "
@@ -154,8 +153,10 @@ class GeodesicReader:
         (cos φ, sin φ) (B, 2) where the coordinates wind round, else the coordinates
         (B, dim)."""
         g = self.read(frames)
-        if not self.turns_:
-            return g
+        return self._unit(g) if self.turns_ else g
+
+    def _unit(self, g: torch.Tensor) -> torch.Tensor:
+        """Coordinates (B, 2) -> (cos φ, sin φ) of their angle φ about the centre."""
         a = g - self.centre_
         return a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
 
@@ -164,22 +165,19 @@ class GeodesicReader:
         held = torch.as_tensor(previous).double().reshape(len(now), -1)
         if not self.turns_:
             return torch.cat([now, (now - before) / dt, held], -1)
-        a, b = now - self.centre_, before - self.centre_
-        unit = a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        a, b = self._unit(now), self._unit(before)
         turn = torch.atan2(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0],
                            b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1])
-        return torch.cat([unit, (turn / dt)[:, None], held], -1)
+        return torch.cat([a, (turn / dt)[:, None], held], -1)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:
         """Latents (B, 2·dim + nu; a closed curve's 3 + nu) of observations (B, C, H, W)
         and the actions held since the frame before the newest (B, nu); and (B,) True
         (every frame is read)."""
-        obs = torch.as_tensor(obs)
-        self._newest(obs, "latent")  # checks the shape
-        per = obs.shape[1] // self.frames
-        now = self.read(obs[:, -per:])
-        before = self.read(self._before_newest(obs)) if self.frames > 1 else now
+        newest, earlier = self._split(torch.as_tensor(obs), "latent")
+        now = self.read(newest)
+        before = self.read(earlier) if self.frames > 1 else now
         return (self._latent(now, before, previous, dt),
                 torch.ones(len(obs), dtype=torch.bool))
 
@@ -194,10 +192,9 @@ class GeodesicReader:
             raise UserError(f"GeodesicReader.episode: expected observations (T+1, C, H, W) "
                             f"and actions (T, nu), got {tuple(images.shape)} and "
                             f"{tuple(actions.shape)}")
-        self._newest(images, "episode")
-        per = images.shape[1] // self.frames
-        now = self.read(images[:, -per:])
-        first = self.read(self._before_newest(images[:1])) if self.frames > 1 else now[:1]
+        newest, earlier = self._split(images, "episode")
+        now = self.read(newest)
+        first = self.read(earlier[:1]) if self.frames > 1 else now[:1]
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         return (self._latent(now, torch.cat([first, now[:-1]]), previous, dt),
                 torch.ones(len(images), dtype=torch.bool))
