@@ -59,14 +59,19 @@ def test_what_is_written_now_carries_the_current_versions(run: Path, tmp_path: P
     assert read_sequences(tmp_path / "d.h5").n == 6
 
 
-@pytest.mark.parametrize("version", [1, 2, 4, None])
-def test_a_run_config_of_another_version_gets_one_line_to_retrain(run: Path, tmp_path: Path,
-                                                                  capsys, version) -> None:
-    old = tmp_path / "old"
+def _copy_run(run: Path, old: Path) -> Path:
+    """A copy of the run folder's files in ``old``."""
     old.mkdir()
     for name in RunDir.FILES:
         if (run / name).is_file():
             (old / name).write_bytes((run / name).read_bytes())
+    return old
+
+
+@pytest.mark.parametrize("version", [1, 2, 4, None])
+def test_a_run_config_of_another_version_gets_one_line_to_retrain(run: Path, tmp_path: Path,
+                                                                  capsys, version) -> None:
+    old = _copy_run(run, tmp_path / "old")
     record = json.loads((old / RunDir.CONFIG).read_text())
     record["format_version"] = version
     if version == 1:  # what version 1 held besides: a flat model, no description
@@ -85,11 +90,7 @@ def test_a_run_config_of_another_version_gets_one_line_to_retrain(run: Path, tmp
 @pytest.mark.parametrize("name", [RunDir.MODEL, RunDir.CHECKPOINT])
 def test_a_weights_file_of_another_version_gets_one_line_to_retrain(run: Path, tmp_path: Path,
                                                                     capsys, name) -> None:
-    old = tmp_path / "old"
-    old.mkdir()
-    for file in RunDir.FILES:
-        if (run / file).is_file():
-            (old / file).write_bytes((run / file).read_bytes())
+    old = _copy_run(run, tmp_path / "old")
     payload = torch.load(old / name, weights_only=True)
     del payload["format_version"]  # as version 2 wrote it
     torch.save(payload, old / name)
