@@ -56,3 +56,39 @@ def test_choose_rotation_takes_two_independent_motions_apart():
     # turning back by φ undoes the mix up to a quarter turn (the latents' order and signs)
     back = (phi + turn) % (np.pi / 2)  # R(φ) R(turn) = 1
     assert min(back, np.pi / 2 - back) < 0.02
+
+
+def test_project_moves_less_with_pixel_noise_than_interpolation():
+    rng = np.random.default_rng(1)
+    theta = rng.uniform(-2.0, 2.0, 3000)
+    clean = blob_frames(theta, size=32)
+    m = geodesic_coordinates(clean, 1, landmarks=400, seed=0)
+    noisy = clean + 0.02 * torch.from_numpy(rng.standard_normal(clean.shape))
+    moved = {how: float((getattr(m, how)(noisy) - getattr(m, how)(clean)).std())
+             for how in ("project", "transform")}
+    assert moved["project"] < 0.6 * moved["transform"]
+
+
+def test_covers_tells_frames_beyond_the_landmarks_from_those_within():
+    theta = np.random.default_rng(2).uniform(-1.0, 1.0, 2000)
+    m = geodesic_coordinates(blob_frames(theta), 1, landmarks=200, seed=0)
+    inside = m.covers(blob_frames(np.array([-0.5, 0.0, 0.9])))
+    beyond = m.covers(blob_frames(np.array([2.0, -2.5])))
+    assert inside.all() and not beyond.any()
+
+
+def test_the_default_writes_the_law_found_on_the_coordinates_without_a_main_fit():
+    import warnings
+
+    from latent_sindy import LatentSINDy
+    from latent_sindy.worlds.pendulum.video_draws import VideoDraw
+
+    d = VideoDraw(system="pendulum", omega2=(2.0,), damping=(0.1,), size=24, width=0.03,
+                  radius=(0.6,), trajectories=40, frames=80, dt=0.05, exact=False, seed=3)
+    est = LatentSINDy(latent_dim=1, time="continuous", derivative_order=2, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est.fit(d.video())
+    assert d.judge(est) == {"recovered": True, "why": ""}
+    assert est.kept_["selection"] == "the law found on the coordinates at the start"
+    assert est.kept_["start"]["settled"]

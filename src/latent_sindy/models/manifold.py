@@ -10,7 +10,10 @@ keep them are coordinates of the motion, found from the frames alone:
 3. shortest paths along the graph (Floyd-Warshall) and classical scaling of those distances
    (Tenenbaum et al. 2000), the leading ``dim`` axes kept;
 4. any other point's coordinates interpolated from its nearest landmarks
-   (:meth:`Manifold.transform`).
+   (:meth:`Manifold.transform`), or read on the nearest landmarks' tangents
+   (:meth:`Manifold.project`: noise across the curve does not move them), with how far the
+   point is from the landmarks (:meth:`Manifold.covers`: a point beyond the frames the
+   landmarks were spread over gets no coordinate one can trust).
 
     >>> manifold = geodesic_coordinates(points, dim=2, seed=0)   # points (N, K)
     >>> coords = manifold.transform(points)                        # (N, 2)
@@ -19,7 +22,7 @@ keep them are coordinates of the motion, found from the frames alone:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -38,6 +41,10 @@ class Manifold:
     landmarks: torch.Tensor   # (L, K)
     coords: torch.Tensor      # (L, dim)
     eigenvalues: torch.Tensor  # the scaling's leading eigenvalues (L,), largest first
+    covering: float = math.inf
+    """The farthest any of the points the landmarks were spread over lies from its nearest
+    landmark (the farthest-point sampling's last distance)."""
+    _gradients: torch.Tensor | None = field(default=None, init=False, repr=False)
 
     def transform(self, points: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
         """(N, dim): inverse-distance weighting of the nearest landmarks' coordinates."""
@@ -50,6 +57,51 @@ class Manifold:
             w = w / w.sum(1, keepdim=True)
             out.append((w.unsqueeze(-1) * self.coords[j]).sum(1))
         return torch.cat(out)
+
+
+    def covers(self, points: torch.Tensor, slack: float = 2.0, chunk: int = 4096
+               ) -> torch.Tensor:
+        """(N,) bool: the points within ``slack`` times :attr:`covering` of a landmark
+        (the others lie beyond what the landmarks were spread over)."""
+        near = torch.cat([torch.cdist(part.double(), self.landmarks).min(1).values
+                          for part in points.split(chunk)])
+        return near <= slack * self.covering
+
+    def project(self, points: torch.Tensor, near: int = 3, chunk: int = 4096
+                ) -> torch.Tensor:
+        """(N, dim): each point's coordinates read on its ``near`` nearest landmarks'
+        tangents (a landmark's coordinates plus the gradient of the coordinates along the
+        tangent plane of its neighbours, :meth:`gradients`, times the point's offset),
+        weighted towards the nearest. Pixel noise across the curve moves the coordinates of
+        :meth:`transform` (which landmarks are nearest changes); here only its share along
+        the tangents does."""
+        grads = self.gradients()
+        out = []
+        for part in points.split(chunk):
+            x = part.double()
+            d, j = torch.cdist(x, self.landmarks).topk(min(near, len(self.landmarks)),
+                                                       largest=False)
+            w = torch.softmax(-(d / d[:, :1].clamp_min(1e-12)).square(), 1)
+            est = self.coords[j] + torch.einsum("nmk,nmkd->nmd", x[:, None] - self.landmarks[j],
+                                                grads[j])
+            out.append((w.unsqueeze(-1) * est).sum(1))
+        return torch.cat(out)
+
+    def gradients(self, neighbours: int = NEIGHBOURS) -> torch.Tensor:
+        """(L, K, dim): on each landmark, the coordinates' gradient within the tangent plane
+        of its ``neighbours`` nearest landmarks (their offsets' leading ``dim`` principal
+        directions), by least squares of the neighbours' coordinate differences."""
+        if self._gradients is None:
+            dim = self.coords.shape[1]
+            k = min(neighbours + 1, len(self.landmarks))
+            nb = torch.cdist(self.landmarks, self.landmarks).topk(k, largest=False).indices
+            dx = self.landmarks[nb] - self.landmarks[:, None]       # (L, k, K)
+            ds = self.coords[nb] - self.coords[:, None]             # (L, k, dim)
+            tangent = torch.linalg.svd(dx, full_matrices=False)[2][:, :dim]  # (L, dim, K)
+            along = dx @ tangent.transpose(1, 2)                    # (L, k, dim)
+            g = torch.linalg.lstsq(along, ds).solution              # (L, dim, dim)
+            self._gradients = tangent.transpose(1, 2) @ g           # (L, K, dim)
+        return self._gradients
 
 
 def farthest_points(points: torch.Tensor, count: int, first: int = 0) -> torch.Tensor:
@@ -108,7 +160,8 @@ def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMA
     values, vectors = torch.linalg.eigh(b)
     values, vectors = values.flip(0), vectors.flip(1)
     coords = vectors[:, :dim] * values[:dim].clamp_min(0).sqrt()
-    return Manifold(lm, coords, values)
+    covering = max(float(torch.cdist(part, lm).min(1).values.max()) for part in x.split(4096))
+    return Manifold(lm, coords, values, covering)
 
 
 def principal_front(x: torch.Tensor, components: int, seed: int = 0

@@ -18,10 +18,17 @@ law of that latent exists. So the recipe starts each fit from the curve's own co
    under which each latent's second derivative is best explained by that latent alone is
    folded into the encoder's last layer and the decoder's first.
 
-The main fit then trains as before from there. The standardised coordinate is near a
-pendulum's radians when it swings widely (its angle's spread is about 1), and the main fit's
-sin(z) term pulls it the rest of the way. Every choice is the data's: nothing here knows
-what is filmed.
+4. **The law on the coordinates** (:func:`coordinate_law`): the latent along every training
+   and validation sequence (frames the landmarks do not cover left out), differentiated in
+   time by fourth-order stencils, and each latent's unit, zero and sparse law searched
+   together (:func:`~latent_sindy.sindy.unit_search.search_law`: a sine fixes the unit,
+   nothing else does). Where the law found leaves at most :data:`SETTLED` of the held-out
+   z̈ unexplained, its unit and zero are folded into the encoder and decoder, its
+   coefficients become the model's, and the start is *settled*: the main fit does not
+   train it (trained further, the autoencoder warps a latent that was right, RESULTS.md,
+   "Videos drawn from a family"). Otherwise the main fit trains from the regression.
+
+Every choice is the data's: nothing here knows what is filmed.
 
     >>> begin_session(session)          # the recipe's hook, before a start's main fit
 """
@@ -30,20 +37,28 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
-from latent_sindy.models.manifold import geodesic_coordinates
+from latent_sindy.models.manifold import Manifold, geodesic_coordinates
+from latent_sindy.sindy.unit_search import UnitLaw, search_law
+from latent_sindy.training.prepare import stencil_stride
 from latent_sindy.training.reselect import latent_derivatives
 from latent_sindy.training.samples import CoordinateSamples
 
-__all__ = ["begin_session", "choose_rotation", "regress_encoder"]
+__all__ = ["SETTLED", "begin_session", "choose_rotation", "coordinate_law", "regress_encoder"]
 
 #: Updates of the regression onto the coordinates (batches of :data:`REGRESSION_BATCH`).
 REGRESSION_STEPS = 3000
 REGRESSION_BATCH = 100
 #: Samples the turn of two latents is chosen on at most (an even subsample beyond).
 TURN_SAMPLES = 5000
+#: The most of the held-out z̈ (a share of its variance) a law found on the coordinates may
+#: leave unexplained for the start to be settled (no main fit).
+SETTLED = 0.2
+#: Samples of each split the law is searched on at most (evenly spaced beyond).
+LAW_SAMPLES = 6000
 
 
 def regress_encoder(encoder: nn.Module, decoder: nn.Module, inputs: torch.Tensor,
@@ -141,7 +156,7 @@ def begin_session(session) -> dict | None:
     nz = dyn.nz
     seed = session.cfg.seed
     manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
-    target = manifold.transform(frames.cpu())
+    target = manifold.project(frames.cpu())
     # the coordinates are uncorrelated (the scaling's eigenvectors): standardised, white
     target = ((target - target.mean(0)) / target.std(0).clamp_min(1e-12)).float()
     with torch.enable_grad():
@@ -153,4 +168,106 @@ def begin_session(session) -> dict | None:
         phi = choose_rotation(phase, top)
         _fold(enc[-1], dec[0], _turn(phi), torch.zeros(2, dtype=torch.float64))
         out["turn"] = phi
+    law = coordinate_law(session, manifold)
+    if law is not None:
+        out["law_fvu"] = law.fvu.tolist()
+        out["unit"] = law.unit.tolist()
+        out["zero"] = law.zero.tolist()
+        names = session.model.dynamics.names
+        out["laws"] = [[([names[j] for j in terms], fvu) for terms, fvu in path]
+                       for path in law.paths]
+        if float(law.fvu.max()) <= SETTLED:
+            _settle(session, law)
+            out["settled"] = True
     return out
+
+
+@torch.no_grad()
+def _sequences(session, split: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """The front coordinates (n, F, K) and the encoder's latent (n, F, nz) of every frame of
+    ``split``'s sequences."""
+    model = session.model
+    front = model.autoencoder.encoder.net[0]
+    enc = model.autoencoder.encoder.net[1:]
+    part = session.data.split(split)
+    coords, latents = [], []
+    for i in range(part.n):
+        x = session.norm.normalize(part.images[i]).to(session.device)
+        c = front(x.flatten(1))
+        coords.append(c.cpu())
+        latents.append(enc(c).cpu())
+    return torch.stack(coords), torch.stack(latents)
+
+
+def _stencil_samples(z: torch.Tensor, covered: torch.Tensor, stride: int, dt: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(z, ż) (M, 2 nz), z̈ (M, nz) and the sequence (M,) of each sample, by fourth-order
+    stencils of five latents ``stride`` frames apart along each sequence of z (n, F, nz),
+    where all five frames are covered (n, F), in sequence order."""
+    n, f, _ = z.shape
+    h = stride * dt
+    centres = np.arange(2 * stride, f - 2 * stride)
+    if len(centres) == 0:
+        return np.zeros((0, 2 * z.shape[2])), np.zeros((0, z.shape[2])), np.zeros(0, int)
+    zz = z.double().numpy()
+    a, b, m, d, e = (zz[:, centres + k * stride] for k in (-2, -1, 0, 1, 2))
+    first = (a - 8 * b + 8 * d - e) / (12 * h)
+    second = (-a + 16 * b - 30 * m + 16 * d - e) / (12 * h * h)
+    cov = covered.numpy()
+    ok = np.all([cov[:, centres + k * stride] for k in (-2, -1, 0, 1, 2)], axis=0)
+    sequence = np.broadcast_to(np.arange(n)[:, None], ok.shape)
+    return np.concatenate([m, first], -1)[ok], second[ok], sequence[ok]
+
+
+def coordinate_law(session, manifold: Manifold) -> UnitLaw | None:
+    """The law of a continuous second-order session's latent (the encoder as regressed onto
+    the coordinates) searched with each latent's unit and zero (step 4 of the module's
+    docstring), in the model's time; None where the data hold actions, no validation
+    sequences, or too few covered samples."""
+    model = session.model
+    dyn = model.dynamics
+    data = session.data
+    if dyn.derivative_order != 2 or dyn.nu or not data.split_counts().get("val"):
+        return None
+    stride = stencil_stride(dyn.time_unit, data.dt, data.steps + 1)
+    samples = []
+    for split in ("train", "val"):
+        coords, z = _sequences(session, split)
+        covered = manifold.covers(coords.flatten(0, 1)).view(coords.shape[:2])
+        phase, top, sequence = _stencil_samples(z, covered, stride, data.dt)
+        if len(phase) > LAW_SAMPLES:
+            pick = np.linspace(0, len(phase) - 1, LAW_SAMPLES).round().astype(int)
+            phase, top, sequence = phase[pick], top[pick], sequence[pick]
+        samples += [phase, top, sequence]
+    if min(len(samples[0]), len(samples[3])) < 50:
+        return None
+    unit = dyn.time_unit
+    scale = np.array([unit ** (j // dyn.nz) for j in range(2 * dyn.nz)])  # model time
+    p = dyn.library.n_terms
+    sines = [(p - len(dyn.library.trig) + j, var, float(freq))
+             for j, (var, kind, freq) in enumerate(dyn.library.trig) if kind == "sin"]
+
+    def library(phase: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            th = dyn.library(torch.as_tensor(phase, dtype=torch.float32),
+                             torch.zeros(len(phase), 0))
+        return th.double().numpy()
+
+    return search_law(library, sines, samples[0] * scale, samples[1] * unit ** 2,
+                      samples[3] * scale, samples[4] * unit ** 2, samples[2], samples[5])
+
+
+@torch.no_grad()
+def _settle(session, law: UnitLaw) -> None:
+    """The law's units and zeros folded into the encoder and decoder (q = unit (z − zero)),
+    its coefficients and mask the model's."""
+    model = session.model
+    enc = model.autoencoder.encoder.net[1:]
+    dec = model.autoencoder.decoder.net[:-1]
+    a = torch.diag(torch.as_tensor(law.unit, dtype=torch.float64))
+    c = -torch.as_tensor(law.unit * law.zero, dtype=torch.float64)
+    _fold(enc[-1], dec[0], a, c)
+    dyn = model.dynamics
+    coef = torch.as_tensor(law.coef, dtype=dyn.psi.dtype, device=dyn.psi.device)
+    dyn.mask.copy_(coef != 0)
+    dyn.psi.copy_(coef)

@@ -42,10 +42,12 @@ from latent_sindy.training.fit_loop import (
     BestValidation,
     FitResult,
     TrainingDiverged,
+    evaluate,
     fit,
     to_cpu,
 )
 from latent_sindy.training.memory import check_training_memory
+from latent_sindy.training.metrics import METRIC_COLUMNS
 from latent_sindy.training.prepare import (
     TrainingTensors,
     fit_after,
@@ -267,6 +269,9 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
             progress.close()
             progress.note(f"restart {start} of {rule.count} (seed {seed})")
         begun = begin(session) if begin is not None else None
+        if begun is not None and begun.get("settled"):  # the start wrote the law: no fit
+            return {"session": session, "result": _settled_result(session), "metrics": [],
+                    "recon": None, "start": start, "begun": begun, "settled": True}
         progress.start(session.cfg.epochs + sum(p.epochs for p in phases), session.done)
         metrics: list[dict] = []
         for phase in warmup:
@@ -282,6 +287,11 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
                 "recon": kept_value(result, "val/recon"), "start": start, "begun": begun}
 
     def finish_phases(c: dict[str, Any]) -> None:
+        if c.get("settled"):
+            c["fvu"] = max(c["begun"]["law_fvu"])
+            c["law"] = law_key(c["session"].model.dynamics)
+            c["result"].metrics[0]["val/pred_z"] = c["fvu"]
+            return
         for phase in phases:
             c["result"] = c["session"].fit(phase, on_epoch=progress.update)
             c["metrics"] += c["result"].metrics
@@ -338,6 +348,21 @@ def fit_in_memory(cfg: TrainConfig, data: SequenceData, progress: Progress | Non
         result.kept["start"] = kept["begun"]
     session.finish(result).cpu().eval()
     return session, result, kept["metrics"]
+
+
+def _settled_result(session: Session) -> FitResult:
+    """The result of a start whose law was written before any training (the recipe's
+    :func:`~latent_sindy.training.manifold_start.begin_session`): its weights as they are,
+    one row of their validation figures at epoch 0."""
+    row: dict[str, Any] = dict.fromkeys(METRIC_COLUMNS)
+    row["epoch"] = 0
+    cfg = session.cfg
+    if session.tensors.val is not None and session.tensors.val.n:
+        terms = evaluate(session.model, session.tensors.val, cfg.loss, cfg.batch_size)
+        row.update({f"val/{k}": v for k, v in terms.items()})
+    kept = {"epoch": 0, "selection": "the law found on the coordinates at the start",
+            "val_objective": row.get("val/objective"), "candidates_from": None}
+    return FitResult([row], to_cpu(session.model.state_dict()), kept, BestValidation())
 
 
 #: Latent sizes up to this compare laws over every order of the latents (beyond, as given).
