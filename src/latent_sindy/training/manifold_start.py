@@ -36,12 +36,15 @@ Every choice is the data's: nothing here knows what is filmed.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
-from latent_sindy.models.manifold import Manifold, geodesic_coordinates
+from latent_sindy.models.manifold import Manifold, geodesic_coordinates, principal_front
+from latent_sindy.models.parts import moving_parts
 from latent_sindy.sindy.unit_search import UnitLaw, search_law
 from latent_sindy.training.prepare import stencil_stride
 from latent_sindy.training.reselect import latent_derivatives
@@ -59,6 +62,10 @@ TURN_SAMPLES = 5000
 SETTLED = 0.2
 #: Samples of each split the law is searched on at most (evenly spaced beyond).
 LAW_SAMPLES = 6000
+#: Training frames the parts and their coordinates are found on at most (several latents).
+PART_FRAMES = 12000
+#: Principal components of each part's pixels its coordinate is found on.
+PART_COMPONENTS = 48
 
 
 def regress_encoder(encoder: nn.Module, decoder: nn.Module, inputs: torch.Tensor,
@@ -151,24 +158,32 @@ def begin_session(session) -> dict | None:
     dec = model.autoencoder.decoder.net[:-1]
     if not (isinstance(enc[-1], nn.Linear) and isinstance(dec[0], nn.Linear)):
         return None
-    middle = 2 if train.stencil else 0
-    frames = train.coords[:, middle].detach()
     nz = dyn.nz
     seed = session.cfg.seed
-    manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
-    target = manifold.project(frames.cpu())
+    parts = _part_readers(session, nz) if nz > 1 else None
+    if parts is not None:  # each latent the coordinate of one part's pixels
+        pixels, frames = _training_frames(session)
+        target = torch.cat([r.read(pixels)[0] for r in parts], 1)
+        covered = _parts_cover(parts)
+        out: dict = {"parts": [len(r.pixels) for r in parts]}
+    else:
+        middle = 2 if train.stencil else 0
+        frames = train.coords[:, middle].detach()
+        manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
+        target = manifold.project(frames.cpu())
+        covered = _manifold_covers(manifold)
+        out = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist()}
     # the coordinates are uncorrelated (the scaling's eigenvectors): standardised, white
     target = ((target - target.mean(0)) / target.std(0).clamp_min(1e-12)).float()
     with torch.enable_grad():
-        error = regress_encoder(enc, dec, frames, target.to(frames.device), seed=seed)
-    out: dict = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist(),
-                 "regression_error": error}
-    if nz == 2:  # two motions: turned apart, each a latent of its own
+        out["regression_error"] = regress_encoder(enc, dec, frames, target.to(frames.device),
+                                                  seed=seed)
+    if nz == 2 and parts is None:  # two motions: turned apart, each a latent of its own
         phase, top, _ = latent_derivatives(model, train)
         phi = choose_rotation(phase, top)
         _fold(enc[-1], dec[0], _turn(phi), torch.zeros(2, dtype=torch.float64))
         out["turn"] = phi
-    law = coordinate_law(session, manifold)
+    law = coordinate_law(session, covered)
     if law is not None:
         out["law_fvu"] = law.fvu.tolist()
         out["unit"] = law.unit.tolist()
@@ -182,21 +197,83 @@ def begin_session(session) -> dict | None:
     return out
 
 
+Covered = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+"""(pixels (F, P), front coordinates (F, K)) -> (F,) bool: the frames the coordinates reach."""
+
+
+def _manifold_covers(manifold: Manifold) -> Covered:
+    return lambda pixels, coords: manifold.covers(coords.cpu())
+
+
+@dataclass
+class _PartReader:
+    """One part's coordinate: its pixels, their principal components and its manifold."""
+
+    pixels: torch.Tensor
+    mean: torch.Tensor
+    basis: torch.Tensor
+    manifold: Manifold
+
+    def read(self, pixels: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(F, 1) coordinate and (F,) covered of frames' pixels (F, P)."""
+        c = (pixels[:, self.pixels].double().cpu() - self.mean) @ self.basis
+        return self.manifold.project(c).float(), self.manifold.covers(c)
+
+
+def _parts_cover(parts: list[_PartReader]) -> Covered:
+    def covered(pixels: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
+        return torch.stack([r.read(pixels)[1] for r in parts]).all(0)
+    return covered
+
+
 @torch.no_grad()
-def _sequences(session, split: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """The front coordinates (n, F, K) and the encoder's latent (n, F, nz) of every frame of
-    ``split``'s sequences."""
+def _training_frames(session, limit: int = PART_FRAMES) -> tuple[torch.Tensor, torch.Tensor]:
+    """Normalised pixels (M, P) and front coordinates (M, K) of at most ``limit`` frames of
+    the training sequences (every k-th frame of each)."""
+    part = session.data.split("train")
+    step = max(1, math.ceil(part.n * (part.steps + 1) / limit))
+    front = session.model.autoencoder.encoder.net[0]
+    pixels = torch.cat([session.norm.normalize(part.images[i][::step]).flatten(1)
+                        for i in range(part.n)])
+    return pixels, front(pixels.to(session.device))
+
+
+def _part_readers(session, nz: int) -> list[_PartReader] | None:
+    """One coordinate reader per independently moving part of the training frames
+    (:func:`~latent_sindy.models.parts.moving_parts`), None where the frames do not fall
+    into ``nz`` parts."""
+    part = session.data.split("train")
+    step = max(1, math.ceil(part.n * (part.steps + 1) / PART_FRAMES))
+    sequences = torch.stack([session.norm.normalize(part.images[i][::step]).flatten(1)
+                             for i in range(part.n)])
+    groups = moving_parts(sequences, nz)
+    if groups is None:
+        return None
+    frames = sequences.flatten(0, 1)
+    readers = []
+    for g in groups:
+        x = frames[:, g].double()
+        mean, basis = principal_front(x, PART_COMPONENTS, seed=session.cfg.seed)
+        manifold = geodesic_coordinates((x - mean) @ basis, 1, seed=session.cfg.seed)
+        readers.append(_PartReader(g, mean, basis, manifold))
+    return readers
+
+
+@torch.no_grad()
+def _sequences(session, split: str, covered: Covered) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which frames the coordinates reach (n, F) and the encoder's latent (n, F, nz), for
+    every frame of ``split``'s sequences."""
     model = session.model
     front = model.autoencoder.encoder.net[0]
     enc = model.autoencoder.encoder.net[1:]
     part = session.data.split(split)
-    coords, latents = [], []
+    reach, latents = [], []
     for i in range(part.n):
-        x = session.norm.normalize(part.images[i]).to(session.device)
-        c = front(x.flatten(1))
-        coords.append(c.cpu())
+        x = session.norm.normalize(part.images[i]).to(session.device).flatten(1)
+        c = front(x)
+        reach.append(covered(x, c).cpu())
         latents.append(enc(c).cpu())
-    return torch.stack(coords), torch.stack(latents)
+    return torch.stack(reach), torch.stack(latents)
 
 
 def _stencil_samples(z: torch.Tensor, covered: torch.Tensor, stride: int, dt: float
@@ -219,7 +296,7 @@ def _stencil_samples(z: torch.Tensor, covered: torch.Tensor, stride: int, dt: fl
     return np.concatenate([m, first], -1)[ok], second[ok], sequence[ok]
 
 
-def coordinate_law(session, manifold: Manifold) -> UnitLaw | None:
+def coordinate_law(session, covered: Covered) -> UnitLaw | None:
     """The law of a continuous second-order session's latent (the encoder as regressed onto
     the coordinates) searched with each latent's unit and zero (step 4 of the module's
     docstring), in the model's time; None where the data hold actions, no validation
@@ -232,9 +309,8 @@ def coordinate_law(session, manifold: Manifold) -> UnitLaw | None:
     stride = stencil_stride(dyn.time_unit, data.dt, data.steps + 1)
     samples = []
     for split in ("train", "val"):
-        coords, z = _sequences(session, split)
-        covered = manifold.covers(coords.flatten(0, 1)).view(coords.shape[:2])
-        phase, top, sequence = _stencil_samples(z, covered, stride, data.dt)
+        reach, z = _sequences(session, split, covered)
+        phase, top, sequence = _stencil_samples(z, reach, stride, data.dt)
         if len(phase) > LAW_SAMPLES:
             pick = np.linspace(0, len(phase) - 1, LAW_SAMPLES).round().astype(int)
             phase, top, sequence = phase[pick], top[pick], sequence[pick]

@@ -10,7 +10,10 @@ pixel spread (:func:`recipe_loss`); a time unit chosen from the data (``time_uni
 then a calibration of 300 epochs (:func:`calibration`), the law checked against its
 neighbours on held-out derivatives (:mod:`~latent_sindy.training.reselect`), and fresh
 starts by the rule :data:`RESTARTS` until two agree; the schedule counts updates
-(:func:`schedule_scale`).
+(:func:`schedule_scale`). Each start begins at the frames' geodesic coordinates, and where
+the law searched on them with their unit and zero explains the held-out z̈, the start is
+settled there and none of the training above runs
+(:mod:`~latent_sindy.training.manifold_start`).
 
     from latent_sindy import LatentSINDy
     model = LatentSINDy(latent_dim=1, time="continuous", derivative_order=2).fit(video)
