@@ -142,3 +142,33 @@ def test_models_on_the_geodesic_latent_keep_each_frames_angle_on_the_unit_circle
                 bar[e, t, c, :, (e + t + c) % 16] = 255
     with pytest.raises(UserError, match="do not wind round"):
         geodesic_latent(bar)
+
+
+def test_the_geodesic_scales_cost_graph_leads_to_upright_from_either_side():
+    """The cost is the distance to the goal's code along a graph of the training codes. On
+    seed 4's draw a graph of 8 neighbours a node breaks just beside upright: from one side
+    the distance runs the long way round (about 8.8, against 4.7 from hanging), and every
+    model swung up about half the time. The geodesic scale's graph (16 neighbours) grows
+    with |θ| from upright on both sides."""
+    from latent_sindy.worlds.pendulum.graph_cost import GraphDistanceCost
+    from latent_sindy.worlds.pendulum.reproduce import pendulum_config
+    from latent_sindy.worlds.pendulum.world import UPRIGHT
+
+    cfg = pendulum_config("geodesic", 4, "cpu")
+    data = PendulumWorld(PendulumConfig(start="random", image_size=cfg.image_size)).collect(
+        cfg.sequences, cfg.steps, seed=cfg.seed)
+    train = data.split("train")
+    encode = geodesic_latent(train.images, cfg.seed)
+    codes = encode(train.images.reshape(-1, *data.frame_shape)).numpy()
+    goal = encode(observe(*UPRIGHT, cfg.image_size)).numpy()
+    theta = np.linspace(-np.pi, np.pi, 25)
+    at_rest = encode(observe(theta, np.zeros_like(theta), cfg.image_size))
+
+    def distances(neighbours):
+        cost = GraphDistanceCost(codes, goal, neighbours, cfg.nodes, seed=cfg.seed)
+        return cost.distance(at_rest).numpy()
+
+    d = distances(cfg.neighbours)
+    assert np.all(np.diff(d[:13]) < 0) and np.all(np.diff(d[12:]) > 0)
+    assert d.max() < 1.2 * d[0]  # hanging is the farthest
+    assert distances(8).max() > 1.5 * d.max()  # the broken graph this setting avoids
