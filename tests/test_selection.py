@@ -10,7 +10,13 @@ import pytest
 import torch
 
 from latent_sindy.errors import UserError
-from latent_sindy.sindy import StepwiseSR, rollout_error, select_on_rollouts
+from latent_sindy.sindy import (
+    Polynomial,
+    SindyLibrary,
+    StepwiseSR,
+    rollout_error,
+    select_on_rollouts,
+)
 from latent_sindy.sindy.systems import lorenz_control
 
 
@@ -77,4 +83,55 @@ class _Exploding(StepwiseSR):
     def fit(self, theta, target, mask=None):
         self.coef_ = 1e100 * self._true
         self.mask_ = self._true != 0
+        return self
+
+
+def test_a_rollout_is_judged_with_the_models_own_map_after_each_step():
+    """A turn of a point on the unit circle by 0.1 rad a step, fitted as a linear step that
+    also stretches the point by 2 %: unprojected its rollouts spiral out; scaled back onto
+    the circle after each step (the model's own map) they are exact, and the selection
+    judges its fits by those rollouts."""
+    library = SindyLibrary(Polynomial("z,u", 1), n_state=2, n_control=1)
+    names = library.names  # "1", "z0", "z1", "u0"
+
+    def turn(stretch: float) -> torch.Tensor:
+        """x' = x + Θ(x) coef = stretch · (x turned by 0.1 rad)."""
+        c, s = stretch * math.cos(0.1), stretch * math.sin(0.1)
+        coef = torch.zeros(len(names), 2, dtype=torch.float64)
+        coef[names.index("z0")] = torch.tensor([c - 1, s], dtype=torch.float64)
+        coef[names.index("z1")] = torch.tensor([-s, c - 1], dtype=torch.float64)
+        return coef
+
+    coef = turn(1.0)
+    stretched = turn(1.02)
+    gen = torch.Generator().manual_seed(0)
+    angles = 6 * torch.rand(6, 1, dtype=torch.float64, generator=gen) + 0.1 * torch.arange(21)
+    X = torch.stack([angles.cos(), angles.sin()], -1)  # (6, 21, 2) on the unit circle
+    U = torch.zeros(6, 20, 1, dtype=torch.float64)
+
+    def unit(x):
+        return x / x.norm(dim=-1, keepdim=True)
+
+    assert rollout_error(library, coef, X, U) < 1e-6
+    assert rollout_error(library, stretched, X, U) > 0.1
+    assert rollout_error(library, stretched, X, U, project=unit) < 1e-6
+    Z = X[:, :-1].reshape(-1, 2)
+    Znext = X[:, 1:].reshape(-1, 2)
+    choice = select_on_rollouts(library, Z, U.reshape(-1, 1), Znext, X, U, settings=(1e-3,),
+                                make=lambda _: _Fixed(stretched), project=unit)
+    assert choice.path[0].error < 1e-6
+    assert select_on_rollouts(library, Z, U.reshape(-1, 1), Znext, X, U, settings=(1e-3,),
+                              make=lambda _: _Fixed(stretched)).path[0].error > 0.1
+
+
+class _Fixed(StepwiseSR):
+    """A sparsifier whose fit is given coefficients."""
+
+    def __init__(self, coef):
+        super().__init__()
+        self._coef = coef
+
+    def fit(self, theta, target, mask=None):
+        self.coef_ = self._coef
+        self.mask_ = self._coef != 0
         return self

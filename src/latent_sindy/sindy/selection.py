@@ -6,7 +6,9 @@ little of what a planner needs, many steps of prediction. On data that lie on a 
 two models with equal one-step fits can differ in whether their rollouts stay near it.
 :func:`select_on_rollouts` fits a path of settings, rolls every fitted model out from the
 first state of each held-out trajectory under its recorded inputs, and keeps the sparsest
-model whose rollout error is within ``slack`` times the best on the path.
+model whose rollout error is within ``slack`` times the best on the path. A model whose step
+ends with a map of its own (``project``: an angle's (cos, sin) pair scaled back onto the
+unit circle) is rolled out with it, as it will predict.
 
     >>> choice = select_on_rollouts(library, Z, U, Znext, X_val, U_val)
     >>> choice.model.coef_, choice.setting   # the chosen fit and its tolerance
@@ -36,7 +38,7 @@ from latent_sindy.sindy.fit import Sparsifier, fit_state_data
 from latent_sindy.sindy.stepwise import StepwiseSR
 from latent_sindy.sindy.torch_library import SindyLibrary
 
-__all__ = ["TOLERANCES", "LawChoice", "PathPoint", "Selection", "held_out_fvu",
+__all__ = ["TOLERANCES", "LawChoice", "PathPoint", "Project", "Selection", "held_out_fvu",
            "rollout_error", "select_law", "select_on_rollouts"]
 
 TOLERANCES: tuple[float, ...] = tuple(float(t) for t in 10.0 ** np.linspace(-5, -2, 13))
@@ -69,12 +71,18 @@ class Selection:
             f"{p.active} terms, rollout error {p.error:.4g}" for p in self.path)
 
 
+#: A map applied to the state after every step of a rollout, (B, nz) -> (B, nz).
+Project = Callable[[torch.Tensor], torch.Tensor]
+
+
 @torch.no_grad()
 def rollout_error(library: SindyLibrary, coef: torch.Tensor, X: torch.Tensor,
-                  U: torch.Tensor) -> float:
+                  U: torch.Tensor, project: Project | None = None) -> float:
     """Mean distance of the rollouts ``x_{t+1} = x_t + Θ(x_t, u_t) coef`` from ``X`` (B, T+1,
     nz), started at ``X[:, 0]`` under ``U`` (B, T, nu), each latent divided by its standard
-    deviation over ``X``; inf when a rollout overflows."""
+    deviation over ``X``; inf when a rollout overflows. ``project``: what the model's own step
+    does after the library's update (e.g. scale an angle's (cos, sin) pair back onto the
+    unit circle), applied after every step here too; None: nothing."""
     X = torch.as_tensor(X, dtype=torch.float64)
     U = torch.as_tensor(U, dtype=torch.float64)
     if X.ndim != 3 or U.ndim != 3 or U.shape[:2] != (X.shape[0], X.shape[1] - 1):
@@ -86,6 +94,8 @@ def rollout_error(library: SindyLibrary, coef: torch.Tensor, X: torch.Tensor,
     total = 0.0
     for t in range(U.shape[1]):
         x = x + library(x, U[:, t]) @ coef
+        if project is not None:
+            x = project(x)
         step = float(((x - X[:, t + 1]) / spread).norm(dim=-1).mean())
         if not math.isfinite(step):
             return math.inf
@@ -103,6 +113,7 @@ def select_on_rollouts(
     settings: Sequence[float] = TOLERANCES,
     make: Callable[[float], Sparsifier] | None = None,
     slack: float = 3.0,
+    project: Project | None = None,
 ) -> Selection:
     """Fit ``Znext − Z ≈ Θ(Z, U) Ψ`` at every setting and keep the sparsest fit whose rollout
     error on the held-out trajectories is at most ``slack`` times the best one's.
@@ -115,6 +126,8 @@ def select_on_rollouts(
         make: a setting -> a fresh sparsifier (default: ``StepwiseSR(setting,
             complexity=library.degrees)``).
         slack: how much worse than the best a sparser fit may roll out (>= 1).
+        project: the model's map after every step (:func:`rollout_error`), so the fits are
+            judged by the rollouts the model will make; None: none.
 
     Raises:
         UserError: no settings, a slack below 1, or no fit that rolls out finitely.
@@ -133,7 +146,7 @@ def select_on_rollouts(
         coef = fit.coef_ * fit.mask_
         fits.append(fit)
         path.append(PathPoint(float(setting), int(fit.mask_.sum()),
-                              rollout_error(library, coef, X_val, U_val)))
+                              rollout_error(library, coef, X_val, U_val, project)))
     best = min(p.error for p in path)
     if not math.isfinite(best):
         raise UserError("select_on_rollouts: every fit's rollouts diverged on the held-out "

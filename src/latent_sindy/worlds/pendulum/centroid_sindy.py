@@ -21,6 +21,12 @@ On these latents the dynamics are fitted by regression on the encoded transition
   the linear model z' = A z + B u + c;
 * :class:`CentroidMlp`: z' = z + MLP([z, u]), trained by Adam on one-step errors.
 
+A latent learned from the frames instead (:class:`GeodesicLatent`, each frame's angle as
+(cos φ, sin φ)) lies on unit circles by construction; its ``circles`` name those pairs, and
+every model on it scales them back onto the unit circle after each step (and the SINDy's
+setting is chosen on rollouts that do the same), so its equations need only say how far the
+angle turns, not hold the pair's length.
+
     >>> z = frame_centroids(images)              # (..., 2, S, S) uint8 -> (..., 4)
     >>> model = CentroidSindy().fit(data)        # data: PendulumWorld(...).collect(...)
     >>> model.step(z, u)                          # (K, 4), (K, 1) -> (K, 4)
@@ -38,6 +44,7 @@ from torch import nn
 import latent_sindy.worlds.pendulum.physics as physics
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
+from latent_sindy.models.dynamics.base import project_circle
 from latent_sindy.models.encoders import image_coordinates
 from latent_sindy.models.geodesic_reader import GeodesicReader
 from latent_sindy.sindy import Polynomial, SindyLibrary, StepwiseSR, select_on_rollouts
@@ -46,8 +53,8 @@ from latent_sindy.sindy.optimizers import STLSQ
 from latent_sindy.sindy.selection import TOLERANCES
 from latent_sindy.worlds.pendulum.state_sindy import sindy_step
 
-__all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "Encode", "frame_centroids",
-           "geodesic_latent", "transitions"]
+__all__ = ["SPARSIFIERS", "CentroidMlp", "CentroidSindy", "Encode", "GeodesicLatent",
+           "frame_centroids", "geodesic_latent", "on_circles", "transitions"]
 
 SPARSIFIERS = ("stepwise", "stlsq")
 """The sparse regressions of :class:`CentroidSindy`: :class:`~latent_sindy.sindy.StepwiseSR`
@@ -74,31 +81,51 @@ def frame_centroids(images: np.ndarray | torch.Tensor) -> torch.Tensor:
 
 Encode = Callable[[Any], torch.Tensor]
 """A fixed latent of images (..., C, H, W) -> (..., nz): :func:`frame_centroids` by default,
-or a latent learned from the frames beforehand (:func:`geodesic_latent`)."""
+or a latent learned from the frames beforehand (:func:`geodesic_latent`). One with a
+``circles`` attribute (pairs of latent coordinates on the unit circle, as
+:class:`GeodesicLatent`'s) has its models keep those pairs there (:func:`on_circles`)."""
 
 
-def geodesic_latent(images: np.ndarray, seed: int = 0) -> Encode:
+class GeodesicLatent:
+    """Images (..., C, H, W) -> (..., 2C) float32: per channel (frame), the angle
+    (cos φ, sin φ) of its geodesic coordinates about their centre, read by a fitted
+    :class:`~latent_sindy.models.geodesic_reader.GeodesicReader` whose coordinates wind
+    round. ``circles``: the latent's pairs (2i, 2i + 1), one a frame, each on the unit
+    circle."""
+
+    def __init__(self, reader: GeodesicReader, channels: int) -> None:
+        self.reader = reader
+        self.circles = tuple((2 * i, 2 * i + 1) for i in range(channels))
+
+    @torch.no_grad()
+    def __call__(self, images: Any) -> torch.Tensor:
+        y = torch.as_tensor(np.asarray(images))
+        *lead, ch, h, w = y.shape
+        flat = y.reshape(-1, ch, h, w)
+        z = torch.cat([self.reader.position(flat[:, i:i + 1]) for i in range(ch)], -1)
+        return z.float().reshape(*lead, 2 * ch)
+
+
+def geodesic_latent(images: np.ndarray, seed: int = 0) -> GeodesicLatent:
     """The latent learned from training images (N, T+1, C, H, W) alone, per channel (frame):
     the angle (cos φ, sin φ) of its geodesic coordinates about their centre
     (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`, no world knowledge), in
     the place of each frame's centroid. UserError where the coordinates do not wind round
     (no angle to read)."""
     x = torch.as_tensor(np.asarray(images))
-    c = x.shape[2]
-    reader = GeodesicReader(frames=c, dim=2, seed=seed).fit_episodes(x)
+    reader = GeodesicReader(frames=x.shape[2], dim=2, seed=seed).fit_episodes(x)
     if not reader.turns_:
         raise UserError("the frames' geodesic coordinates do not wind round their centre: "
                         "no angle to read; plan on the centroid latent instead")
+    return GeodesicLatent(reader, x.shape[2])
 
-    @torch.no_grad()
-    def encode(images: Any) -> torch.Tensor:
-        y = torch.as_tensor(np.asarray(images))
-        *lead, ch, h, w = y.shape
-        flat = y.reshape(-1, ch, h, w)
-        z = torch.cat([reader.position(flat[:, i:i + 1]) for i in range(ch)], -1)
-        return z.float().reshape(*lead, 2 * ch)
 
-    return encode
+def on_circles(z: torch.Tensor, circles: tuple[tuple[int, int], ...]) -> torch.Tensor:
+    """z (..., nz) with each pair of ``circles`` scaled back onto the unit circle (out of
+    place; no pairs: z itself)."""
+    for pair in circles:
+        z = project_circle(z, torch.tensor(pair, device=z.device))
+    return z
 
 
 def transitions(data: SequenceData, encode: Encode = frame_centroids
@@ -125,6 +152,8 @@ class CentroidSindy:
             the sparsest fit within three times the best rollout error; the training
             sequences stand in when the data has no validation split).
         sparsifier: one of :data:`SPARSIFIERS`.
+        encode: the fixed latent (:data:`Encode`); its ``circles``, if any, are kept on the
+            unit circle after every step, in the rollouts the setting is chosen on too.
 
     Attributes (after :meth:`fit`): ``coef_``, ``mask_``, ``setting_`` (the setting used)
     and ``selection_`` (the path it was chosen from, or None when it was given).
@@ -139,6 +168,7 @@ class CentroidSindy:
         self.min_share = min_share
         self.sparsifier = sparsifier
         self.encode = encode
+        self.circles: tuple[tuple[int, int], ...] = tuple(getattr(encode, "circles", ()))
         self.library: SindyLibrary | None = None
 
     def fit(self, data: SequenceData) -> CentroidSindy:
@@ -156,7 +186,8 @@ class CentroidSindy:
             self.selection_ = select_on_rollouts(
                 self.library, z, u, z_next, self.encode(held.images).double(),
                 torch.as_tensor(held.actions, dtype=torch.float64),
-                TOLERANCES if self.sparsifier == "stepwise" else STLSQ_SHARES, make)
+                TOLERANCES if self.sparsifier == "stepwise" else STLSQ_SHARES, make,
+                project=lambda x: on_circles(x, self.circles))
             fit = self.selection_.model
             self.setting_ = self.selection_.setting
         else:
@@ -182,18 +213,21 @@ class CentroidSindy:
         return lines
 
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """z (K, nz), u (K, 1) -> (K, nz) (torque clipped into the box)."""
-        return sindy_step(self.library, self.coef_, z, u)
+        """z (K, nz), u (K, 1) -> (K, nz) (torque clipped into the box; the latent's
+        circles kept)."""
+        return on_circles(sindy_step(self.library, self.coef_, z, u), self.circles)
 
 
 class CentroidMlp:
     """z' = z + MLP([z, u]) on the centroid latents (two hidden layers of ``width``, tanh),
-    trained by Adam on the one-step error of the latent scaled to unit spread."""
+    trained by Adam on the one-step error of the latent scaled to unit spread (the latent's
+    ``circles``, if any, kept on the unit circle after every step)."""
 
     def __init__(self, width: int = 128, epochs: int = 1000, seed: int = 0,
                  encode: Encode = frame_centroids) -> None:
         self.width, self.epochs, self.seed = width, epochs, seed
         self.encode = encode
+        self.circles: tuple[tuple[int, int], ...] = tuple(getattr(encode, "circles", ()))
 
     def fit(self, data: SequenceData) -> CentroidMlp:
         z, u, z_next = (a.float() for a in transitions(data, self.encode))
@@ -218,4 +252,5 @@ class CentroidMlp:
     def step(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         uc = u.clamp(-physics.MAX_TORQUE, physics.MAX_TORQUE) / physics.MAX_TORQUE
         zf = z.float()
-        return (zf + self.net(torch.cat([zf, uc.float()], 1)) * self.scale).to(z.dtype)
+        z_next = zf + self.net(torch.cat([zf, uc.float()], 1)) * self.scale
+        return on_circles(z_next, self.circles).to(z.dtype)
