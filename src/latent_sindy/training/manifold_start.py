@@ -18,8 +18,8 @@ law of that latent exists. So the recipe starts each fit from the curve's own co
    under which each latent's second derivative is best explained by that latent alone is
    folded into the encoder's last layer and the decoder's first.
 
-4. **The law on the coordinates** (:func:`coordinate_law`): the latent along every training
-   and validation sequence (frames the landmarks do not cover left out), differentiated in
+4. **The law on the coordinates** (:func:`coordinate_law`): the coordinates along every
+   training and validation sequence (frames the landmarks do not cover left out), differentiated in
    time by fourth-order stencils, and each latent's unit, zero and sparse law searched
    together (:func:`~latent_sindy.sindy.unit_search.search_law`: a sine fixes the unit,
    nothing else does). Where the law found leaves at most :data:`SETTLED` of the held-out
@@ -164,17 +164,20 @@ def begin_session(session) -> dict | None:
     if parts is not None:  # each latent the coordinate of one part's pixels
         pixels, frames = _training_frames(session)
         target = torch.cat([r.read(pixels)[0] for r in parts], 1)
-        covered = _parts_cover(parts)
         out: dict = {"parts": [len(r.pixels) for r in parts]}
     else:
         middle = 2 if train.stencil else 0
         frames = train.coords[:, middle].detach()
         manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
         target = manifold.project(frames.cpu())
-        covered = _manifold_covers(manifold)
         out = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist()}
     # the coordinates are uncorrelated (the scaling's eigenvectors): standardised, white
-    target = ((target - target.mean(0)) / target.std(0).clamp_min(1e-12)).float()
+    centre, spread = target.mean(0), target.std(0).clamp_min(1e-12)
+    target = ((target - centre) / spread).float()
+    if parts is not None:
+        reader = _parts_reader(parts, centre, spread)
+    else:  # (two latents turned below: the encoder's latent is read, the turn in it)
+        reader = _manifold_reader(manifold, centre, spread, coordinates=nz == 1)
     with torch.enable_grad():
         out["regression_error"] = regress_encoder(enc, dec, frames, target.to(frames.device),
                                                   seed=seed)
@@ -183,7 +186,7 @@ def begin_session(session) -> dict | None:
         phi = choose_rotation(phase, top)
         _fold(enc[-1], dec[0], _turn(phi), torch.zeros(2, dtype=torch.float64))
         out["turn"] = phi
-    law = coordinate_law(session, covered)
+    law = coordinate_law(session, reader)
     if law is not None:
         out["law_fvu"] = law.fvu.tolist()
         out["unit"] = law.unit.tolist()
@@ -197,12 +200,19 @@ def begin_session(session) -> dict | None:
     return out
 
 
-Covered = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
-"""(pixels (F, P), front coordinates (F, K)) -> (F,) bool: the frames the coordinates reach."""
+Reader = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor | None]]
+"""(pixels (F, P), front coordinates (F, K)) -> the frames the coordinates reach (F,) bool,
+and the coordinates standardised as the encoder was regressed onto them (F, nz) (None: the
+encoder's own latent is read)."""
 
 
-def _manifold_covers(manifold: Manifold) -> Covered:
-    return lambda pixels, coords: manifold.covers(coords.cpu())
+def _manifold_reader(manifold: Manifold, centre: torch.Tensor, spread: torch.Tensor,
+                     coordinates: bool) -> Reader:
+    def read(pixels: torch.Tensor, coords: torch.Tensor):
+        c = coords.cpu()
+        z = ((manifold.project(c) - centre) / spread).float() if coordinates else None
+        return manifold.covers(c), z
+    return read
 
 
 @dataclass
@@ -220,10 +230,13 @@ class _PartReader:
         return self.manifold.project(c).float(), self.manifold.covers(c)
 
 
-def _parts_cover(parts: list[_PartReader]) -> Covered:
-    def covered(pixels: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
-        return torch.stack([r.read(pixels)[1] for r in parts]).all(0)
-    return covered
+def _parts_reader(parts: list[_PartReader], centre: torch.Tensor, spread: torch.Tensor
+                  ) -> Reader:
+    def read(pixels: torch.Tensor, coords: torch.Tensor):
+        each = [r.read(pixels) for r in parts]
+        z = (torch.cat([q for q, _ in each], 1) - centre) / spread
+        return torch.stack([c for _, c in each]).all(0), z.float()
+    return read
 
 
 @torch.no_grad()
@@ -260,9 +273,9 @@ def _part_readers(session, nz: int) -> list[_PartReader] | None:
 
 
 @torch.no_grad()
-def _sequences(session, split: str, covered: Covered) -> tuple[torch.Tensor, torch.Tensor]:
-    """Which frames the coordinates reach (n, F) and the encoder's latent (n, F, nz), for
-    every frame of ``split``'s sequences."""
+def _sequences(session, split: str, reader: Reader) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which frames the coordinates reach (n, F) and the coordinates the encoder was
+    regressed onto (or its latent) (n, F, nz), for every frame of ``split``'s sequences."""
     model = session.model
     front = model.autoencoder.encoder.net[0]
     enc = model.autoencoder.encoder.net[1:]
@@ -271,8 +284,9 @@ def _sequences(session, split: str, covered: Covered) -> tuple[torch.Tensor, tor
     for i in range(part.n):
         x = session.norm.normalize(part.images[i]).to(session.device).flatten(1)
         c = front(x)
-        reach.append(covered(x, c).cpu())
-        latents.append(enc(c).cpu())
+        covered, z = reader(x, c)
+        reach.append(covered.cpu())
+        latents.append((enc(c) if z is None else z).cpu())
     return torch.stack(reach), torch.stack(latents)
 
 
@@ -296,11 +310,12 @@ def _stencil_samples(z: torch.Tensor, covered: torch.Tensor, stride: int, dt: fl
     return np.concatenate([m, first], -1)[ok], second[ok], sequence[ok]
 
 
-def coordinate_law(session, covered: Covered) -> UnitLaw | None:
-    """The law of a continuous second-order session's latent (the encoder as regressed onto
-    the coordinates) searched with each latent's unit and zero (step 4 of the module's
-    docstring), in the model's time; None where the data hold actions, no validation
-    sequences, or too few covered samples."""
+def coordinate_law(session, reader: Reader) -> UnitLaw | None:
+    """The law of a continuous second-order session's latent (the coordinates the encoder
+    was regressed onto, as ``reader`` reads them: read on the manifold, pixel noise moves
+    them less than through the encoder) searched with each latent's unit and zero (step 4
+    of the module's docstring), in the model's time; None where the data hold actions, no
+    validation sequences, or too few covered samples."""
     model = session.model
     dyn = model.dynamics
     data = session.data
@@ -309,7 +324,7 @@ def coordinate_law(session, covered: Covered) -> UnitLaw | None:
     stride = stencil_stride(dyn.time_unit, data.dt, data.steps + 1)
     samples = []
     for split in ("train", "val"):
-        reach, z = _sequences(session, split, covered)
+        reach, z = _sequences(session, split, reader)
         phase, top, sequence = _stencil_samples(z, reach, stride, data.dt)
         if len(phase) > LAW_SAMPLES:
             pick = np.linspace(0, len(phase) - 1, LAW_SAMPLES).round().astype(int)
