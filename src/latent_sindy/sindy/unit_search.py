@@ -83,12 +83,12 @@ def _phase_at(phase: np.ndarray, unit: np.ndarray, zero: np.ndarray) -> np.ndarr
     return out
 
 
-def _subsets(p: int) -> list[tuple[int, ...]]:
-    return [s for k in range(1, MAX_TERMS + 1) for s in itertools.combinations(range(p), k)]
+def _subsets(terms: list[int]) -> list[tuple[int, ...]]:
+    return [s for k in range(1, MAX_TERMS + 1) for s in itertools.combinations(terms, k)]
 
 
 def _best_by_size(th: np.ndarray, y: np.ndarray, thv: np.ndarray, yv: np.ndarray,
-                  subsets: list[tuple[int, ...]] | None
+                  subsets: list[tuple[int, ...]] | None, terms: list[int]
                   ) -> list[tuple[float, tuple[int, ...]]]:
     """For each size, the subset with the lowest held-out FVU: (fvu, subset)."""
     g, b = th.T @ th, th.T @ y
@@ -114,7 +114,7 @@ def _best_by_size(th: np.ndarray, y: np.ndarray, thv: np.ndarray, yv: np.ndarray
         return out
     now: tuple[int, ...] = ()
     for _ in range(MAX_TERMS):  # forward selection
-        others = [i for i in range(th.shape[1]) if i not in now]
+        others = [i for i in terms if i not in now]
         chosen = np.array([sorted((*now, i)) for i in others])
         f = scores(chosen)
         j = int(np.argmin(f))
@@ -132,7 +132,8 @@ def _fit(th: np.ndarray, y: np.ndarray, law: tuple[int, ...]) -> np.ndarray:
 def search_law(library: Library, sines: Sequence[tuple[int, int, float]],
                phase: np.ndarray, top: np.ndarray, phase_val: np.ndarray,
                top_val: np.ndarray, groups: np.ndarray | None = None,
-               groups_val: np.ndarray | None = None, sweeps: int | None = None) -> UnitLaw:
+               groups_val: np.ndarray | None = None, sweeps: int | None = None,
+               exclude: Sequence[int] = ()) -> UnitLaw:
     """Each latent's unit, zero and sparse law (see the module's docstring).
 
     Args:
@@ -146,6 +147,8 @@ def search_law(library: Library, sines: Sequence[tuple[int, int, float]],
             sequences of both splits, and a law of one term more is kept where it lowers
             their held-out error consistently.
         sweeps: passes over the latents (None: 1 for one latent, 2 for more).
+        exclude: columns no law may hold (the library's constant, where the zeros searched
+            stand for it).
     """
     phase, top, phase_val, top_val = (np.asarray(a, np.float64)
                                       for a in (phase, top, phase_val, top_val))
@@ -157,8 +160,9 @@ def search_law(library: Library, sines: Sequence[tuple[int, int, float]],
     if not all(np.isfinite(a).all() for a in (phase, top, phase_val, top_val)):
         raise UserError("search_law: the samples hold NaN or inf")
     p = library(phase[:2]).shape[1]
-    many = sum(math.comb(p, k) for k in range(1, MAX_TERMS + 1))
-    subsets = _subsets(p) if many <= EXHAUSTIVE else None
+    terms = [j for j in range(p) if j not in set(exclude)]
+    many = sum(math.comb(len(terms), k) for k in range(1, MAX_TERMS + 1))
+    subsets = _subsets(terms) if many <= EXHAUSTIVE else None
     if groups is None or groups_val is None:
         groups = np.arange(len(phase)) * BLOCKS // len(phase)
         groups_val = BLOCKS + np.arange(len(phase_val)) * BLOCKS // len(phase_val)
@@ -172,13 +176,14 @@ def search_law(library: Library, sines: Sequence[tuple[int, int, float]],
     for _ in range(sweeps or (1 if nz == 1 else 2)):
         for i in range(nz):
             unit[i], zero[i], coef[:, i], fvu[i], paths[i] = _search_one(
-                library, sines, phase, top, phase_val, top_val, unit, zero, i, subsets, every)
+                library, sines, phase, top, phase_val, top_val, unit, zero, i, subsets, every,
+                terms)
     return UnitLaw(unit, zero, coef, fvu, paths)
 
 
 def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase, top,
                 phase_val, top_val, unit: np.ndarray, zero: np.ndarray, i: int, subsets,
-                every: tuple[np.ndarray, np.ndarray, np.ndarray]):
+                every: tuple[np.ndarray, np.ndarray, np.ndarray], terms: list[int]):
     from scipy.optimize import minimize
 
     nz = len(unit)
@@ -196,7 +201,7 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
     for a in UNITS:
         for b in ZEROS:
             th, y, thv, yv = columns(unit[i] * a, zero[i] + b)
-            for f, law in _best_by_size(th, y, thv, yv, subsets):
+            for f, law in _best_by_size(th, y, thv, yv, subsets, terms):
                 if law not in found or f < found[law][0]:
                     found[law] = (f, unit[i] * a, zero[i] + b)
 
