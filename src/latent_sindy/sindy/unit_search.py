@@ -223,8 +223,7 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
         c = _fit(th, y, law)
         err = (yv - thv @ c) ** 2
         spread = max(float(((yv - yv.mean()) ** 2).sum()), 1e-300)
-        excursion = {var: a * float(np.abs(np.concatenate([phase, phase_val])[:, var]
-                                           - (b if var == i else 0.0)).max())
+        excursion = {var: a * float(np.abs(every_phase[:, var] - (b if var == i else 0.0)).max())
                      for var in (i, i + nz)}
         turns = all(freq * excursion.get(var, math.inf) >= math.pi / 2
                     for col, var, freq in sines if col in law and var in excursion)

@@ -160,9 +160,11 @@ def begin_session(session) -> dict | None:
         return None
     nz = dyn.nz
     seed = session.cfg.seed
-    parts = _part_readers(session, nz) if nz > 1 else None
+    sequences = _training_sequences(session) if nz > 1 else None
+    parts = _part_readers(session, sequences, nz) if sequences is not None else None
     if parts is not None:  # each latent the coordinate of one part's pixels
-        pixels, frames = _training_frames(session)
+        pixels = sequences.flatten(0, 1)
+        frames = model.autoencoder.encoder.net[0](pixels.to(session.device))
         target = torch.cat([r.read(pixels)[0] for r in parts], 1)
         out: dict = {"parts": [len(r.pixels) for r in parts]}
     else:
@@ -240,25 +242,19 @@ def _parts_reader(parts: list[_PartReader], centre: torch.Tensor, spread: torch.
 
 
 @torch.no_grad()
-def _training_frames(session, limit: int = PART_FRAMES) -> tuple[torch.Tensor, torch.Tensor]:
-    """Normalised pixels (M, P) and front coordinates (M, K) of at most ``limit`` frames of
-    the training sequences (every k-th frame of each)."""
+def _training_sequences(session, limit: int = PART_FRAMES) -> torch.Tensor:
+    """Normalised pixels (n, F', P) of the training sequences, every k-th frame of each,
+    at most ``limit`` frames in all."""
     part = session.data.split("train")
     step = max(1, math.ceil(part.n * (part.steps + 1) / limit))
-    front = session.model.autoencoder.encoder.net[0]
-    pixels = torch.cat([session.norm.normalize(part.images[i][::step]).flatten(1)
+    return torch.stack([session.norm.normalize(part.images[i][::step]).flatten(1)
                         for i in range(part.n)])
-    return pixels, front(pixels.to(session.device))
 
 
-def _part_readers(session, nz: int) -> list[_PartReader] | None:
-    """One coordinate reader per independently moving part of the training frames
+def _part_readers(session, sequences: torch.Tensor, nz: int) -> list[_PartReader] | None:
+    """One coordinate reader per independently moving part of the training ``sequences``
     (:func:`~latent_sindy.models.parts.moving_parts`), None where the frames do not fall
     into ``nz`` parts."""
-    part = session.data.split("train")
-    step = max(1, math.ceil(part.n * (part.steps + 1) / PART_FRAMES))
-    sequences = torch.stack([session.norm.normalize(part.images[i][::step]).flatten(1)
-                             for i in range(part.n)])
     groups = moving_parts(sequences, nz)
     if groups is None:
         return None
@@ -290,23 +286,22 @@ def _sequences(session, split: str, reader: Reader) -> tuple[torch.Tensor, torch
     return torch.stack(reach), torch.stack(latents)
 
 
-def _stencil_samples(z: torch.Tensor, covered: torch.Tensor, stride: int, dt: float
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def _stencil_samples(model, z: torch.Tensor, covered: torch.Tensor, stride: int, dt: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(z, ż) (M, 2 nz), z̈ (M, nz) and the sequence (M,) of each sample, by fourth-order
-    stencils of five latents ``stride`` frames apart along each sequence of z (n, F, nz),
-    where all five frames are covered (n, F), in sequence order."""
+    stencils of five latents ``stride`` frames apart along each sequence of z (n, F, nz)
+    (the model's :meth:`stencil_latents`), where all five frames are covered (n, F), in
+    sequence order."""
     n, f, _ = z.shape
     h = stride * dt
     centres = np.arange(2 * stride, f - 2 * stride)
     if len(centres) == 0:
         return np.zeros((0, 2 * z.shape[2])), np.zeros((0, z.shape[2])), np.zeros(0, int)
-    zz = z.double().numpy()
-    a, b, m, d, e = (zz[:, centres + k * stride] for k in (-2, -1, 0, 1, 2))
-    first = (a - 8 * b + 8 * d - e) / (12 * h)
-    second = (-a + 16 * b - 30 * m + 16 * d - e) / (12 * h * h)
-    cov = covered.numpy()
-    ok = np.all([cov[:, centres + k * stride] for k in (-2, -1, 0, 1, 2)], axis=0)
-    sequence = np.broadcast_to(np.arange(n)[:, None], ok.shape)
+    window = torch.as_tensor(centres[:, None] + stride * np.arange(-2, 3))  # (C, 5)
+    z5 = z.double()[:, window].flatten(0, 1)  # (n C, 5, nz)
+    m, first, second = (t.numpy() for t in model.stencil_latents(z5, h))
+    ok = covered[:, window].all(-1).flatten().numpy()
+    sequence = np.repeat(np.arange(n), len(centres))
     return np.concatenate([m, first], -1)[ok], second[ok], sequence[ok]
 
 
@@ -325,7 +320,7 @@ def coordinate_law(session, reader: Reader) -> UnitLaw | None:
     samples = []
     for split in ("train", "val"):
         reach, z = _sequences(session, split, reader)
-        phase, top, sequence = _stencil_samples(z, reach, stride, data.dt)
+        phase, top, sequence = _stencil_samples(model, z, reach, stride, data.dt)
         if len(phase) > LAW_SAMPLES:
             pick = np.linspace(0, len(phase) - 1, LAW_SAMPLES).round().astype(int)
             phase, top, sequence = phase[pick], top[pick], sequence[pick]
