@@ -97,3 +97,22 @@ def test_the_estimator_fits_and_reloads_a_model_with_a_front(tmp_path) -> None:
     again = LatentSINDy.load(tmp_path / "r")
     frames = data.images[0]
     assert np.array_equal(model.encode(frames), again.encode(frames))
+
+
+def test_subspace_iteration_finds_the_same_directions_as_the_eigendecomposition(monkeypatch):
+    import latent_sindy.models.pca_front as front
+
+    gen = torch.Generator().manual_seed(0)
+    # frames with a slowly decaying spectrum, as a moving blob's are
+    scales = torch.logspace(0, -2, 60, dtype=torch.float64)
+    frames = ((torch.randn(700, 60, generator=gen, dtype=torch.float64) * scales)
+              @ torch.randn(60, 500, generator=gen, dtype=torch.float64)
+              + 1e-3 * torch.randn(700, 500, generator=gen, dtype=torch.float64)).float()
+    exact = principal_components(frames, 12)
+    monkeypatch.setattr(front, "EXACT_BELOW", 100)
+    fast = principal_components(frames, 12)
+    cosines = torch.linalg.svdvals(exact[1].double().T @ fast[1].double())
+    assert float(cosines.min()) > 0.999
+    assert fast[2] == pytest.approx(exact[2], rel=1e-4)
+    # the directions come in the same order (each matches its own, up to sign)
+    assert torch.allclose((exact[1] * fast[1]).sum(0).abs(), torch.ones(12), atol=1e-2)

@@ -99,6 +99,7 @@ def test_an_unweighted_head_changes_nothing_else(rendered: Path, tmp_path: Path)
         assert torch.equal(a[k], b[k]), f"{k} differs"
 
 
+@pytest.mark.slow  # over a minute of training on 2 cores
 def test_pose_supervision_puts_the_orientation_into_the_latent(rendered: Path,
                                                                tmp_path: Path) -> None:
     from latent_sindy.data import read_sequences

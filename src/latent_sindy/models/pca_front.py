@@ -23,6 +23,13 @@ __all__ = ["FRONT_FRAMES", "LinearMap", "principal_components"]
 
 #: The most training frames the principal components are fitted on (evenly spaced).
 FRONT_FRAMES = 8192
+#: Where frames and pixels both number more than this, the principal directions are found
+#: by subspace iteration (:data:`POWER_STEPS` passes over :data:`OVERSAMPLE` directions more
+#: than asked for) rather than by an eigendecomposition of every pixel's or frame's
+#: covariance (BENCHMARKS.md: the front of a 75 × 75 video, 8192 frames).
+EXACT_BELOW = 2048
+POWER_STEPS = 6
+OVERSAMPLE = 32
 
 
 class LinearMap(nn.Module):
@@ -44,13 +51,29 @@ class LinearMap(nn.Module):
         self.bias.copy_(bias)
 
 
+def _leading_directions(x: torch.Tensor, k: int) -> torch.Tensor:
+    """The first ``k`` principal directions (pixels, k) of centred ``x`` (M, pixels) by
+    subspace iteration from a seeded random start (Halko, Martinsson and Tropp 2011):
+    :data:`POWER_STEPS` passes of x and xᵀ over k + :data:`OVERSAMPLE` directions, then the
+    leading ones of the subspace found. A direction the frames do not vary along is 0."""
+    gen = torch.Generator().manual_seed(0)
+    q = torch.randn(x.shape[1], min(k + OVERSAMPLE, *x.shape), dtype=x.dtype, generator=gen)
+    for _ in range(POWER_STEPS):
+        q = torch.linalg.qr(x.T @ torch.linalg.qr(x @ q).Q).Q
+    values, vectors = torch.linalg.eigh((x @ q).T @ (x @ q))
+    top = values[-k:].flip(0)
+    flat = top <= values[-1].clamp_min(0) * 1e-12
+    return (q @ vectors[:, -k:].flip(1)).masked_fill(flat, 0.0)
+
+
 @torch.no_grad()
 def principal_components(frames: torch.Tensor, k: int
                          ) -> tuple[torch.Tensor, torch.Tensor, float]:
     """The mean (pixels,), the first ``k`` principal directions (pixels, k), orthonormal
     columns, of ``frames`` (M, pixels), and the rms of the frames' coordinates on them,
-    fitted in float64 on at most :data:`FRONT_FRAMES` evenly spaced frames; UserError where
-    there are fewer frames or pixels than ``k``."""
+    fitted in float64 on at most :data:`FRONT_FRAMES` evenly spaced frames (by subspace
+    iteration where frames and pixels number more than :data:`EXACT_BELOW`); UserError
+    where there are fewer frames or pixels than ``k``."""
     m, p = frames.shape
     if k > min(m, p):
         raise UserError(f"pca_components {k}: the training split has {m} frames of {p} values; "
@@ -58,8 +81,10 @@ def principal_components(frames: torch.Tensor, k: int
     x = frames[torch.linspace(0, m - 1, min(m, FRONT_FRAMES)).round().long()].double()
     mean = x.mean(0)
     x = x - mean
+    if min(x.shape) > EXACT_BELOW:
+        basis = _leading_directions(x, k)
     # the eigenvectors of the smaller of xᵀx and xxᵀ (2.5 times quicker than an SVD here)
-    if p <= len(x):
+    elif p <= len(x):
         basis = torch.linalg.eigh(x.T @ x)[1][:, -k:].flip(1)
     else:
         values, u = torch.linalg.eigh(x @ x.T)

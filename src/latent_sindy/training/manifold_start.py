@@ -62,6 +62,12 @@ TURN_SAMPLES = 5000
 SETTLED = 0.2
 #: Samples of each split the law is searched on at most (evenly spaced beyond).
 LAW_SAMPLES = 6000
+#: Fewest covered samples a split needs for the law to be searched on it; where the
+#: validation sequences have fewer (they swing where no training frame went, so their
+#: coordinates cannot be trusted), every :data:`HOLD_OUT_EVERY`-th training sequence is
+#: held out in their place.
+MIN_SAMPLES = 50
+HOLD_OUT_EVERY = 5
 #: Training frames the parts and their coordinates are found on at most (several latents).
 PART_FRAMES = 12000
 #: Principal components of each part's pixels its coordinate is found on.
@@ -305,27 +311,42 @@ def _stencil_samples(model, z: torch.Tensor, covered: torch.Tensor, stride: int,
     return np.concatenate([m, first], -1)[ok], second[ok], sequence[ok]
 
 
+def _held_out_every(train: tuple[np.ndarray, ...], every: int) -> dict[str, tuple]:
+    """The training samples (phase, z̈, sequence) split by sequence: every ``every``-th
+    sequence held out (as "val"), the others kept (as "train")."""
+    held = train[2] % every == every - 1
+    return {"train": tuple(a[~held] for a in train), "val": tuple(a[held] for a in train)}
+
+
 def coordinate_law(session, reader: Reader) -> UnitLaw | None:
     """The law of a continuous second-order session's latent (the coordinates the encoder
     was regressed onto, as ``reader`` reads them: read on the manifold, pixel noise moves
     them less than through the encoder) searched with each latent's unit and zero (step 4
-    of the module's docstring), in the model's time; None where the data hold actions, no
-    validation sequences, or too few covered samples."""
+    of the module's docstring), in the model's time; None where the data hold actions or
+    too few covered samples. The laws are scored on the validation sequences, or where
+    those have too few covered samples, on every :data:`HOLD_OUT_EVERY`-th training
+    sequence."""
     model = session.model
     dyn = model.dynamics
     data = session.data
-    if dyn.derivative_order != 2 or dyn.nu or not data.split_counts().get("val"):
+    if dyn.derivative_order != 2 or dyn.nu:
         return None
     stride = stencil_stride(dyn.time_unit, data.dt, data.steps + 1)
-    samples = []
-    for split in ("train", "val"):
+    splits = {}
+    for split in ("train", "val") if data.split_counts().get("val") else ("train",):
         reach, z = _sequences(session, split, reader)
-        phase, top, sequence = _stencil_samples(model, z, reach, stride, data.dt)
+        splits[split] = _stencil_samples(model, z, reach, stride, data.dt)
+    if len(splits.get("val", ((),))[0]) < MIN_SAMPLES:
+        # no validation sequences, or they swing where no training frame went (their
+        # coordinates are not to be trusted): training sequences held out instead
+        splits = _held_out_every(splits["train"], HOLD_OUT_EVERY)
+    samples = []
+    for phase, top, sequence in splits.values():
         if len(phase) > LAW_SAMPLES:
             pick = np.linspace(0, len(phase) - 1, LAW_SAMPLES).round().astype(int)
             phase, top, sequence = phase[pick], top[pick], sequence[pick]
         samples += [phase, top, sequence]
-    if min(len(samples[0]), len(samples[3])) < 50:
+    if min(len(samples[0]), len(samples[3])) < MIN_SAMPLES:
         return None
     unit = dyn.time_unit
     scale = np.array([unit ** (j // dyn.nz) for j in range(2 * dyn.nz)])  # model time
