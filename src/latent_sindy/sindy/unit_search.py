@@ -9,7 +9,8 @@ searches each latent's unit a and zero b together with its law:
 1. on a grid of units and zeros, the best law of each size (1 to :data:`MAX_TERMS` terms:
    every subset of the library's columns where they are few, forward selection otherwise),
    each fitted by least squares on the training samples and scored on held-out ones;
-2. the best grid point of each law found refined by Nelder-Mead;
+2. the best grid point of the best laws of each size refined by Nelder-Mead (from a
+   simplex of the grid's steps, begun again once where it stopped);
 3. the sparsest law kept that a law of one term more does not beat by a margin (:data:`GAIN`,
    and three standard errors over the sequences) when each sequence is held out in turn
    (cross-validation over the sequences of both splits), with a
@@ -47,9 +48,13 @@ FLOOR = 1e-6
 #: Units tried on the grid (times the coordinate's given unit), and zeros (in its units).
 UNITS = tuple(float(u) for u in np.exp(np.linspace(math.log(0.25), math.log(4.0), 25)))
 ZEROS = tuple(float(b) for b in np.linspace(-0.6, 0.6, 9))
-#: Laws refined by Nelder-Mead after the grid, a latent, on this many training samples at
-#: most (evenly spaced).
-REFINED = 10
+#: The grid's steps (the log of the unit's, and the zero's): the size of the simplex the
+#: refinement starts from.
+UNIT_STEP = math.log(UNITS[1] / UNITS[0])
+ZERO_STEP = ZEROS[1] - ZEROS[0]
+#: Laws of each size refined by Nelder-Mead after the grid, a latent, on this many
+#: training samples at most (evenly spaced).
+REFINED = 4
 REFINE_SAMPLES = 2000
 #: Blocks each split is cut into where no groups are given (a group stands for a sequence).
 BLOCKS = 20
@@ -90,7 +95,8 @@ def _subsets(terms: list[int]) -> list[tuple[int, ...]]:
 def _best_by_size(th: np.ndarray, y: np.ndarray, thv: np.ndarray, yv: np.ndarray,
                   subsets: list[tuple[int, ...]] | None, terms: list[int]
                   ) -> list[tuple[float, tuple[int, ...]]]:
-    """For each size, the subset with the lowest held-out FVU: (fvu, subset)."""
+    """For each size, the :data:`REFINED` subsets with the lowest held-out FVU (the one
+    with the lowest where they are found by forward selection): (fvu, subset)."""
     g, b = th.T @ th, th.T @ y
     gv, bv = thv.T @ thv, thv.T @ yv
     spread = max(float(((yv - yv.mean()) ** 2).sum()), 1e-300)
@@ -109,8 +115,8 @@ def _best_by_size(th: np.ndarray, y: np.ndarray, thv: np.ndarray, yv: np.ndarray
         for k in range(1, MAX_TERMS + 1):
             chosen = np.array([s for s in subsets if len(s) == k])
             f = scores(chosen)
-            j = int(np.argmin(f))
-            out.append((float(f[j]), tuple(int(i) for i in chosen[j])))
+            for j in np.argsort(f, kind="stable")[:REFINED]:
+                out.append((float(f[j]), tuple(int(i) for i in chosen[j])))
         return out
     now: tuple[int, ...] = ()
     for _ in range(MAX_TERMS):  # forward selection
@@ -215,10 +221,19 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
         return float(r @ r / max(((y - y.mean()) ** 2).sum(), 1e-300))
 
     candidates = []
-    for law, (_, a, b) in sorted(found.items(), key=lambda kv: kv[1][0])[:REFINED]:
-        best = minimize(train_fvu, [math.log(a), b], args=(law,), method="Nelder-Mead",
-                        options={"xatol": 1e-5, "fatol": 1e-14, "maxiter": 200})
-        a, b = math.exp(best.x[0]), float(best.x[1])
+    ranked = sorted(found.items(), key=lambda kv: kv[1][0])
+    # the best of each size: on the grid a law of more terms takes up the grid's misplacement
+    # of the unit and zero, and would crowd out the sparse law refinement puts right
+    chosen = [kv for size in range(1, MAX_TERMS + 1)
+              for kv in [kv for kv in ranked if len(kv[0]) == size][:REFINED]]
+    for law, (_, a, b) in chosen:
+        x = np.array([math.log(a), b])
+        for _ in range(2):  # begun again from where it stopped (a simplex may collapse early)
+            simplex = x + np.array([[0.0, 0.0], [UNIT_STEP, 0.0], [0.0, ZERO_STEP]])
+            x = minimize(train_fvu, x, args=(law,), method="Nelder-Mead",
+                         options={"xatol": 1e-5, "fatol": 1e-14, "maxiter": 300,
+                                  "initial_simplex": simplex}).x
+        a, b = math.exp(x[0]), float(x[1])
         th, y, thv, yv = columns(a, b)
         c = _fit(th, y, law)
         err = (yv - thv @ c) ** 2
