@@ -174,8 +174,9 @@ def begin_session(session) -> dict | None:
         target = torch.cat([r.read(pixels)[0] for r in parts], 1)
         out: dict = {"parts": [len(r.pixels) for r in parts]}
     else:
-        middle = 2 if train.stencil else 0
-        frames = train.coords[:, middle].detach()
+        # every frame of the windows (frames alone: all five of each stencil, so that the
+        # coordinates reach each sequence's ends, where the stencils read them too)
+        frames = (train.coords.flatten(0, 1) if train.stencil else train.coords[:, 0]).detach()
         manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
         target = manifold.project(frames.cpu())
         out = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist()}
