@@ -100,6 +100,15 @@ def test_doubt_notes_name_disagreeing_starts_and_an_unexplained_share():
     assert "10 % of the latent's derivative unexplained" in note
 
 
+def test_a_law_written_at_the_start_on_a_close_call_is_doubted_aloud():
+    close = {"settled": True, "close": [(["z0", "sin(z0)"], 0.12), (["z0'", "sin(z0)"], 0.3)]}
+    (note,) = doubt_notes({"start": close, "unexplained": 1e-3})
+    assert "close call" in note and "z0' + sin(z0) took away only 30 %" in note
+    # a start that trained on (not settled) wrote no law of its own; none close: no doubt
+    assert doubt_notes({"start": {**close, "settled": False}, "unexplained": 1e-3}) == []
+    assert doubt_notes({"start": {"settled": True, "close": []}, "unexplained": 1e-3}) == []
+
+
 def test_reselect_sets_the_chosen_law_on_a_trained_model():
     from latent_sindy import LatentSINDy, Phase, Restarts
     from latent_sindy.training.config import TrainConfig

@@ -94,3 +94,19 @@ def test_the_default_writes_the_law_found_on_the_coordinates_without_a_main_fit(
     assert d.judge(est) == {"recovered": True, "why": ""}, est.equations()
     assert est.kept_["selection"] == "the law found on the coordinates at the start"
     assert est.kept_["start"]["settled"]
+
+
+def test_held_out_training_sequences_stand_in_for_the_validation_ones_whole():
+    from latent_sindy.training.manifold_start import HOLD_OUT_EVERY, _held_out_every
+
+    sequence = np.repeat(np.arange(12), 7)
+    phase = np.random.default_rng(0).normal(size=(len(sequence), 2))
+    top = phase[:, :1] * 2.0
+    split = _held_out_every((phase, top, sequence), HOLD_OUT_EVERY)
+    kept, held = set(split["train"][2]), set(split["val"][2])
+    assert held and kept and not kept & held  # whole sequences go one way or the other
+    assert kept | held == set(range(12))
+    assert len(held) == 12 // HOLD_OUT_EVERY
+    # each sample keeps its own phase and z'' beside it
+    for part in split.values():
+        assert np.array_equal(part[1], part[0][:, :1] * 2.0)

@@ -71,6 +71,12 @@ def test_a_small_term_is_kept_only_where_the_held_out_samples_need_it():
             parts += [np.stack([q, v], 1), (a + 0.003 * rng.standard_normal(n))[:, None]]
         found = search_law(library, sines, *parts)
         assert bool(found.coef[names.index("z0'"), 0] != 0) is kept
+        # each law of one term more was weighed, and the damping's took away most of the error
+        weighed = {tuple(names[j] for j in terms): gain for terms, gain in found.gains[0]}
+        assert len(found.gains[0]) == 2
+        damped = [g for terms, g in weighed.items() if "z0'" in terms and "sin(z0)" in terms]
+        if kept:
+            assert max(damped) > 0.5
 
 
 def test_bad_samples_are_refused():

@@ -99,9 +99,11 @@ UNEXPLAINED_LIMIT = 0.05
 
 def doubt_notes(kept: dict[str, Any]) -> list[str]:
     """Why a fit's law may be wrong, one line each, from what its training kept (``kept``:
-    the estimator's ``kept_``): starts that wrote different laws and no two agreed, or a
-    law that leaves over :data:`UNEXPLAINED_LIMIT` of the latent's derivative unexplained
-    on the validation frames. Empty where neither."""
+    the estimator's ``kept_``): starts that wrote different laws and no two agreed, a law
+    written at the start whose terms were a close call (a term more took away a share of
+    the held-out error near the search's margin), or a law that leaves over
+    :data:`UNEXPLAINED_LIMIT` of the latent's derivative unexplained on the validation
+    frames. Empty where none."""
     notes = []
     starts = kept.get("restarts") or {}
     if starts.get("agreed") is False:
@@ -110,6 +112,14 @@ def doubt_notes(kept: dict[str, Any]) -> list[str]:
         notes.append(f"no two of the {starts.get('starts')} starts wrote the same law (those "
                      f"trained through: {laws}): the law kept may be wrong; try more starts "
                      "(fit(..., restarts=Restarts(count=5, agree=2))) or more data")
+    start = kept.get("start") or {}
+    if start.get("settled") and start.get("close"):
+        terms, gain = max(start["close"], key=lambda c: c[1])
+        notes.append(f"the law's terms were a close call: {' + '.join(terms)} took away only "
+                     f"{100 * gain:.0f} % of the held-out error of the law one term smaller "
+                     "(a true term took away 98 % or more on the project's drawn videos): a "
+                     "term may be missing or stand for a warp of the latent; more or longer "
+                     "sequences tell them apart")
     share = kept.get("unexplained")
     if share is not None and not share <= UNEXPLAINED_LIMIT:
         notes.append(f"the law leaves {100 * share:.0f} % of the latent's derivative "

@@ -80,6 +80,10 @@ class UnitLaw:
     coef: np.ndarray
     fvu: np.ndarray
     paths: list[list[tuple[tuple[int, ...], float]]] = field(default_factory=list)
+    gains: list[list[tuple[tuple[int, ...], float]]] = field(default_factory=list)
+    """For each latent, each law of one term more weighed against the law kept so far: its
+    terms and the share of that law's cross-validated error it took away (kept from
+    :data:`GAIN`)."""
 
 
 def _phase_at(phase: np.ndarray, unit: np.ndarray, zero: np.ndarray) -> np.ndarray:
@@ -181,12 +185,13 @@ def search_law(library: Library, sines: Sequence[tuple[int, int, float]],
     coef = np.zeros((p, nz))
     fvu = np.ones(nz)
     paths: list = [[] for _ in range(nz)]
+    gains: list = [[] for _ in range(nz)]
     for _ in range(sweeps or (1 if nz == 1 else 2)):
         for i in range(nz):
-            unit[i], zero[i], coef[:, i], fvu[i], paths[i] = _search_one(
+            unit[i], zero[i], coef[:, i], fvu[i], paths[i], gains[i] = _search_one(
                 library, sines, phase, top, phase_val, top_val, unit, zero, i, subsets, every,
                 terms)
-    return UnitLaw(unit, zero, coef, fvu, paths)
+    return UnitLaw(unit, zero, coef, fvu, paths, gains)
 
 
 def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase, top,
@@ -261,9 +266,13 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
         th = library(_phase_at(every_phase, *_with(unit, zero, i, c["unit"], c["zero"])))
         c["errors"] = _folded_errors(th, c["unit"] * every_top[:, i], c["law"], groups)
     chosen = by_size[sizes[0]]
+    weighed = []
     for size in sizes[1:]:
-        if _beats(by_size[size], chosen):
-            chosen = by_size[size]
+        bigger = by_size[size]
+        weighed.append((bigger["law"], float((chosen["errors"].sum() - bigger["errors"].sum())
+                                             / max(chosen["errors"].sum(), 1e-300))))
+        if _beats(bigger, chosen):
+            chosen = bigger
     path = [(by_size[s]["law"], by_size[s]["fvu"]) for s in sizes]
     if not chosen["sines"]:  # nothing in the law fixes the unit: the coordinate's own kept
         th, y, thv, yv = columns(unit[i], chosen["zero"])
@@ -271,7 +280,7 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
         err = (yv - thv @ chosen["coef"]) ** 2
         chosen["fvu"] = float(err.sum() / max(float(((yv - yv.mean()) ** 2).sum()), 1e-300))
         chosen["unit"] = unit[i]
-    return chosen["unit"], chosen["zero"], chosen["coef"], chosen["fvu"], path
+    return chosen["unit"], chosen["zero"], chosen["coef"], chosen["fvu"], path, weighed
 
 
 def _with(unit: np.ndarray, zero: np.ndarray, i: int, a: float, b: float

@@ -45,12 +45,12 @@ from torch import nn
 
 from latent_sindy.models.manifold import Manifold, geodesic_coordinates, principal_front
 from latent_sindy.models.parts import moving_parts
-from latent_sindy.sindy.unit_search import UnitLaw, search_law
+from latent_sindy.sindy.unit_search import GAIN, UnitLaw, search_law
 from latent_sindy.training.prepare import stencil_stride
 from latent_sindy.training.reselect import latent_derivatives
 from latent_sindy.training.samples import CoordinateSamples
 
-__all__ = ["SETTLED", "begin_session", "choose_rotation", "coordinate_law", "regress_encoder"]
+__all__ = ["CLOSE", "SETTLED", "begin_session", "choose_rotation", "coordinate_law", "regress_encoder"]
 
 #: Updates of the regression onto the coordinates (batches of :data:`REGRESSION_BATCH`).
 REGRESSION_STEPS = 3000
@@ -60,6 +60,10 @@ TURN_SAMPLES = 5000
 #: The most of the held-out z̈ (a share of its variance) a law found on the coordinates may
 #: leave unexplained for the start to be settled (no main fit).
 SETTLED = 0.2
+#: A law of one term more that took away this share of the error of the law before it
+#: (a range about the search's :data:`~latent_sindy.sindy.unit_search.GAIN`) was a close
+#: call: a settled law with one is doubted aloud.
+CLOSE = (GAIN / 2, 2 * GAIN)
 #: Samples of each split the law is searched on at most (evenly spaced beyond).
 LAW_SAMPLES = 6000
 #: Fewest covered samples a split needs for the law to be searched on it; where the
@@ -203,6 +207,10 @@ def begin_session(session) -> dict | None:
         names = session.model.dynamics.names
         out["laws"] = [[([names[j] for j in terms], fvu) for terms, fvu in path]
                        for path in law.paths]
+        # a term more weighed near the margin: the law kept may have one term too many or few
+        out["close"] = [([names[j] for j in terms], gain)
+                        for weighed in law.gains for terms, gain in weighed
+                        if CLOSE[0] <= gain <= CLOSE[1]]
         if float(law.fvu.max()) <= SETTLED:
             _settle(session, law)
             out["settled"] = True
