@@ -195,6 +195,13 @@ def test_dmc_reader_accuracy(monkeypatch, capsys):
     assert len(errors) == 2 and all(float(e) < 20 for e in errors), out
 
 
+def test_pca_front(monkeypatch, capsys):
+    out = _run("pca_front", monkeypatch, capsys)
+    (low,) = re.findall(r"principal angles: min (\S+)", out)
+    assert float(low) > 0.999, out  # the same subspace both ways
+    assert "subspace iteration / exact" in out
+
+
 # ------------------------------------------------------------------ the smoke flag itself
 def test_smoke_changes_defaults_and_a_given_flag_still_wins():
     import argparse
