@@ -50,8 +50,9 @@ class AllTermsPruned(UserWarning):
 
 
 class UncertainLaw(UserWarning):
-    """A fit whose law may be wrong: its starts disagreed, or it leaves much of the latent's
-    derivative unexplained (:func:`latent_sindy.equations.doubt_notes`)."""
+    """A fit whose law may be wrong: its starts disagreed, its terms were a close call, or
+    it leaves much of the latent's derivative unexplained
+    (:func:`latent_sindy.equations.doubt_notes`)."""
 
 
 class LatentSINDy:
