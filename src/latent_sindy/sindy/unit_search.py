@@ -50,6 +50,9 @@ FLOOR = 1e-6
 #: Units tried on the grid (times the coordinate's given unit), and zeros (in its units).
 UNITS = tuple(float(u) for u in np.exp(np.linspace(math.log(0.25), math.log(4.0), 25)))
 ZEROS = tuple(float(b) for b in np.linspace(-0.6, 0.6, 9))
+#: The farthest the refinement may take a unit from the coordinate's own (a factor of
+#: e^FARTHEST either way; beyond, no law is fitted).
+FARTHEST = math.log(64.0)
 #: The grid's steps (the log of the unit's, and the zero's): the size of the simplex the
 #: refinement starts from.
 UNIT_STEP = math.log(UNITS[1] / UNITS[0])
@@ -219,10 +222,14 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
                     found[law] = (f, unit[i] * a, zero[i] + b)
 
     def train_fvu(x: np.ndarray, law: tuple[int, ...]) -> float:
+        if not (np.isfinite(x).all() and abs(x[0] - math.log(unit[i])) <= FARTHEST):
+            return math.inf  # (a simplex gone far off: no unit there to fit)
         u, z = unit.copy(), zero.copy()
         u[i], z[i] = math.exp(x[0]), x[1]
         th = library(_phase_at(phase[few], u, z))
         y = u[i] * top[few, i]
+        if not np.isfinite(th).all():
+            return math.inf
         c = _fit(th, y, law)
         r = y - th @ c
         return float(r @ r / max(((y - y.mean()) ** 2).sum(), 1e-300))
@@ -240,6 +247,8 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
             x = minimize(train_fvu, x, args=(law,), method="Nelder-Mead",
                          options={"xatol": 1e-5, "fatol": 1e-14, "maxiter": 300,
                                   "initial_simplex": simplex}).x
+        if not np.isfinite(train_fvu(x, law)):
+            continue
         a, b = math.exp(x[0]), float(x[1])
         th, y, thv, yv = columns(a, b)
         c = _fit(th, y, law)
