@@ -109,6 +109,12 @@ def test_a_law_written_at_the_start_on_a_close_call_is_doubted_aloud():
     assert doubt_notes({"start": {"settled": True, "close": []}, "unexplained": 1e-3}) == []
 
 
+def test_a_law_without_a_rate_term_on_sequences_shorter_than_a_swing_is_doubted_aloud():
+    short = {"settled": True, "short": [("z0", 1.0)]}
+    (note,) = doubt_notes({"start": short, "unexplained": 1e-3})
+    assert "z0's law has no term in z0'" in note and "1.0 rad (0.16 of a period)" in note
+
+
 def test_reselect_sets_the_chosen_law_on_a_trained_model():
     from latent_sindy import LatentSINDy, Phase, Restarts
     from latent_sindy.training.config import TrainConfig

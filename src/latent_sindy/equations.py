@@ -18,6 +18,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import re
 from collections.abc import Sequence
@@ -101,7 +102,8 @@ def doubt_notes(kept: dict[str, Any]) -> list[str]:
     """Why a fit's law may be wrong, one line each, from what its training kept (``kept``:
     the estimator's ``kept_``): starts that wrote different laws and no two agreed, a law
     written at the start whose terms were a close call (a term more took away a share of
-    the held-out error near the search's margin), or a law that leaves over
+    the held-out error near the search's margin) or with no rate term over sequences
+    shorter than a quarter of its oscillation, or a law that leaves over
     :data:`UNEXPLAINED_LIMIT` of the latent's derivative unexplained on the validation
     frames. Empty where none."""
     notes = []
@@ -120,6 +122,11 @@ def doubt_notes(kept: dict[str, Any]) -> list[str]:
                      "(a true term took away 98 % or more on the project's drawn videos): a "
                      "term may be missing or stand for a warp of the latent; more or longer "
                      "sequences tell them apart")
+    for name, span in start.get("short", []) if start.get("settled") else ():
+        notes.append(f"{name}'s law has no term in {name}' and each sequence spans only "
+                     f"{span:.1f} rad ({span / (2 * math.pi):.2f} of a period) of its "
+                     "oscillation: a weak damping may be missing (it cannot show over so "
+                     "short stretches); longer sequences would tell")
     share = kept.get("unexplained")
     if share is not None and not share <= UNEXPLAINED_LIMIT:
         notes.append(f"the law leaves {100 * share:.0f} % of the latent's derivative "

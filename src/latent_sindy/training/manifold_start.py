@@ -64,6 +64,10 @@ SETTLED = 0.2
 #: (a range about the search's :data:`~latent_sindy.sindy.unit_search.GAIN`) was a close
 #: call: a settled law with one is doubted aloud.
 CLOSE = (GAIN / 2, 2 * GAIN)
+#: A law with no term in a latent's rate, where each sequence spans less than this many
+#: radians of the law's own oscillation (a quarter period), is doubted aloud: on the video
+#: family's draws a weak damping (c/ω 0.014 and 0.039) went unseen on such stretches.
+SHORT_SPAN = math.pi / 2
 #: Samples of each split the law is searched on at most (evenly spaced beyond).
 LAW_SAMPLES = 6000
 #: Fewest covered samples a split needs for the law to be searched on it; where the
@@ -211,9 +215,39 @@ def begin_session(session) -> dict | None:
         out["close"] = [([names[j] for j in terms], gain)
                         for weighed in law.gains for terms, gain in weighed
                         if CLOSE[0] <= gain <= CLOSE[1]]
+        out["short"] = _short_of_a_swing(session, law)
         if float(law.fvu.max()) <= SETTLED:
             _settle(session, law)
             out["settled"] = True
+    return out
+
+
+@torch.no_grad()
+def _short_of_a_swing(session, law: UnitLaw) -> list[tuple[str, float]]:
+    """The latents whose law holds no term in their own rate while each sequence spans less
+    than :data:`SHORT_SPAN` radians of the law's own oscillation (√ of −∂z̈/∂z at its zero,
+    in the data's time): a rate term weaker than the latent's warp cannot show over so
+    short stretches. (name, span) each."""
+    dyn = session.model.dynamics
+    nz = dyn.nz
+    data = session.data
+    out = []
+    for i in range(nz):
+        coef = torch.as_tensor(law.coef[:, i], dtype=torch.float64)
+        step = 1e-3
+        probe = torch.zeros(4, 2 * nz, dtype=torch.float64)
+        probe[0, i], probe[1, i] = step, -step
+        probe[2, nz + i], probe[3, nz + i] = 0.5, -0.5  # the rate's columns
+        cols = dyn.library(probe.float(), torch.zeros(4, 0)).double()
+        omega2 = -float((cols[0] - cols[1]) @ coef) / (2 * step)
+        rate_terms = (cols[2] - cols[3]).abs() > 1e-6
+        rate_terms |= (cols[2] + cols[3] - 2 * dyn.library(
+            torch.zeros(1, 2 * nz), torch.zeros(1, 0)).double()[0]).abs() > 1e-6
+        if omega2 <= 0 or bool((coef[rate_terms] != 0).any()):
+            continue
+        span = data.steps * data.dt * math.sqrt(omega2) / dyn.time_unit
+        if span < SHORT_SPAN:
+            out.append((f"z{i}", span))
     return out
 
 
