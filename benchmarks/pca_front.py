@@ -30,12 +30,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="a 16-px video of 20 x 30 frames, k = 8, subspace iteration forced")
     args = p.parse_args(argv)
 
+    import dataclasses
+
     import numpy as np
 
     import latent_sindy.models.pca_front as front
     from latent_sindy.worlds.pendulum.video_draws import draw
-
-    import dataclasses
 
     d = draw(np.random.default_rng([args.seed, args.draw]))
     if args.smoke:

@@ -25,7 +25,7 @@ def test_the_scales_and_the_benchmark_setting():
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
 
 
-@pytest.mark.slow  # about a minute on 2 cores; the tiny study's end-to-end test stays in the default suite
+@pytest.mark.slow  # about a minute on 2 cores (the tiny study's end-to-end test stays)
 def test_the_read_latents_study_end_to_end(tmp_path, capfd):
     """The cart-pole's pose read from the frames, three dynamics on it, through the CLI:
     SINDy's equations in the report, each fit from scratch (no warm start to continue)."""

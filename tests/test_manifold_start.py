@@ -1,7 +1,6 @@
 """The continuous recipe's start: geodesic coordinates of frames, two latents turned apart."""
 
 import numpy as np
-import pytest
 import torch
 
 from latent_sindy.models.manifold import farthest_points, geodesic_coordinates

@@ -90,10 +90,10 @@ def _with_faint_pixels(x: torch.Tensor, var: torch.Tensor, groups: list[torch.Te
                        ) -> list[torch.Tensor]:
     """``groups`` with the pixels outside them that vary by at least :data:`FAINT` of the
     largest variance (where a part goes rarely, as a damped pendulum's widest swings, or
-    where two parts' paths come near) joined to the part whose pixels they vary with: the mean of a pixel's
-    :data:`NEIGHBOURS` strongest correlations with a part's pixels at least :data:`LINKED`,
-    and with no other part's; in :data:`FAINT_ROUNDS` rounds (a pixel joined draws in the
-    ones beyond it)."""
+    where two parts' paths come near) joined to the part whose pixels they vary with: the
+    mean of a pixel's :data:`NEIGHBOURS` strongest correlations with a part's pixels at
+    least :data:`LINKED`, and with no other part's; in :data:`FAINT_ROUNDS` rounds (a pixel
+    joined draws in the ones beyond it)."""
     taken = torch.cat(groups)
     faint = torch.nonzero(var >= FAINT * var.max()).ravel()
     faint = faint[~torch.isin(faint, taken)]

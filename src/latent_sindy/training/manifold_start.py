@@ -50,7 +50,8 @@ from latent_sindy.training.prepare import stencil_stride
 from latent_sindy.training.reselect import latent_derivatives
 from latent_sindy.training.samples import CoordinateSamples
 
-__all__ = ["CLOSE", "SETTLED", "begin_session", "choose_rotation", "coordinate_law", "regress_encoder"]
+__all__ = ["CLOSE", "SETTLED", "begin_session", "choose_rotation", "coordinate_law",
+           "regress_encoder"]
 
 #: Updates of the regression onto the coordinates (batches of :data:`REGRESSION_BATCH`).
 REGRESSION_STEPS = 3000
