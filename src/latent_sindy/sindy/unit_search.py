@@ -278,8 +278,7 @@ def _search_one(library: Library, sines: Sequence[tuple[int, int, float]], phase
     weighed = []
     for size in sizes[1:]:
         bigger = by_size[size]
-        weighed.append((bigger["law"], float((chosen["errors"].sum() - bigger["errors"].sum())
-                                             / max(chosen["errors"].sum(), 1e-300))))
+        weighed.append((bigger["law"], _gain(bigger, chosen)))
         if _beats(bigger, chosen):
             chosen = bigger
     path = [(by_size[s]["law"], by_size[s]["fvu"]) for s in sizes]
@@ -313,6 +312,12 @@ def _folded_errors(th: np.ndarray, y: np.ndarray, law: tuple[int, ...], groups: 
         err[out] = (y[out] - th[out] @ c) ** 2
     per_group = np.bincount(np.searchsorted(ids, groups), weights=err)
     return per_group / max(float(((y - y.mean()) ** 2).sum()), 1e-300)
+
+
+def _gain(bigger: dict, smaller: dict) -> float:
+    """The share of ``smaller``'s held-out error (over the groups) ``bigger`` takes away."""
+    return float((smaller["errors"].sum() - bigger["errors"].sum())
+                 / max(smaller["errors"].sum(), 1e-300))
 
 
 def _beats(bigger: dict, smaller: dict) -> bool:
