@@ -102,10 +102,11 @@ def test_the_geodesic_latent_learned_from_the_frames_steps_like_the_centroid(dat
 
 
 def test_models_on_the_geodesic_latent_keep_each_frames_angle_on_the_unit_circle(data):
-    """Each frame's (cos φ, sin φ) lies on the unit circle by construction: every model on
-    the latent scales the pairs back there after each step, so a rollout of many steps
+    """Each frame's (cos φ, sin φ) lies on the unit circle by construction: the sparse and
+    linear models scale the pairs back there after each step, so a rollout of many steps
     holds them, and the SINDy's setting is chosen on rollouts made so (as it will plan).
-    The centroids, whose circle is the data's and not of radius 1, are left as stepped."""
+    The MLP steps as it was trained, unprojected. The centroids, whose circle is the data's
+    and not of radius 1, are left as stepped."""
     encode = geodesic_latent(data.split("train").images, seed=0)
     assert encode.circles == ((0, 1), (2, 3))
     zz, u, _ = transitions(data, encode)
@@ -116,14 +117,19 @@ def test_models_on_the_geodesic_latent_keep_each_frames_angle_on_the_unit_circle
     held_u = torch.as_tensor(val.actions, dtype=torch.float64)
     for model in (CentroidSindy(encode=encode).fit(data),
                   CentroidSindy(order=1, min_share=0.0, sparsifier="stlsq",
-                                encode=encode).fit(data),
-                  CentroidMlp(width=16, epochs=2, seed=0, encode=encode).fit(data)):
+                                encode=encode).fit(data)):
         z = zz.clone()
         for t in range(30):
             z = model.step(z, torques[t])
             assert torch.isfinite(z).all()
         for a, b in encode.circles:
             np.testing.assert_allclose(torch.hypot(z[:, a], z[:, b]).numpy(), 1.0, atol=1e-6)
+    mlp = CentroidMlp(width=16, epochs=2, seed=0, encode=encode).fit(data)
+    with torch.no_grad():
+        inputs = torch.cat([zz.float(), u.float() / physics.MAX_TORQUE], 1)
+        raw = zz.float() + mlp.net(inputs) * mlp.scale
+    np.testing.assert_allclose(mlp.step(zz, u).numpy(), raw.double().numpy(), rtol=1e-6)
+    assert not np.allclose(torch.hypot(raw[:, 0], raw[:, 1]).numpy(), 1.0, atol=1e-6)
     sindy = CentroidSindy(encode=encode).fit(data)
     chosen = next(p for p in sindy.selection_.path if p.setting == sindy.setting_)
     assert chosen.error == pytest.approx(rollout_error(
