@@ -38,12 +38,20 @@ MODES = ("exact", "frames")
 MODE_NAMES = {"exact": "exact derivatives", "frames": "frames alone"}
 
 
-def video_of(seed: int, index: int, mode: str, smoke: bool = False) -> Any:
-    """The draw ``index`` of ``seed`` (its frames; exact derivatives kept for "exact")."""
+def video_of(seed: int, index: int, mode: str, smoke: bool = False,
+             generator: str = "family") -> Any:
+    """The draw ``index`` of ``seed`` (its frames; exact derivatives kept for "exact"), of
+    the family or of the second generator (``benchmarks/second_generator.py``)."""
     import dataclasses
 
     import numpy as np
 
+    if generator == "second":
+        from second_generator import second_draw
+
+        d = second_draw(np.random.default_rng([seed, index, 2]))
+        d = dataclasses.replace(d, exact=(mode == "exact"), uint8=d.uint8 and mode != "exact")
+        return d.shrunk(16, 6, 30) if smoke else d
     from latent_sindy.worlds.pendulum.video_draws import draw
 
     d = draw(np.random.default_rng([seed, index]))
@@ -53,14 +61,15 @@ def video_of(seed: int, index: int, mode: str, smoke: bool = False) -> Any:
     return d
 
 
-def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> dict:
+def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None,
+            generator: str = "family") -> dict:
     import torch
 
     from latent_sindy import LatentSINDy
     from latent_sindy.api import AllTermsPruned, UncertainLaw
 
     torch.set_num_threads(1)
-    d = video_of(seed, index, mode, smoke)
+    d = video_of(seed, index, mode, smoke, generator)
     t0 = time.perf_counter()
     video = d.video()
     t1 = time.perf_counter()
@@ -70,7 +79,8 @@ def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> 
         try:
             est.fit(video, **({"epochs": 2} if smoke else {}))
         except Exception as e:  # a fit that fails is a failure of the default: recorded
-            return {"seed": seed, "draw": index, "mode": mode, "system": d.system,
+            return {"generator": generator, "seed": seed, "draw": index, "mode": mode,
+                    "system": d.system,
                     "settings": d.to_dict(), "law": d.law_text(), "equations": [],
                     "recovered": False, "why": f"error: {type(e).__name__}: {e}",
                     "warnings": [], "fit_s": round(time.perf_counter() - t1, 1)}
@@ -78,8 +88,9 @@ def one_fit(seed: int, index: int, mode: str, smoke: bool, save: str | None) -> 
     verdict = d.judge(est)
     if save:
         est.save(Path(save) / f"s{seed}-d{index}-{mode}")
-    return {"seed": seed, "draw": index, "mode": mode, "system": d.system,
-            "settings": d.to_dict(), "law": d.law_text(), "equations": est.equations(),
+    return {"generator": generator, "seed": seed, "draw": index, "mode": mode,
+            "system": d.system, "settings": d.to_dict(), "law": d.law_text(),
+            "equations": est.equations(),
             **verdict, "warnings": [str(w.message) for w in caught
                                     if not issubclass(w.category, DeprecationWarning)],
             "warned": any(issubclass(w.category, (UncertainLaw, AllTermsPruned))
@@ -118,6 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="append one JSON line per fit; skip those there")
     p.add_argument("--save", help="save each fitted model under this folder")
     p.add_argument("--smoke", action="store_true", help="one tiny draw, two epochs (tests)")
+    p.add_argument("--generator", choices=("family", "second"), default="family",
+                   help="family: the library's video family; second: a generator written "
+                        "apart from it for the same ranges (benchmarks/second_generator.py)")
     p.add_argument("--record", type=Path, metavar="DIR",
                    help="also write each fit's row into DIR/pendulum-video/family-draws.csv "
                         "(the tracked results: DIR is results)")
@@ -140,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None and args.out.exists():
         for line in args.out.read_text().splitlines():
             row = json.loads(line)
-            done[(row["seed"], row["draw"], row["mode"])] = row
+            if row.get("generator", "family") == args.generator:
+                done[(row["seed"], row["draw"], row["mode"])] = row
     jobs = [(args.seed, i, m) for i in indices for m in modes]
     todo = [j for j in jobs if j not in done]
     rows = {j: done[j] for j in jobs if j in done}
@@ -157,10 +172,11 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.workers == 1 or len(todo) <= 1:
         for job in todo:
-            keep(job, one_fit(*job, args.smoke, args.save))
+            keep(job, one_fit(*job, args.smoke, args.save, args.generator))
     else:
         with ProcessPoolExecutor(args.workers) as pool:
-            futures = {pool.submit(one_fit, *job, args.smoke, args.save): job for job in todo}
+            futures = {pool.submit(one_fit, *job, args.smoke, args.save,
+                                   args.generator): job for job in todo}
             for fut in futures:
                 keep(futures[fut], fut.result())
     if args.record is not None:

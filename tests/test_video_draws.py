@@ -137,3 +137,60 @@ def test_benchmark_refuses_bad_arguments(tmp_path):
                            timeout=120)
         assert r.returncode == 2, (args, r.stderr)
         assert "Traceback" not in r.stderr
+
+
+# ------------------------------------------------------------------ the second generator
+def _second_generator():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "second_generator", ROOT / "benchmarks" / "second_generator.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # (its dataclass looks its module up)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_second_generator_draws_within_the_family_ranges_its_own_way():
+    gen = _second_generator()
+    draws = [gen.second_draw(np.random.default_rng([0, i, 2])) for i in range(40)]
+    for d in draws:
+        assert 0.3 <= min(d.omega2) and max(d.omega2) <= 4.0
+        assert all(c <= min(0.4, 0.3 * math.sqrt(w2)) + 1e-12
+                   for w2, c in zip(d.omega2, d.damping, strict=True))
+        assert 24 <= d.size <= 80 and 20 <= d.trajectories <= 200 and 40 <= d.frames <= 400
+        assert 0.01 <= d.dt <= min(0.15, 2 * math.pi / math.sqrt(max(d.omega2)) / 8) + 1e-12
+        assert 0 <= d.noise <= 0.02
+    # the habits the family does not have, each drawn somewhere
+    assert {d.style for d in draws} == set(gen.STYLES)
+    assert {d.split for d in draws} == {"none", "random"}
+    assert any(d.uint8 for d in draws) and not any(d.uint8 and d.exact for d in draws)
+    assert {d.system for d in draws} == set(SYSTEMS)
+
+
+@pytest.mark.parametrize("system", SYSTEMS)
+def test_the_second_generators_derivatives_match_finite_differences(system):
+    gen = _second_generator()
+    d = next(d for i in range(60)
+             if (d := gen.second_draw(np.random.default_rng([1, i, 2]))).system == system)
+    d = dataclasses.replace(d.shrunk(24, 3, 60), dt=0.002, noise=0.0, texture=0.2,
+                            exact=True, uint8=False)
+    v = d.video()
+    assert v.images.dtype == np.float64 and v.images.min() == 0 and v.images.max() == 1
+    x = v.images
+    fd2 = (x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]) / d.dt ** 2
+    ref = v.images_ddot[:, 1:-1]
+    assert np.abs(fd2 - ref).max() < 0.01 * np.abs(ref).max()
+    # the law it judges by is the family's, in the library's names
+    assert d.law() == VideoDraw(system=system, omega2=d.omega2, damping=d.damping,
+                                centre=((0, 0),) * d.latent_dim, radius=(0.5,) * d.latent_dim,
+                                direction=(0,) * d.latent_dim).law()
+
+
+def test_the_second_generator_films_a_camera_video_as_uint8_with_no_split():
+    gen = _second_generator()
+    d = gen.second_draw(np.random.default_rng(4))
+    d = dataclasses.replace(d.shrunk(24, 10, 40), exact=False, uint8=True, split="none")
+    v = d.video()
+    assert v.images.dtype == np.uint8 and v.images_ddot is None
+    assert v.split_counts()["train"] > 0 and v.split_counts()["val"] > 0
