@@ -105,8 +105,19 @@ def test_a_law_written_at_the_start_on_a_close_call_is_doubted_aloud():
     (note,) = doubt_notes({"start": close, "unexplained": 1e-3})
     assert "close call" in note and "z0' + sin(z0) took away only 30 %" in note
     # a start that trained on (not settled) wrote no law of its own; none close: no doubt
+    # of the close call (the unsettled start's own doubt needs the law it searched)
     assert doubt_notes({"start": {**close, "settled": False}, "unexplained": 1e-3}) == []
     assert doubt_notes({"start": {"settled": True, "close": []}, "unexplained": 1e-3}) == []
+
+
+def test_a_law_the_main_fit_wrote_after_an_unsettled_start_is_doubted_aloud():
+    unsettled = {"law_fvu": [0.12, 0.5], "laws": [], "close": [], "short": []}
+    (note,) = doubt_notes({"start": unsettled, "unexplained": 1e-3})
+    assert "settled no law" in note and "left 50 % of the held-out" in note
+    assert doubt_notes({"start": {**unsettled, "law_fvu": [0.1, 0.2], "settled": True},
+                        "unexplained": 1e-3}) == []
+    # no law searched (the data hold actions): nothing to say about the start
+    assert doubt_notes({"start": {"eigenvalues": [1.0]}, "unexplained": 1e-3}) == []
 
 
 def test_a_law_without_a_rate_term_on_sequences_shorter_than_a_swing_is_doubted_aloud():

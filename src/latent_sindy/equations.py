@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from latent_sindy.atomic import write_atomic
+from latent_sindy.training.manifold_start import SETTLED
 from latent_sindy.training.runs import RunDir
 
 __all__ = ["coefficient_table", "equations_report", "name_actions", "pruned_note"]
@@ -103,7 +104,8 @@ def doubt_notes(kept: dict[str, Any]) -> list[str]:
     the estimator's ``kept_``): starts that wrote different laws and no two agreed, a law
     written at the start whose terms were a close call (a term more took away a share of
     the held-out error near the search's margin) or with no rate term over sequences
-    shorter than a quarter of its oscillation, or a law that leaves over
+    shorter than a quarter of its oscillation, a start whose coordinates settled no law
+    (the law kept is the main fit's), or a law that leaves over
     :data:`UNEXPLAINED_LIMIT` of the latent's derivative unexplained on the validation
     frames. Empty where none."""
     notes = []
@@ -122,6 +124,13 @@ def doubt_notes(kept: dict[str, Any]) -> list[str]:
                      "(a true term took away 98 % or more on the project's drawn videos): a "
                      "term may be missing or stand for a warp of the latent; more or longer "
                      "sequences tell them apart")
+    if not start.get("settled") and start.get("law_fvu") is not None:
+        notes.append(f"the frames' own coordinates settled no law (the best one searched on "
+                     f"them left {100 * max(start['law_fvu']):.0f} % of the held-out "
+                     f"second derivative unexplained, over the {100 * SETTLED:.0f} % a "
+                     "settled start may): this law was found by training the autoencoder "
+                     "further, and a latent it warps can take a law of its own; more or "
+                     "longer sequences, less noise or exact derivatives would tell")
     for name, span in start.get("short", []) if start.get("settled") else ():
         notes.append(f"{name}'s law has no term in {name}' and each sequence spans only "
                      f"{span:.1f} rad ({span / (2 * math.pi):.2f} of a period) of its "

@@ -144,7 +144,8 @@ def characteristic_time(frames: np.ndarray, rate: np.ndarray, order: int) -> flo
 def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     """How long the motion in frames (N, T+1, C, H, W) sampled every ``dt`` takes to change:
     rms(p − p̄) / rms(ṗ) of the centroid p of what differs from the still scene (each
-    frame's |x − median frame| over channels as weights; ṗ by central differences in time).
+    frame's |x − median frame| over channels, less :data:`NOISE_FLOOR` times the pixel
+    noise's level, as weights; ṗ by central differences in time).
     Unlike :func:`characteristic_time` of the pixels it holds on noisy frames, on any blob
     size and on any background (a pixel's intensity changes as fast as an edge passes it; the
     centroid moves as the object does): for an object that oscillates at ω it is about 1/ω.
@@ -160,6 +161,11 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     pick = np.linspace(0, len(flat) - 1, min(len(flat), rows)).round().astype(int)
     still = np.median(flat[pick], axis=0)
     weight = np.abs(flat - still).sum(1)  # (n f, h w)
+    # pixel noise weighs every pixel of the frame, pulling the centroid to the frame's middle
+    # and shaking it: only what stands out of the still scene's noise weighs (the noise's
+    # level read where nothing moves, most pixels of most frames: their median deviation)
+    floor = NOISE_FLOOR * 1.4826 * float(np.median(np.median(weight[pick], axis=1)))
+    weight = np.maximum(weight - floor, 0.0)
     yy, xx = np.mgrid[0:h, 0:w]
     where = np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float64)  # (h w, 2)
     pos = (weight @ where) / np.maximum(weight.sum(1, keepdims=True), 1e-300)
@@ -176,5 +182,8 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     return spread / speed if speed > 0 else math.inf
 
 
+#: What differs from the still scene weighs in the centroid beyond this many times the
+#: pixel noise's level (:func:`motion_time`).
+NOISE_FLOOR = 3.0
 #: A centroid that moves less than this (pixels, rms) shows no object crossing the frame.
 STILL_CENTROID = 0.5
