@@ -42,6 +42,40 @@ def test_geodesic_coordinate_of_a_blob_on_an_arc_is_its_angle_up_to_an_affine_ma
     assert r2_affine(height.unsqueeze(1), theta) < 0.5  # what a PCA latent may settle on
 
 
+def test_pixel_noise_does_not_stretch_the_coordinate_where_frames_are_many():
+    """Noise lengthens every graph edge alike, so a stretch sampled densely (many short
+    edges) came out longer than one sampled sparsely; the edges shortened by the noise's
+    share keep the coordinate even, and noise-free frames are left as they were."""
+    from latent_sindy.models.manifold import noise_floor, principal_front
+
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-1, 1, 4000)
+    theta = 2.5 * np.sign(u) * u ** 2  # many frames near the bottom, few near the ends
+    clean = blob_frames(theta)
+
+    def front(frames):
+        mean, axes = principal_front(frames, 48, seed=0)
+        return (frames - mean) @ axes
+
+    def stretch(z):  # the coordinate's slope near the bottom over its slope near the ends
+        z = z.numpy().ravel()
+        slope = [abs(np.polyfit(theta[m], z[m], 1)[0])
+                 for m in (np.abs(theta) < 0.3, np.abs(theta) > 1.5)]
+        return slope[0] / slope[1]
+
+    points = front(clean)
+    assert noise_floor(points, 1) == 0.0
+    torch.testing.assert_close(
+        geodesic_coordinates(points, 1, landmarks=300, seed=0).coords,
+        geodesic_coordinates(points, 1, landmarks=300, seed=0, denoise=False).coords)
+    noisy = front(clean + 0.05 * torch.from_numpy(rng.standard_normal(clean.shape)))
+    assert noise_floor(noisy, 1) > 0
+    kept = geodesic_coordinates(noisy, 1, landmarks=300, seed=0)
+    raw = geodesic_coordinates(noisy, 1, landmarks=300, seed=0, denoise=False)
+    assert stretch(raw.project(noisy)) > 1.15
+    assert abs(stretch(kept.project(noisy)) - 1) < 0.1
+
+
 def test_choose_rotation_takes_two_independent_motions_apart():
     rng = np.random.default_rng(3)
     n = 4000

@@ -6,7 +6,7 @@ keep them are coordinates of the motion, found from the frames alone:
 
 1. landmarks spread over the points by farthest-point sampling (:func:`farthest_points`);
 2. a graph of each landmark's nearest neighbours, joined by a minimum spanning tree so that
-   it is connected;
+   it is connected, each edge shortened by what pixel noise adds to it (:func:`noise_floor`);
 3. shortest paths along the graph (Floyd-Warshall) and classical scaling of those distances
    (Tenenbaum et al. 2000), the leading ``dim`` axes kept;
 4. any other point's coordinates interpolated from its nearest landmarks
@@ -27,12 +27,15 @@ from dataclasses import dataclass, field
 import torch
 
 __all__ = ["LANDMARKS", "NEIGHBOURS", "Manifold", "farthest_points", "geodesic_coordinates",
-           "principal_front"]
+           "noise_floor", "principal_front"]
 
 #: Landmarks the geodesic coordinates are computed on (the others are interpolated).
 LANDMARKS = 1000
 #: Each landmark's graph neighbours.
 NEIGHBOURS = 10
+#: The nearest neighbours, and the points they are taken of, that :func:`noise_floor` reads.
+FLOOR_NEIGHBOURS = 8
+FLOOR_SAMPLE = 2000
 
 @dataclass
 class Manifold:
@@ -135,15 +138,45 @@ def _spanning_tree(d: torch.Tensor) -> list[tuple[int, int]]:
     return edges
 
 
-def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMARKS,
-                         neighbours: int = NEIGHBOURS, seed: int = 0) -> Manifold:
-    """Isomap coordinates (``dim`` of them) of ``points`` (N, K) on ``landmarks`` spread by
-    farthest-point sampling from a first point chosen by ``seed``."""
+def noise_floor(points: torch.Tensor, dim: int, neighbours: int = FLOOR_NEIGHBOURS,
+                sample: int = FLOOR_SAMPLE, seed: int = 0) -> float:
+    """The squared distance that noise alone puts between any two of ``points`` (N, K) on a
+    ``dim``-dimensional manifold: on a densely sampled manifold the j-th nearest neighbour
+    lies j^(1/dim) spacings away, so its squared distance is a + b j^(2/dim), and a, the
+    line's intercept through the medians over ``sample`` points of each j up to
+    ``neighbours``, is what noise adds to every squared distance (about 0 without noise)."""
     x = points.double()
+    gen = torch.Generator().manual_seed(seed)
+    pick = torch.randperm(len(x), generator=gen)[:sample]
+    k = min(neighbours, len(x) - 1)
+    if k < 2:
+        return 0.0
+    near = torch.cat([torch.cdist(part, x).topk(k + 1, largest=False).values[:, 1:]
+                      for part in x[pick].split(512)])
+    median = near.square().median(0).values  # (k,)
+    rank = torch.arange(1, k + 1, dtype=x.dtype) ** (2.0 / dim)
+    line = torch.stack([torch.ones_like(rank), rank], 1)
+    a = torch.linalg.lstsq(line, median[:, None]).solution[0, 0]
+    return float(a.clamp_min(0.0))
+
+
+def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMARKS,
+                         neighbours: int = NEIGHBOURS, seed: int = 0,
+                         denoise: bool = True) -> Manifold:
+    """Isomap coordinates (``dim`` of them) of ``points`` (N, K) on ``landmarks`` spread by
+    farthest-point sampling from a first point chosen by ``seed``. With ``denoise``, each
+    graph edge is shortened by what noise adds to it (:func:`noise_floor`): noise lengthens
+    every edge alike, so a path through densely sampled stretches (many short edges) would
+    count it more often than one through sparse stretches, and the coordinate would stretch
+    where the frames are many."""
+    x = points.double()
+    floor = noise_floor(x, dim, seed=seed) if denoise else 0.0
     first = int(torch.randint(len(x), (1,), generator=torch.Generator().manual_seed(seed)))
     idx = farthest_points(x, landmarks, first)
     lm = x[idx]
     d = torch.cdist(lm, lm)
+    if floor > 0:
+        d = (d.square() - floor).clamp_min(0.0).sqrt()
     n = len(lm)
     graph = torch.full_like(d, math.inf)
     k = min(neighbours + 1, n)
