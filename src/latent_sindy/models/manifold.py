@@ -145,7 +145,8 @@ def noise_floor(points: torch.Tensor, dim: int, neighbours: int = FLOOR_NEIGHBOU
     lies j^(1/dim) spacings away, so its squared distance is a + b j^(2/dim), and a, the
     line's intercept through the medians over ``sample`` points of each j up to
     ``neighbours``, is what noise adds to every squared distance (about 0 without noise)."""
-    x = points.double()
+    # (a point repeated, as a frame in several overlapping windows, counts once)
+    x = torch.unique(points.double(), dim=0)
     gen = torch.Generator().manual_seed(seed)
     pick = torch.randperm(len(x), generator=gen)[:sample]
     k = min(neighbours, len(x) - 1)
