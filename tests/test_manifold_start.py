@@ -1,6 +1,7 @@
 """The continuous recipe's start: geodesic coordinates of frames, two latents turned apart."""
 
 import numpy as np
+import pytest
 import torch
 
 from latent_sindy.models.manifold import farthest_points, geodesic_coordinates
@@ -70,6 +71,9 @@ def test_pixel_noise_does_not_stretch_the_coordinate_where_frames_are_many():
         geodesic_coordinates(points, 1, landmarks=300, seed=0, denoise=False).coords)
     noisy = front(clean + 0.05 * torch.from_numpy(rng.standard_normal(clean.shape)))
     assert noise_floor(noisy, 1) > 0
+    # frames repeated (as in overlapping windows) are the same frames: the same floor
+    assert noise_floor(torch.cat([noisy, noisy]), 1) == pytest.approx(noise_floor(noisy, 1),
+                                                                      rel=0.05)
     kept = geodesic_coordinates(noisy, 1, landmarks=300, seed=0)
     raw = geodesic_coordinates(noisy, 1, landmarks=300, seed=0, denoise=False)
     assert stretch(raw.project(noisy)) > 1.15
