@@ -34,7 +34,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from latent_sindy.data.sequence import SequenceData
-from latent_sindy.worlds.pendulum.video_draws import judge_equations
+from latent_sindy.worlds.pendulum.video_draws import judge_equations, law_text, true_law
 
 SYSTEMS = ("pendulum", "pendulum", "spring", "two_pendulums")
 STYLES = ("rest", "kick", "energy")
@@ -74,16 +74,10 @@ class SecondDraw:
         return 2 if self.system == "two_pendulums" else 1
 
     def law(self) -> list[dict[str, float]]:
-        out = []
-        for i, (w2, c) in enumerate(zip(self.omega2, self.damping, strict=True)):
-            terms = {(f"z{i}" if self.system == "spring" else f"sin(z{i})"): -w2}
-            if c > 0:
-                terms[f"z{i}'"] = -c
-            out.append(terms)
-        return out
+        return true_law(self.system, self.omega2, self.damping)
 
     def law_text(self) -> list[str]:
-        return [" ".join(f"{v:+.4g} {k}" for k, v in t.items()) for t in self.law()]
+        return law_text(self.law())
 
     def judge(self, model: Any) -> dict[str, Any]:
         return judge_equations(self, model.get_feature_names(), model.coefficients())

@@ -31,7 +31,7 @@ import numpy as np
 from latent_sindy.data.sequence import SequenceData
 from latent_sindy.errors import UserError
 
-__all__ = ["RANGES", "SYSTEMS", "VideoDraw", "draw", "judge_equations"]
+__all__ = ["RANGES", "SYSTEMS", "VideoDraw", "draw", "judge_equations", "law_text", "true_law"]
 
 SYSTEMS = ("pendulum", "spring", "two_pendulums")
 """The systems of the family: θ̈ = −ω² sin θ − c θ̇ (a blob on a circle); x″ = −k x − c x′
@@ -104,17 +104,10 @@ class VideoDraw:
         """The true second-order law of each latent coordinate, term -> coefficient, in the
         library's names ("sin(z0)", "z0", "z0'"), for the blob the coordinate reads (two
         pendulums: the first blob's as z0; :meth:`judge` also accepts them swapped)."""
-        out = []
-        for i, (w2, c) in enumerate(zip(self.omega2, self.damping, strict=True)):
-            z = f"z{i}"
-            terms = {f"sin({z})" if self.system != "spring" else z: -w2}
-            if c > 0:
-                terms[f"{z}'"] = -c
-            out.append(terms)
-        return out
+        return true_law(self.system, self.omega2, self.damping)
 
     def law_text(self) -> list[str]:
-        return [" ".join(f"{v:+.4g} {k}" for k, v in terms.items()) for terms in self.law()]
+        return law_text(self.law())
 
     def judge(self, model: Any) -> dict[str, Any]:
         """Whether a fitted continuous-time ``model`` (a LatentSINDy) wrote the true law."""
@@ -331,6 +324,24 @@ def draw(rng: np.random.Generator, system: str | None = None,
                      trajectories=trajectories, frames=frames, dt=dt, noise=noise,
                      background=background, exact=exact,
                      seed=int(rng.integers(2 ** 31)))
+
+
+def true_law(system: str, omega2: tuple[float, ...], damping: tuple[float, ...]
+             ) -> list[dict[str, float]]:
+    """Each latent's law, term -> coefficient in the library's names: −ω² sin z (a spring's
+    −k z) and, where c > 0, −c z'."""
+    out = []
+    for i, (w2, c) in enumerate(zip(omega2, damping, strict=True)):
+        terms = {f"sin(z{i})" if system != "spring" else f"z{i}": -w2}
+        if c > 0:
+            terms[f"z{i}'"] = -c
+        out.append(terms)
+    return out
+
+
+def law_text(law: list[dict[str, float]]) -> list[str]:
+    """Each latent's law as a line of signed terms."""
+    return [" ".join(f"{v:+.4g} {k}" for k, v in terms.items()) for terms in law]
 
 
 _SWAP = re.compile(r"z([01])")
