@@ -187,3 +187,23 @@ def test_the_motion_time_holds_on_noisy_frames_any_blob_and_background():
     assert pixels[1] / pixels[0] > 1.3  # what the unit was read from before
     faster = dataclasses.replace(base, omega2=(4.0,)).video()
     assert motion_time(faster.images, 0.02) == pytest.approx(times[0] / 2, rel=0.1)
+
+
+def test_the_motion_time_holds_when_the_motion_dies_out():
+    """A damped spring filmed long after its swings died out rests, in most frames, where
+    the still scene (the median frame) shows it: those frames differ from it in a few noisy
+    pixels, whose centroid would read as fast motion. They read no position, and the time
+    stays about 1/ω, with noise or without."""
+    import dataclasses
+
+    from latent_sindy.models.derivatives import motion_time
+    from latent_sindy.worlds.pendulum.video_draws import VideoDraw
+
+    base = VideoDraw(system="spring", omega2=(2.75,), damping=(0.36,), size=32, width=0.03,
+                     trajectories=12, frames=400, dt=0.05, exact=True)
+    swinging = motion_time(dataclasses.replace(base, frames=60, damping=(0.0,)).video().images,
+                           0.05)
+    assert swinging == pytest.approx(2.75 ** -0.5, rel=0.05)
+    for noise in (0.0, 0.02, 0.1):
+        dying = motion_time(dataclasses.replace(base, noise=noise).video().images, 0.05)
+        assert dying == pytest.approx(swinging, rel=0.15)

@@ -145,7 +145,9 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     """How long the motion in frames (N, T+1, C, H, W) sampled every ``dt`` takes to change:
     rms(p − p̄) / rms(ṗ) of the centroid p of what differs from the still scene (each
     frame's |x − median frame| over channels, less :data:`NOISE_FLOOR` times the pixel
-    noise's level, as weights; ṗ by central differences in time).
+    noise's level, as weights; ṗ by central differences in time). A frame in which almost
+    nothing stands out (under :data:`FAINT` of a moving frame's weight: an object resting
+    where the still scene shows it, as a damped motion that has died out) reads no centroid.
     Unlike :func:`characteristic_time` of the pixels it holds on noisy frames, on any blob
     size and on any background (a pixel's intensity changes as fast as an edge passes it; the
     centroid moves as the object does): for an object that oscillates at ω it is about 1/ω.
@@ -168,9 +170,17 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     weight = np.maximum(weight - floor, 0.0)
     yy, xx = np.mgrid[0:h, 0:w]
     where = np.stack([xx.ravel(), yy.ravel()], 1).astype(np.float64)  # (h w, 2)
-    pos = (weight @ where) / np.maximum(weight.sum(1, keepdims=True), 1e-300)
+    total = weight.sum(1, keepdims=True)
+    pos = (weight @ where) / np.maximum(total, 1e-300)
+    # an object at rest where the still scene shows it (a damped motion that has died out)
+    # differs from it in a few noisy pixels at most: their centroid is noise, which would
+    # read as fast motion; such frames read no position
+    faint = total[:, 0] < FAINT * np.percentile(total[pick, 0], 90)
+    pos[faint] = np.nan
     pos = pos.reshape(n, f, 2)
-    spread = float(np.sqrt(((pos - pos.mean((0, 1))) ** 2).mean()))
+    if np.isnan(pos).all():
+        pos = np.zeros_like(pos)
+    spread = float(np.sqrt(np.nanmean((pos - np.nanmean(pos, (0, 1))) ** 2)))
     if spread < STILL_CENTROID:  # nothing moves across the frame (intensities change in
         # place): the first principal coordinate's time instead
         flat = v.reshape(n * f, -1)
@@ -178,12 +188,16 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
         _, _, vt = np.linalg.svd(flat[pick] - mean, full_matrices=False)
         pos = ((flat - mean) @ vt[:1].T).reshape(n, f, 1)
         spread = float(np.sqrt(((pos - pos.mean((0, 1))) ** 2).mean()))
-    speed = float(np.sqrt((np.gradient(pos, dt, axis=1) ** 2).mean()))
+    rate = np.gradient(pos, dt, axis=1)
+    speed = float(np.sqrt(np.nanmean(rate ** 2))) if not np.isnan(rate).all() else 0.0
     return spread / speed if speed > 0 else math.inf
 
 
 #: What differs from the still scene weighs in the centroid beyond this many times the
 #: pixel noise's level (:func:`motion_time`).
 NOISE_FLOOR = 3.0
+#: A frame whose weight (what stands out of the noise) is below this share of a moving
+#: frame's (the 90th percentile) reads no centroid (:func:`motion_time`).
+FAINT = 0.05
 #: A centroid that moves less than this (pixels, rms) shows no object crossing the frame.
 STILL_CENTROID = 0.5
