@@ -177,9 +177,7 @@ def motion_time(frames: np.ndarray, dt: float, rows: int = 2000) -> float:
     # read as fast motion; such frames read no position
     faint = total[:, 0] < FAINT * np.percentile(total[pick, 0], 90)
     pos[faint] = np.nan
-    pos = pos.reshape(n, f, 2)
-    if np.isnan(pos).all():
-        pos = np.zeros_like(pos)
+    pos = pos.reshape(n, f, 2)  # (the frames at the percentile itself are never faint)
     spread = float(np.sqrt(np.nanmean((pos - np.nanmean(pos, (0, 1))) ** 2)))
     if spread < STILL_CENTROID:  # nothing moves across the frame (intensities change in
         # place): the first principal coordinate's time instead
