@@ -47,27 +47,34 @@ class Manifold:
     covering: float = math.inf
     """The farthest any of the points the landmarks were spread over lies from its nearest
     landmark (the farthest-point sampling's last distance)."""
+    metric: torch.Tensor | None = None
+    """R (K, K): distances are ‖R (x − x')‖, the points mapped to x Rᵀ before anything else
+    (the landmarks are stored mapped); None: Euclidean."""
     _gradients: torch.Tensor | None = field(default=None, init=False, repr=False)
+
+    def mapped(self, points: torch.Tensor) -> torch.Tensor:
+        """``points`` (N, K) in float64, mapped by :attr:`metric` where there is one."""
+        x = points.double()
+        return x if self.metric is None else x @ self.metric.T
 
     def transform(self, points: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
         """(N, dim): inverse-distance weighting of the nearest landmarks' coordinates."""
         out = []
         k = min(NEIGHBOURS, len(self.landmarks))
-        for part in points.split(chunk):
-            d = torch.cdist(part.double(), self.landmarks)
+        for part in self.mapped(points).split(chunk):
+            d = torch.cdist(part, self.landmarks)
             near, j = d.topk(k, largest=False)
             w = 1.0 / (near + 1e-12)
             w = w / w.sum(1, keepdim=True)
             out.append((w.unsqueeze(-1) * self.coords[j]).sum(1))
         return torch.cat(out)
 
-
     def covers(self, points: torch.Tensor, slack: float = 2.0, chunk: int = 4096
                ) -> torch.Tensor:
         """(N,) bool: the points within ``slack`` times :attr:`covering` of a landmark
         (the others lie beyond what the landmarks were spread over)."""
-        near = torch.cat([torch.cdist(part.double(), self.landmarks).min(1).values
-                          for part in points.split(chunk)])
+        near = torch.cat([torch.cdist(part, self.landmarks).min(1).values
+                          for part in self.mapped(points).split(chunk)])
         return near <= slack * self.covering
 
     def project(self, points: torch.Tensor, near: int = 3, chunk: int = 4096
@@ -80,8 +87,7 @@ class Manifold:
         the tangents does."""
         grads = self.gradients()
         out = []
-        for part in points.split(chunk):
-            x = part.double()
+        for x in self.mapped(points).split(chunk):
             d, j = torch.cdist(x, self.landmarks).topk(min(near, len(self.landmarks)),
                                                        largest=False)
             w = torch.softmax(-(d / d[:, :1].clamp_min(1e-12)).square(), 1)
@@ -163,14 +169,16 @@ def noise_floor(points: torch.Tensor, dim: int, neighbours: int = FLOOR_NEIGHBOU
 
 def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMARKS,
                          neighbours: int = NEIGHBOURS, seed: int = 0,
-                         denoise: bool = True) -> Manifold:
+                         denoise: bool = True, metric: torch.Tensor | None = None
+                         ) -> Manifold:
     """Isomap coordinates (``dim`` of them) of ``points`` (N, K) on ``landmarks`` spread by
-    farthest-point sampling from a first point chosen by ``seed``. With ``denoise``, each
+    farthest-point sampling from a first point chosen by ``seed``, distances measured as
+    ‖R (x − x')‖ with ``metric`` R (K, K) (None: Euclidean). With ``denoise``, each
     graph edge is shortened by what noise adds to it (:func:`noise_floor`): noise lengthens
     every edge alike, so a path through densely sampled stretches (many short edges) would
     count it more often than one through sparse stretches, and the coordinate would stretch
     where the frames are many."""
-    x = points.double()
+    x = points.double() if metric is None else points.double() @ metric.double().T
     floor = noise_floor(x, dim, seed=seed) if denoise else 0.0
     first = int(torch.randint(len(x), (1,), generator=torch.Generator().manual_seed(seed)))
     idx = farthest_points(x, landmarks, first)
@@ -195,7 +203,8 @@ def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMA
     values, vectors = values.flip(0), vectors.flip(1)
     coords = vectors[:, :dim] * values[:dim].clamp_min(0).sqrt()
     covering = max(float(torch.cdist(part, lm).min(1).values.max()) for part in x.split(4096))
-    return Manifold(lm, coords, values, covering)
+    return Manifold(lm, coords, values, covering,
+                    None if metric is None else metric.double())
 
 
 def principal_front(x: torch.Tensor, components: int, seed: int = 0

@@ -13,13 +13,15 @@ travels in the model's state (its buffers).
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 from torch.nn import functional as F
 
 from latent_sindy.errors import UserError
 
-__all__ = ["FRONT_FRAMES", "LinearMap", "principal_components"]
+__all__ = ["FRONT_FRAMES", "LinearMap", "blurred_metric", "principal_components"]
 
 #: The most training frames the principal components are fitted on (evenly spaced).
 FRONT_FRAMES = 8192
@@ -95,3 +97,22 @@ def principal_components(frames: torch.Tensor, k: int
         basis = ((x.T @ u[:, -k:].flip(1)) / scale).masked_fill(flat, 0.0)
     spread = (x @ basis).square().mean().sqrt().clamp_min(torch.finfo(x.dtype).tiny)
     return mean.float(), basis.float(), float(spread)
+
+
+@torch.no_grad()
+def blurred_metric(columns: torch.Tensor, shape: tuple[int, ...], width: float) -> torch.Tensor:
+    """R (k, k) under which the distance between two points of a linear front, ‖R (c − c')‖,
+    is the distance between the frames they stand for blurred by a Gaussian of ``width``
+    pixels: ‖G (W (c − c'))‖, with ``columns`` W (pixels, k) the front's map back to the
+    frames (C, H, W) = ``shape``, and G the blur of each channel (zeros beyond the frame).
+    R is the triangular factor of G W, so the points map to c Rᵀ."""
+    c, h, w = shape
+    r = max(1, math.ceil(3 * width))
+    x = torch.arange(-r, r + 1, dtype=torch.float64)
+    g = torch.exp(-x.square() / (2 * width * width))
+    g = g / g.sum()
+    k = columns.shape[1]
+    im = columns.T.double().reshape(k * c, 1, h, w)
+    im = F.conv2d(im, g.view(1, 1, 1, -1), padding=(0, r))
+    im = F.conv2d(im, g.view(1, 1, -1, 1), padding=(r, 0))
+    return torch.linalg.qr(im.reshape(k, -1).T, mode="r").R

@@ -11,6 +11,8 @@ law of that latent exists. So the recipe starts each fit from the curve's own co
    paths along it, and classical scaling of those distances (Isomap, Tenenbaum et al. 2000).
    Distances along the curve are distances of the moving thing's path, so the coordinate is
    an affine function of the path's parameter (a pendulum's angle, a spring's excursion).
+   Where consecutive frames barely overlap (a small object that moves far between frames),
+   the distances are those of the frames blurred until they do (:func:`choose_blur`).
 2. **Regression**: the encoder (and the decoder, reconstructing) is trained to give that
    coordinate, standardised, on every training frame (:func:`regress_encoder`).
 3. **Two latents turned apart** (:func:`choose_rotation`): two independent motions give
@@ -45,13 +47,14 @@ from torch import nn
 
 from latent_sindy.models.manifold import Manifold, geodesic_coordinates, principal_front
 from latent_sindy.models.parts import moving_parts
+from latent_sindy.models.pca_front import LinearMap, blurred_metric
 from latent_sindy.sindy.unit_search import GAIN, UnitLaw, search_law
 from latent_sindy.training.prepare import stencil_stride
 from latent_sindy.training.reselect import latent_derivatives
 from latent_sindy.training.samples import CoordinateSamples
 
-__all__ = ["CLOSE", "SETTLED", "begin_session", "choose_rotation", "coordinate_law",
-           "regress_encoder"]
+__all__ = ["CLOSE", "OVERLAP", "SETTLED", "begin_session", "choose_blur", "choose_rotation",
+           "coordinate_law", "graph_blur", "regress_encoder"]
 
 #: Updates of the regression onto the coordinates (batches of :data:`REGRESSION_BATCH`).
 REGRESSION_STEPS = 3000
@@ -77,6 +80,15 @@ LAW_SAMPLES = 6000
 #: held out in their place.
 MIN_SAMPLES = 50
 HOLD_OUT_EVERY = 5
+#: The geodesic graph is built on the frames as they are where consecutive frames of the
+#: training sequences lie apart (squared distance, the median) at most this share of what
+#: lies between any two training frames (the median of :data:`PAIRS` random pairs); beyond
+#: it (a small object that moves far between frames), on the frames blurred by the first of
+#: :data:`BLUR_WIDTHS` (pixels) that brings them within it, or by the last
+#: (:func:`graph_blur`).
+OVERLAP = 0.15
+BLUR_WIDTHS = (1.0, 2.0, 3.0, 4.0)
+PAIRS = 4000
 #: Training frames the parts and their coordinates are found on at most (several latents).
 PART_FRAMES = 12000
 #: Principal components of each part's pixels its coordinate is found on.
@@ -186,9 +198,10 @@ def begin_session(session) -> dict | None:
         # every frame of the windows (frames alone: all five of each stencil, so that the
         # coordinates reach each sequence's ends, where the stencils read them too)
         frames = (train.coords.flatten(0, 1) if train.stencil else train.coords[:, 0]).detach()
-        manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed)
+        width, metric = graph_blur(session)
+        manifold = geodesic_coordinates(frames.cpu(), nz, seed=seed, metric=metric)
         target = manifold.project(frames.cpu())
-        out = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist()}
+        out = {"eigenvalues": manifold.eigenvalues[:nz + 2].tolist(), "blur": width}
     # the coordinates are uncorrelated (the scaling's eigenvectors): standardised, white
     centre, spread = target.mean(0), target.std(0).clamp_min(1e-12)
     target = ((target - centre) / spread).float()
@@ -221,6 +234,62 @@ def begin_session(session) -> dict | None:
             _settle(session, law)
             out["settled"] = True
     return out
+
+
+@torch.no_grad()
+def graph_blur(session) -> tuple[float, torch.Tensor | None]:
+    """:func:`choose_blur` on a session's training sequences, on its model's
+    principal-component front ((0, None) where the model has none)."""
+    model = session.model
+    back = model.autoencoder.decoder.net[-1]
+    if not isinstance(back, LinearMap):
+        return 0.0, None
+    front = model.autoencoder.encoder.net[0]
+    part = session.data.split("train")
+    sequences = [front(session.norm.normalize(part.images[i]).to(session.device).flatten(1))
+                 .cpu() for i in range(part.n)]
+    return choose_blur(sequences, back.weight.detach().cpu(), session.data.frame_shape,
+                       seed=session.cfg.seed)[:2]
+
+
+def choose_blur(sequences: list[torch.Tensor], columns: torch.Tensor, shape: tuple[int, ...],
+                seed: int = 0) -> tuple[float, torch.Tensor | None, float]:
+    """The blur (pixels, 0: none) the geodesic graph measures distances between frames
+    under, its metric on a linear front (:func:`~latent_sindy.models.pca_front.blurred_metric`;
+    None: none) and the share it was chosen on, from ``sequences`` of frames on the front
+    (each (F, k)), the front's map back to frames ``columns`` (pixels, k) and the frames'
+    ``shape`` (C, H, W): the share of the squared distance between any two frames (the
+    median over :data:`PAIRS` random pairs) that lies between consecutive frames (the
+    median), none where it is at most :data:`OVERLAP`, else the first of
+    :data:`BLUR_WIDTHS` under which it is (or the last).
+
+    Frames of an object a few pixels wide that moves farther than its width between frames
+    barely overlap, and where the sequences are few, the stretches where it moves fastest
+    hold frames that overlap no other: each lies the same distance from every frame, and
+    the graph's neighbours there stop following the motion's order (a second generator's
+    pendulum σ 1.2 px wide, 20 sequences stepping about its width a frame at the bottom:
+    the geodesic coordinate held 0.67 of the angle's variance; blurred by 1 px, 0.999).
+    Blurred, the object is wider and neighbouring frames overlap again. Where frames already
+    overlap, nothing changes."""
+    steps = torch.cat([q[1:].double() - q[:-1].double() for q in sequences])
+    frames = torch.cat(sequences).double()
+    gen = torch.Generator().manual_seed(seed)
+    a, b = torch.randint(len(frames), (2, PAIRS), generator=gen)
+    pairs = frames[a] - frames[b]
+
+    def share(metric: torch.Tensor | None) -> float:
+        near, far = (steps, pairs) if metric is None else (steps @ metric.T, pairs @ metric.T)
+        apart = float(far.square().sum(1).median())
+        return float(near.square().sum(1).median()) / apart if apart > 0 else 0.0
+
+    first = share(None) if len(steps) else 0.0
+    if first <= OVERLAP:
+        return 0.0, None, first
+    for width in BLUR_WIDTHS:
+        metric = blurred_metric(columns, shape, width)
+        if share(metric) <= OVERLAP:
+            break
+    return width, metric, first
 
 
 @torch.no_grad()
