@@ -54,8 +54,7 @@ class Manifold:
 
     def mapped(self, points: torch.Tensor) -> torch.Tensor:
         """``points`` (N, K) in float64, mapped by :attr:`metric` where there is one."""
-        x = points.double()
-        return x if self.metric is None else x @ self.metric.T
+        return _mapped(points, self.metric)
 
     def transform(self, points: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
         """(N, dim): inverse-distance weighting of the nearest landmarks' coordinates."""
@@ -111,6 +110,12 @@ class Manifold:
             g = torch.linalg.lstsq(along, ds).solution              # (L, dim, dim)
             self._gradients = tangent.transpose(1, 2) @ g           # (L, K, dim)
         return self._gradients
+
+
+def _mapped(points: torch.Tensor, metric: torch.Tensor | None) -> torch.Tensor:
+    """``points`` (N, K) in float64, as x Rᵀ with ``metric`` R (K, K) (None: as they are)."""
+    x = points.double()
+    return x if metric is None else x @ metric.T
 
 
 def farthest_points(points: torch.Tensor, count: int, first: int = 0) -> torch.Tensor:
@@ -178,7 +183,8 @@ def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMA
     every edge alike, so a path through densely sampled stretches (many short edges) would
     count it more often than one through sparse stretches, and the coordinate would stretch
     where the frames are many."""
-    x = points.double() if metric is None else points.double() @ metric.double().T
+    metric = None if metric is None else metric.double()
+    x = _mapped(points, metric)
     floor = noise_floor(x, dim, seed=seed) if denoise else 0.0
     first = int(torch.randint(len(x), (1,), generator=torch.Generator().manual_seed(seed)))
     idx = farthest_points(x, landmarks, first)
@@ -203,8 +209,7 @@ def geodesic_coordinates(points: torch.Tensor, dim: int, landmarks: int = LANDMA
     values, vectors = values.flip(0), vectors.flip(1)
     coords = vectors[:, :dim] * values[:dim].clamp_min(0).sqrt()
     covering = max(float(torch.cdist(part, lm).min(1).values.max()) for part in x.split(4096))
-    return Manifold(lm, coords, values, covering,
-                    None if metric is None else metric.double())
+    return Manifold(lm, coords, values, covering, metric)
 
 
 def principal_front(x: torch.Tensor, components: int, seed: int = 0
