@@ -115,6 +115,7 @@ def test_covers_tells_frames_beyond_the_landmarks_from_those_within():
     assert inside.all() and not beyond.any()
 
 
+@pytest.mark.slow  # about 110 s on 2 cores: two starts' encoder regressions (3000 steps each)
 def test_the_default_writes_the_law_found_on_the_coordinates_without_a_main_fit():
     import warnings
 
