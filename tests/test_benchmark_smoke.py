@@ -140,6 +140,9 @@ def test_suite(monkeypatch, capsys, tmp_path):
     assert "failed" not in row and row.split("|")[2].strip() == "1", out
     rows = json.loads((tmp_path / "rows.json").read_text())["rows"]
     assert len(rows) == 1 and math.isfinite(rows[0]["one_step"]) and rows[0]["terms"] > 0
+    # the ratio a perfect latent step would reach: the next frames encoded and decoded
+    assert math.isfinite(rows[0]["ceiling"]) and rows[0]["ceiling"] > 0
+    assert row.count("x |") >= 3, out  # one-step, the ceiling and the rollout
 
 
 def test_latent_probe(monkeypatch, capsys):
