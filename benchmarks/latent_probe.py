@@ -1,9 +1,12 @@
 """How much of the physics state a latent learned from the frames alone holds: the geodesic
-reader (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`, no world knowledge)
+reader (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`) or the keypoint reader
+(:class:`~latent_sindy.models.keypoint_reader.KeypointReader`), neither with world knowledge,
 probed against the state a task's reward needs.
 
 Per task: random-action episodes seen as two stacked frames; the reader fitted on the first
-``--train`` of them; on the others (frames no fit saw), each state feature regressed on the
+``--train`` of them; on the others (frames no fit saw; of those, the frames the reader
+marks seen: all of them for the geodesic reader, those that show every part the keypoint
+reader follows for it), each state feature regressed on the
 latent (positions and rates, or an angle's cos, sin and turn rate where the coordinates
 wind round; not the action) by least squares, once on the latent itself (a linear probe)
 and once on its monomials to degree 2 (a rate on a circle is a product of position and
@@ -15,6 +18,7 @@ Tasks: ``pendulum`` (Gymnasium's Pendulum-v1: cos θ, sin θ, θ̇) and ``cartpo
 
     python benchmarks/latent_probe.py --task pendulum
     python benchmarks/latent_probe.py --task cartpole --dim 2 3 4
+    python benchmarks/latent_probe.py --task cartpole --reader keypoints --parts 4
     python benchmarks/latent_probe.py --task pendulum --record results   # rows into
                                  # results/gym/latent-probe.csv (cartpole: results/dmc/)
     python benchmarks/latent_probe.py --smoke          # tiny sizes, seconds (the tests)
@@ -30,6 +34,7 @@ import numpy as np
 import torch
 
 from latent_sindy.models.geodesic_reader import GeodesicReader
+from latent_sindy.models.keypoint_reader import KeypointReader
 from latent_sindy.script_args import parse_with_smoke, positive_int
 
 #: Each task's world (the result file's folder) and its features' column names.
@@ -66,27 +71,35 @@ def _r2(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: list[int],
-          seed: int, landmarks: int) -> list[dict]:
+          seed: int, landmarks: int, reader_kind: str = "geodesic", updates: int = 6000
+          ) -> list[dict]:
+    """R² rows per latent size (``dims``: geodesic coordinates, or keypoints for
+    ``reader_kind`` "keypoints", ``updates`` Adam updates) and probe."""
     world, names, features = _world(task, size)
     data = world.collect(episodes, steps, seed=seed)
     images = torch.from_numpy(np.asarray(data.images))
     actions = torch.from_numpy(np.asarray(data.actions, np.float64))
-    y = features(np.asarray(data.states, np.float64)[train:]).reshape(-1, len(names))
+    y_all = features(np.asarray(data.states, np.float64)[train:]).reshape(-1, len(names))
     dt = float(data.dt) if data.dt is not None else 1.0
     rows = []
     for dim in dims:
         t0 = time.perf_counter()
-        reader = GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
+        reader = (GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
+                  if reader_kind == "geodesic" else
+                  KeypointReader(frames=2, parts=dim, steps=updates, seed=seed))
         reader.fit_episodes(images[:train])
         fit_s = time.perf_counter() - t0
         nu = actions.shape[-1]  # (the latent ends with the action held: not probed)
-        z = torch.cat([reader.episode(images[e], actions[e], dt)[0][:, :-nu]
-                       for e in range(train, episodes)]).numpy()
+        read = [reader.episode(images[e], actions[e], dt) for e in range(train, episodes)]
+        seen = torch.cat([s for _, s in read]).numpy()
+        z = torch.cat([z[:, :-nu] for z, _ in read]).numpy()[seen]
         z = (z - z.mean(0)) / z.std(0).clip(1e-12)
         for kind, x in (("linear", z), ("quadratic", _quadratic(z))):
             rows.append({"task": task, "dim": dim, "probe": kind, "fit_s": fit_s,
+                         "seen": float(seen.mean()),
+                         "reader": reader_kind, "kept": len(reader.names) // 2,
                          "read": "angle" if reader.circle else "coordinates",
-                         **dict(zip(names, _r2(x, y).tolist(), strict=True))})
+                         **dict(zip(names, _r2(x, y_all[seen]).tolist(), strict=True))})
     return rows
 
 
@@ -100,38 +113,54 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=positive_int, default=None,
                    help="actions an episode (default: 200 pendulum, 125 cartpole)")
     p.add_argument("--size", type=positive_int, default=64)
+    p.add_argument("--reader", choices=("geodesic", "keypoints"), default="geodesic",
+                   help="the latent learned from the frames: their geodesic coordinates, or "
+                        "keypoints of what moves (transported features)")
     p.add_argument("--dim", type=positive_int, nargs="+", default=[2],
                    help="geodesic coordinates (several: one probe each)")
+    p.add_argument("--parts", type=positive_int, nargs="+", default=[4],
+                   help="keypoints of the keypoint reader (several: one probe each)")
+    p.add_argument("--updates", type=positive_int, default=6000,
+                   help="the keypoint reader's Adam updates")
     p.add_argument("--landmarks", type=positive_int, default=1000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--record", type=Path, default=None, metavar="DIR",
                    help="also write the rows into DIR/<world>/latent-probe.csv (the tracked "
                         "results: --record results)")
     args = parse_with_smoke(p, argv, {"episodes": 4, "train": 3, "steps": 12, "size": 16,
-                                       "landmarks": 30})
+                                       "landmarks": 30, "updates": 5})
     if args.train >= args.episodes:
         p.error(f"--train {args.train}: use fewer than --episodes {args.episodes}, so that "
                 "some episodes are probed")
     steps = args.steps or (200 if args.task == "pendulum" else 125)
-    torch.set_num_threads(1)
-    rows = probe(args.task, args.episodes, args.train, steps, args.size, args.dim, args.seed,
-                 args.landmarks)
-    names = [k for k in rows[0] if k not in ("task", "dim", "probe", "fit_s", "read")]
-    print(f"{args.task}: geodesic latent from {args.train} random episodes of {steps} actions "
-          f"({args.size}x{args.size}, 2 frames), probed on {args.episodes - args.train} others")
-    print("| coordinates | read as | probe | " + " | ".join(names) + " | reader fit s |")
-    print("|---|---|---|" + "---|" * len(names) + "---|")
+    keypoints = args.reader == "keypoints"
+    torch.set_num_threads(2 if keypoints else 1)
+    rows = probe(args.task, args.episodes, args.train, steps, args.size,
+                 args.parts if keypoints else args.dim, args.seed, args.landmarks,
+                 args.reader, args.updates)
+    names = [k for k in rows[0]
+             if k not in ("task", "dim", "probe", "fit_s", "read", "reader", "kept", "seen")]
+    print(f"{args.task}: {args.reader} latent from {args.train} random episodes of {steps} "
+          f"actions ({args.size}x{args.size}, 2 frames), probed on "
+          f"{args.episodes - args.train} others")
+    print(f"| {'keypoints (coordinates kept)' if keypoints else 'coordinates'} | read as | "
+          "probe | " + " | ".join(names) + " | frames seen | reader fit s |")
+    print("|---|---|---|" + "---|" * len(names) + "---|---|")
     for r in rows:
-        print(f"| {r['dim']} | {r['read']} | {r['probe']} | "
+        size = f"{r['dim']} ({r['kept']})" if keypoints else f"{r['dim']}"
+        print(f"| {size} | {r['read']} | {r['probe']} | "
               + " | ".join(f"{r[n]:.3f}" for n in names)
-              + f" | {r['fit_s']:.1f} |")
+              + f" | {r['seen']:.2f} | {r['fit_s']:.1f} |")
     if args.record is not None:
         from latent_sindy.result_files import record_rows
 
         path = record_rows(args.record, WORLDS[args.task], "latent-probe", [
-            {"model": f"geodesic, {r['dim']} coordinates read as {r['read']}, {r['probe']} "
-                      "probe", "seed": args.seed, "episodes": args.train, "steps": steps,
-             "size": args.size, **{COLUMNS[n]: r[n] for n in names}, "fit_s": r["fit_s"]}
+            {"model": (f"keypoints, {r['dim']} parts ({r['kept']} coordinates kept), "
+                       f"{args.updates} updates, {r['probe']} probe" if keypoints else
+                       f"geodesic, {r['dim']} coordinates read as {r['read']}, {r['probe']} "
+                       "probe"), "seed": args.seed, "episodes": args.train, "steps": steps,
+             "size": args.size, **{COLUMNS[n]: r[n] for n in names}, "seen": r["seen"],
+             "fit_s": r["fit_s"]}
             for r in rows])
         print(f"recorded in {path}")
     return 0

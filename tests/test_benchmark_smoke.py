@@ -153,8 +153,24 @@ def test_latent_probe(monkeypatch, capsys):
         row = [ln for ln in out.splitlines() if ln.startswith("| 2 |") and f"| {probe} |" in ln]
         assert len(row) == 1, out
         values = _numbers(row[0])
-        # the coordinates, R² of cos θ, sin θ and θ', the fit seconds
-        assert len(values) == 5 and all(math.isfinite(v) and v <= 1.0 for v in values[1:4])
+        # the coordinates, R² of cos θ, sin θ and θ', the share seen, the fit seconds
+        assert len(values) == 6 and all(math.isfinite(v) and v <= 1.0 for v in values[1:4])
+        assert values[4] == 1.0, out  # the geodesic reader reads every frame
+
+
+def test_latent_probe_of_the_keypoint_reader(monkeypatch, capsys):
+    pytest.importorskip("pygame", reason="the gym extra (classic-control rendering) is not "
+                        "installed")
+    out = _run("latent_probe", monkeypatch, capsys, "--reader", "keypoints", "--parts", "2")
+    assert "keypoints latent" in out, out
+    for probe in ("linear", "quadratic"):
+        row = [ln for ln in out.splitlines() if ln.startswith("| 2 (") and f"| {probe} |" in ln]
+        assert len(row) == 1, out
+        values = _numbers(row[0])
+        # the keypoints, the coordinates kept, R² of cos θ, sin θ and θ', the share of the
+        # frames seen, the fit seconds
+        assert len(values) == 7 and 1 <= values[1] <= 4 and 0 < values[5] <= 1, out
+        assert all(math.isfinite(v) and v <= 1.0 for v in values[2:5]), out
 
 
 # ------------------------------------------------------------------ the dmc extra

@@ -69,7 +69,7 @@ class LoopScale:
     window: int
     latent_dim: int
     """The learned latent's size; a "geodesic" latent's coordinates (its latent is twice
-    that, positions and rates, and the action held)."""
+    that, positions and rates, and the action held); a "keypoints" latent's keypoints."""
     encoder: str
     samples: int
     horizon: int
@@ -103,7 +103,10 @@ class LoopScale:
     from the frames by the world's hand-made reader (the dmc world's ``ColourPoseReader``);
     "geodesic": the frames' geodesic coordinates (``latent_dim`` of them), learned from the
     random episodes' frames alone (:class:`~latent_sindy.models.geodesic_reader.GeodesicReader`,
-    no world knowledge). With "read" and "geodesic" the dynamics and the reward head are
+    no world knowledge); "keypoints": keypoints of what moves (``latent_dim`` of them),
+    learned from the random episodes' frames alone by transporting one frame's features into
+    another (:class:`~latent_sindy.models.keypoint_reader.KeypointReader`, no world
+    knowledge). With "read", "geodesic" and "keypoints" the dynamics and the reward head are
     fitted on that latent from scratch at each fit (SINDy in the windowed form over
     ``window`` steps, order ``order``, STLSQ's ``min_share``)."""
     order: int = 3
@@ -192,7 +195,8 @@ def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
     same as in this process): the study's settings and, per model and seed, the log of its
     loop and its wall time. ``name``: the world's, for the settings file and messages;
     ``header``: the first line said (the world, the scale, the images); ``reader``: makes
-    the reader of a ``latent="read"`` or ``"geodesic"`` scale (:func:`scale_reader`)."""
+    the reader of a ``latent="read"``, ``"geodesic"`` or ``"keypoints"`` scale
+    (:func:`scale_reader`)."""
     from latent_sindy.executors import ExecutorOptions, make_executor
     from latent_sindy.progress import say_stderr
     from latent_sindy.training.config import resolve_device
@@ -231,12 +235,17 @@ def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
 def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None = None
                  ) -> Callable[[], Any] | None:
     """What makes the reader of scale ``s`` on observations of ``frames`` stacked frames: the
-    geodesic coordinates (``s.latent_dim`` of them) for a "geodesic" scale, the world's
-    ``hand_made`` reader for a "read" one, None for a learned latent."""
+    geodesic coordinates (``s.latent_dim`` of them) for a "geodesic" scale, keypoints
+    (``s.latent_dim`` of them) for a "keypoints" one, the world's ``hand_made`` reader for
+    a "read" one, None for a learned latent."""
     if s.latent == "geodesic":
         from latent_sindy.models.geodesic_reader import GeodesicReader
 
         return partial(GeodesicReader, frames=frames, dim=s.latent_dim)
+    if s.latent == "keypoints":
+        from latent_sindy.models.keypoint_reader import KeypointReader
+
+        return partial(KeypointReader, frames=frames, parts=s.latent_dim)
     return hand_made if s.latent == "read" else None
 
 
@@ -254,7 +263,7 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
 
     t0 = time.perf_counter()
     torch.set_num_threads(threads)
-    if s.latent in ("read", "geodesic"):
+    if s.latent in ("read", "geodesic", "keypoints"):
         from latent_sindy.read_latent import ReadLatent, ReadLatentConfig
 
         if reader is None:

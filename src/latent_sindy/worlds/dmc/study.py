@@ -93,6 +93,17 @@ SCALES: dict[str, DmcScale] = {
         "seeds 0..4; hours on a CPU",
         (0, 1, 2, 3, 4), 64, 2, 30, 7, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=5,
         episodes_per_iteration=10, latent="read", lambda_=1.0),
+    "keypoints-demo": DmcScale(
+        "as read-demo on a latent learned from the frames alone, no reader written for the "
+        "world: 4 keypoints of what moves (transported features, 6000 updates on the seed "
+        "episodes' frames)",
+        (0,), 64, 2, 30, 3, 125, 1, 0, 5, 4, "none", 1000, 20, eval_episodes=4,
+        episodes_per_iteration=10, latent="keypoints", lambda_=1.0),
+    "keypoints-100k": DmcScale(
+        "as read-100k on the keypoints of keypoints-demo (learned from the frames alone): 7 "
+        "fits, 100k environment steps; seeds 0..4; hours on a CPU",
+        (0, 1, 2, 3, 4), 64, 2, 30, 7, 125, 1, 0, 5, 4, "none", 1000, 20, eval_episodes=5,
+        episodes_per_iteration=10, latent="keypoints", lambda_=1.0),
 }
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
@@ -148,8 +159,8 @@ def dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] |
 
 
 def _reader(world_config: DmcConfig, s: DmcScale) -> Callable[[], Any] | None:
-    """What makes the scale's reader: the frames' geodesic coordinates (learned), or the
-    cart-pole's pose by image moments (a hand-made reader)."""
+    """What makes the scale's reader: the frames' geodesic coordinates or keypoints (both
+    learned), or the cart-pole's pose by image moments (a hand-made reader)."""
     from latent_sindy.worlds.dmc.reader import ColourPoseReader
 
     return study.scale_reader(s, world_config.frames,

@@ -1,0 +1,109 @@
+"""The keypoint reader: keypoints learned by transporting features hold what moves."""
+
+import numpy as np
+import pytest
+import torch
+
+from latent_sindy.errors import UserError
+from latent_sindy.models import keypoint_reader
+from latent_sindy.models.keypoint_reader import KeypointReader
+
+SIZE = 16
+DT = 0.1
+
+
+def squares(n: int, steps: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """Episodes of a bright 4×4 square moving on a grey floor along random Lissajous paths:
+    observations (E, T+1, 1, S, S) float, actions (E, T, 1) and its pixel positions
+    (E, T+1, 2) as (column, row)."""
+    rng = np.random.default_rng(seed)
+    phase = rng.uniform(0, 6, (n, 2, 1))
+    t = np.arange(steps + 1)[None]
+    cols = np.round(SIZE / 2 + SIZE / 4 * np.sin(0.3 * t + phase[:, 0])).astype(int)
+    rows = np.round(SIZE / 2 + SIZE / 4 * np.cos(0.2 * t + phase[:, 1])).astype(int)
+    frames = np.full((n, steps + 1, 1, SIZE, SIZE), 0.3, np.float32)
+    for e in range(n):
+        for k in range(steps + 1):
+            frames[e, k, 0, rows[e, k] - 2:rows[e, k] + 2, cols[e, k] - 2:cols[e, k] + 2] = 1
+    actions = torch.from_numpy(rng.uniform(-1, 1, (n, steps, 1)))
+    return torch.from_numpy(frames), actions, np.stack([cols, rows], -1).astype(float)
+
+
+def probe_r2(z: np.ndarray, y: np.ndarray) -> np.ndarray:
+    a = np.column_stack([z, np.ones(len(z))])
+    coef = np.linalg.lstsq(a, y, rcond=None)[0]
+    return 1 - (y - a @ coef).var(0) / y.var(0)
+
+
+def positions(reader: KeypointReader, obs: torch.Tensor, actions: torch.Tensor) -> np.ndarray:
+    kept = len(reader.names) // 2
+    return torch.cat([reader.episode(obs[e], actions[e], DT)[0][:, :kept]
+                      for e in range(len(obs))]).numpy()
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    torch.set_num_threads(1)
+    obs, actions, where = squares(6, 20, 0)
+    keypoint_reader._FITTED.clear()
+    reader = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3).fit_episodes(obs)
+    return reader, obs, actions, where
+
+
+def test_the_keypoints_hold_the_square_that_moves_and_training_is_what_places_them(fitted):
+    reader, obs, actions, where = fitted
+    r2 = probe_r2(positions(reader, obs, actions), where.reshape(-1, 2))
+    keypoint_reader._FITTED.clear()
+    untrained = KeypointReader(frames=1, parts=2, steps=1, batch=16).fit_episodes(obs)
+    before = probe_r2(positions(untrained, obs, actions), where.reshape(-1, 2))
+    assert (r2 >= 0.8).all(), r2
+    # a spatial softmax of random features already leans to the bright square; training
+    # moves it onto it
+    assert r2.mean() > before.mean() + 0.1, (r2, before)
+
+
+def test_the_latent_is_positions_rates_and_the_action_held(fitted):
+    reader, obs, actions, _ = fitted
+    kept = len(reader.names) // 2
+    assert 1 <= kept <= 2 * reader.parts
+    z, seen = reader.episode(obs[0], actions[0], DT)
+    assert z.shape == (obs.shape[1], 2 * kept + 1) and bool(seen.all())
+    # the rate is the change of the positions per second since the frame before
+    assert torch.allclose(z[1:, kept:2 * kept], (z[1:, :kept] - z[:-1, :kept]) / DT)
+    assert torch.allclose(z[1:, -1], actions[0, :, 0])
+    # one observation at a time reads as the episode does
+    one, _ = reader.latent(obs[0, 3:4], actions[0, 2:3], DT)
+    assert torch.allclose(one[0, :kept], z[3, :kept])
+
+
+def test_a_frame_without_the_part_a_keypoint_follows_is_not_seen(fitted):
+    reader, obs, _, _ = fitted
+    assert bool(reader.read_seen(obs[:, 5])[1].all())  # the square in every frame
+    blank = torch.full_like(obs[0, :4], 0.3)  # the floor alone
+    assert not bool(reader.read_seen(blank)[1].any())
+
+
+def test_a_refit_on_the_same_frames_is_the_same_reader_and_reuses_the_first(fitted):
+    reader, obs, actions, _ = fitted
+    again = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3)
+    again.fit_episodes(obs)
+    assert np.array_equal(positions(again, obs, actions), positions(reader, obs, actions))
+    keypoint_reader._FITTED.clear()
+    fresh = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3).fit_episodes(obs)
+    keypoint_reader._FITTED.clear()
+    twice = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3).fit_episodes(obs)
+    assert np.array_equal(positions(fresh, obs, actions), positions(twice, obs, actions))
+
+
+def test_bad_settings_and_frames_are_refused_with_the_fix(fitted):
+    reader, obs, _, _ = fitted
+    with pytest.raises(UserError, match="parts=0"):
+        KeypointReader(parts=0)
+    with pytest.raises(UserError, match=r"min_share=1\.5"):
+        KeypointReader(min_share=1.5)
+    with pytest.raises(UserError, match="before fit_episodes"):
+        KeypointReader().read(obs[0])
+    with pytest.raises(UserError, match="expected episodes"):
+        KeypointReader().fit_episodes(obs[0])
+    with pytest.raises(UserError, match="fitted on observations"):
+        reader.read(torch.zeros(2, 1, SIZE + 4, SIZE + 4))
