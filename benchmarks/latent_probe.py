@@ -86,7 +86,8 @@ def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: lis
         t0 = time.perf_counter()
         reader = (GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
                   if reader_kind == "geodesic" else
-                  KeypointReader(frames=2, parts=dim, steps=updates, seed=seed))
+                  KeypointReader(frames=2, parts=dim, steps=updates, seed=seed,
+                                 progress=updates > 100))
         reader.fit_episodes(images[:train])
         fit_s = time.perf_counter() - t0
         nu = actions.shape[-1]  # (the latent ends with the action held: not probed)

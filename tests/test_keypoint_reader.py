@@ -46,7 +46,8 @@ def fitted():
     torch.set_num_threads(1)
     obs, actions, where = squares(6, 20, 0)
     keypoint_reader._FITTED.clear()
-    reader = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3).fit_episodes(obs)
+    reader = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3, progress=False)
+    reader.fit_episodes(obs)
     return reader, obs, actions, where
 
 
@@ -54,7 +55,8 @@ def test_the_keypoints_hold_the_square_that_moves_and_training_is_what_places_th
     reader, obs, actions, where = fitted
     r2 = probe_r2(positions(reader, obs, actions), where.reshape(-1, 2))
     keypoint_reader._FITTED.clear()
-    untrained = KeypointReader(frames=1, parts=2, steps=1, batch=16).fit_episodes(obs)
+    untrained = KeypointReader(frames=1, parts=2, steps=1, batch=16, progress=False)
+    untrained.fit_episodes(obs)
     before = probe_r2(positions(untrained, obs, actions), where.reshape(-1, 2))
     assert (r2 >= 0.8).all(), r2
     # a spatial softmax of random features already leans to the bright square; training
@@ -85,13 +87,15 @@ def test_a_frame_without_the_part_a_keypoint_follows_is_not_seen(fitted):
 
 def test_a_refit_on_the_same_frames_is_the_same_reader_and_reuses_the_first(fitted):
     reader, obs, actions, _ = fitted
-    again = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3)
+    again = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3, progress=False)
     again.fit_episodes(obs)
     assert np.array_equal(positions(again, obs, actions), positions(reader, obs, actions))
     keypoint_reader._FITTED.clear()
-    fresh = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3).fit_episodes(obs)
+    fresh = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3, progress=False)
+    fresh.fit_episodes(obs)
     keypoint_reader._FITTED.clear()
-    twice = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3).fit_episodes(obs)
+    twice = KeypointReader(frames=1, parts=2, steps=20, batch=8, seed=3, progress=False)
+    twice.fit_episodes(obs)
     assert np.array_equal(positions(fresh, obs, actions), positions(twice, obs, actions))
 
 

@@ -148,11 +148,12 @@ class KeypointReader:
             this share of their variance.
         seed: the networks' start and the pairs drawn.
         device: where the networks train ("cpu", "cuda").
+        progress: a progress bar of the fit's updates on stderr.
     """
 
     def __init__(self, frames: int = 2, parts: int = 4, steps: int = 6000, batch: int = 32,
                  lr: float = 1e-3, width: int = 16, min_share: float = 0.01, seed: int = 0,
-                 device: str = "cpu") -> None:
+                 device: str = "cpu", progress: bool = True) -> None:
         for name, value in (("frames", frames), ("parts", parts), ("steps", steps),
                             ("batch", batch), ("width", width)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -165,6 +166,7 @@ class KeypointReader:
         self.frames, self.parts, self.steps, self.batch = frames, parts, steps, batch
         self.lr, self.width, self.min_share, self.seed = lr, width, min_share, seed
         self.device = torch.device(device)
+        self.progress = progress
         self.circle: tuple[int, int] | None = None
         self.names: tuple[str, ...] = ()
 
@@ -188,7 +190,7 @@ class KeypointReader:
         return (self.frames, self.parts, self.steps, self.batch, self.lr, self.width,
                 self.seed, str(self.device))
 
-    def fit_episodes(self, images: torch.Tensor, progress: bool = False) -> KeypointReader:
+    def fit_episodes(self, images: torch.Tensor) -> KeypointReader:
         """Learn the keypoints from training episodes' observations (E, T+1, C, H, W)."""
         images = torch.as_tensor(images)
         if images.ndim != 5 or images.shape[1] < 2:
@@ -206,7 +208,7 @@ class KeypointReader:
         if key in _FITTED:
             self.net_.load_state_dict(_FITTED[key])
         else:
-            self._train(frames, progress)
+            self._train(frames)
             _FITTED[key] = {k: v.detach().clone() for k, v in self.net_.state_dict().items()}
         self.net_.eval().requires_grad_(False)
         points, spread = self._points(frames.flatten(0, 1))
@@ -234,7 +236,7 @@ class KeypointReader:
             f"k{i}'" for i in range(kept))
         return self
 
-    def _train(self, frames: torch.Tensor, progress: bool) -> None:
+    def _train(self, frames: torch.Tensor) -> None:
         from latent_sindy.progress import bar
 
         e, t = frames.shape[:2]
@@ -242,8 +244,8 @@ class KeypointReader:
         self.net_.train()
         opt = torch.optim.Adam(self.net_.parameters(), self.lr)
         centred = frames - self.mean_
-        steps = bar(range(self.steps), desc="keypoints", unit="update") if progress else (
-            range(self.steps))
+        steps = (bar(range(self.steps), desc="keypoints", unit="update") if self.progress
+                 else range(self.steps))
         for _ in steps:
             ep = torch.randint(0, e, (self.batch,), generator=gen)
             i = torch.randint(0, t, (self.batch,), generator=gen)
