@@ -51,17 +51,24 @@ def fitted():
     return reader, obs, actions, where
 
 
+def quadratic(z: np.ndarray) -> np.ndarray:
+    """z (N, m) and its monomials of degree 2: a keypoint's softmax over a coarse map bends
+    its coordinate a little against the pixel position."""
+    i, j = np.triu_indices(z.shape[1])
+    return np.column_stack([z, z[:, i] * z[:, j]])
+
+
 def test_the_keypoints_hold_the_square_that_moves_and_training_is_what_places_them(fitted):
     reader, obs, actions, where = fitted
-    r2 = probe_r2(positions(reader, obs, actions), where.reshape(-1, 2))
+    r2 = probe_r2(quadratic(positions(reader, obs, actions)), where.reshape(-1, 2))
     keypoint_reader._FITTED.clear()
     untrained = KeypointReader(frames=1, parts=2, steps=1, batch=16, progress=False)
     untrained.fit_episodes(obs)
-    before = probe_r2(positions(untrained, obs, actions), where.reshape(-1, 2))
-    assert (r2 >= 0.8).all(), r2
-    # a spatial softmax of random features already leans to the bright square; training
-    # moves it onto it
-    assert r2.mean() > before.mean() + 0.1, (r2, before)
+    before = probe_r2(quadratic(positions(untrained, obs, actions)), where.reshape(-1, 2))
+    assert (r2 >= 0.85).all(), r2
+    # a spatial softmax of random features already leans to the bright square (R² about
+    # 0.75 and 0.9); training moves the keypoints onto it
+    assert r2.min() > before.min() + 0.1, (r2, before)
 
 
 def test_the_latent_is_positions_rates_and_the_action_held(fitted):

@@ -27,9 +27,10 @@ unseen ones are. It serves
     >>> reader = KeypointReader(frames=2, parts=4).fit_episodes(images)  # (E, T+1, C, H, W)
     >>> z, seen = reader.episode(images[0], actions[0], dt=0.05)           # (T+1, nz)
 
-Fitting costs ``steps`` Adam updates on batches of frame pairs (about 0.23 s an update at
-64×64 on 2 CPU cores, BENCHMARKS.md); a reader fitted once on some frames is kept for the
-process's life and reused by any reader of the same settings fitted on the same frames.
+Fitting costs ``steps`` Adam updates on batches of frame pairs (about a third of a second an
+update at 64×64 on 2 CPU cores, BENCHMARKS.md); a reader fitted once on some frames is kept
+for the process's life and reused by any reader of the same settings fitted on the same
+frames.
 """
 
 from __future__ import annotations
@@ -89,6 +90,9 @@ class Transporter(nn.Module):
             *_block(2 * width, 2 * width, 1), nn.Upsample(scale_factor=2),
             *_block(2 * width, width, 1), nn.Upsample(scale_factor=2),
             *_block(width, width, 1), nn.Conv2d(width, channels, 3, 1, 1))
+        # Channels-last weights and inputs take oneDNN's NHWC convolutions on CPU, faster
+        # here (BENCHMARKS.md)
+        self.to(memory_format=torch.channels_last)
 
     @staticmethod
     def _grid(h: int, w: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -101,7 +105,7 @@ class Transporter(nn.Module):
         """Frames (B, C, H, W) -> keypoints (B, parts, 2): (x right, y down) in [-1, 1];
         with ``spread``, also each keypoint's distribution's spread (B, parts): the root
         mean square distance of its softmax weights from it."""
-        maps = self.keypoint_maps(x)
+        maps = self.keypoint_maps(x.contiguous(memory_format=torch.channels_last))
         p = torch.softmax(maps.flatten(2), -1).view_as(maps)
         gy, gx = self._grid(*maps.shape[-2:], maps)
         mx, my = (p * gx).sum((2, 3)), (p * gy).sum((2, 3))
@@ -118,7 +122,7 @@ class Transporter(nn.Module):
 
     def forward(self, source: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """The target frames (B, C, H, W) drawn from the source's features, transported."""
-        both = torch.cat([source, target])
+        both = torch.cat([source, target]).contiguous(memory_format=torch.channels_last)
         feats = self.features(both)
         h, w = feats.shape[-2:]
         fs, ft = feats.chunk(2)
