@@ -18,11 +18,28 @@ def test_the_scales_and_the_benchmark_setting():
     from latent_sindy.worlds.dmc.study import SCALES
 
     assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
-                                            "read-demo", "read-100k"}
-    for name in ("benchmark", "read-100k"):
+                                            "read-demo", "read-100k", "keypoints-demo",
+                                            "keypoints-100k"}
+    for name in ("benchmark", "read-100k", "keypoints-100k"):
         b = SCALES[name]
         episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
+
+
+def test_a_keypoints_scale_plans_on_keypoints_learned_from_the_frames():
+    from latent_sindy.models.keypoint_reader import KeypointReader
+    from latent_sindy.study.model_based import scale_reader
+    from latent_sindy.worlds.dmc.study import SCALES
+
+    for name in ("keypoints-demo", "keypoints-100k"):
+        s = SCALES[name]
+        # the read-* scale's loop, with the world's hand-made reader never asked for
+        read = SCALES[name.replace("keypoints", "read")]
+        assert (s.seed_episodes, s.iterations, s.episodes_per_iteration) == (
+            read.seed_episodes, read.iterations, read.episodes_per_iteration)
+        reader = scale_reader(s, 2, hand_made=lambda: pytest.fail("hand-made reader made"))()
+        assert isinstance(reader, KeypointReader)
+        assert (reader.frames, reader.parts) == (2, s.latent_dim)
 
 
 @pytest.mark.slow  # about a minute on 2 cores (the tiny study's end-to-end test stays)
