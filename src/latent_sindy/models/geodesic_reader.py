@@ -41,6 +41,7 @@ from latent_sindy.models.manifold import (
     geodesic_coordinates,
     principal_front,
 )
+from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["GeodesicReader", "winds_round"]
 
@@ -98,15 +99,8 @@ class GeodesicReader:
         return x / 255.0 if frames.dtype == torch.uint8 else x
 
     def _split(self, obs: torch.Tensor, where: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """Observations (B, C, H, W) -> their newest frames and the frames before those
-        (the newest again where one frame is stacked), each (B, C / frames, H, W)."""
-        if obs.ndim != 4 or obs.shape[1] % self.frames:
-            raise UserError(f"GeodesicReader.{where}: expected observations (B, C, H, W) of "
-                            f"{self.frames} stacked frames (C a multiple of {self.frames}), "
-                            f"got {tuple(obs.shape)}")
-        per = obs.shape[1] // self.frames
-        newest = obs[:, -per:]
-        return newest, (obs[:, -2 * per:-per] if self.frames > 1 else newest)
+        """Observations (B, C, H, W) -> their newest frames and the frames before those."""
+        return newest_and_before(obs, self.frames, f"GeodesicReader.{where}")
 
     def fit_episodes(self, images: torch.Tensor) -> GeodesicReader:
         """Learn the coordinates from training episodes' observations (E, T+1, C, H, W)."""

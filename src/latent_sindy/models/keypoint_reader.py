@@ -42,6 +42,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from latent_sindy.errors import UserError
+from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["KeypointReader"]
 
@@ -176,15 +177,8 @@ class KeypointReader:
 
     # ------------------------------------------------------------------ fitting
     def _split(self, obs: torch.Tensor, where: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """Observations (B, C, H, W) -> their newest frames and the frames before those
-        (the newest again where one frame is stacked), each (B, C / frames, H, W)."""
-        if obs.ndim != 4 or obs.shape[1] % self.frames:
-            raise UserError(f"KeypointReader.{where}: expected observations (B, C, H, W) of "
-                            f"{self.frames} stacked frames (C a multiple of {self.frames}), "
-                            f"got {tuple(obs.shape)}")
-        per = obs.shape[1] // self.frames
-        newest = obs[:, -per:]
-        return newest, (obs[:, -2 * per:-per] if self.frames > 1 else newest)
+        """Observations (B, C, H, W) -> their newest frames and the frames before those."""
+        return newest_and_before(obs, self.frames, f"KeypointReader.{where}")
 
     def _float(self, frames: torch.Tensor) -> torch.Tensor:
         x = frames.float()
