@@ -5,6 +5,7 @@ uninterrupted study's returns, and the task chosen through --world-config."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -37,9 +38,12 @@ def test_a_keypoints_scale_plans_on_keypoints_learned_from_the_frames():
         read = SCALES[name.replace("keypoints", "read")]
         assert (s.seed_episodes, s.iterations, s.episodes_per_iteration) == (
             read.seed_episodes, read.iterations, read.episodes_per_iteration)
-        reader = scale_reader(s, 2, hand_made=lambda: pytest.fail("hand-made reader made"))()
+        reader = scale_reader(s, 2, hand_made=lambda: pytest.fail("hand-made reader made"),
+                              out=Path("study"))()
         assert isinstance(reader, KeypointReader)
         assert (reader.frames, reader.parts) == (2, s.latent_dim)
+        # its fit is kept in the study's folder: every model's loop of a seed shares it
+        assert reader.store == Path("study") / "readers"
 
 
 @pytest.mark.slow  # about a minute on 2 cores (the tiny study's end-to-end test stays)

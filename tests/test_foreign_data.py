@@ -112,6 +112,7 @@ def test_save_load_and_plan_toward_a_goal(fitted, tmp_path):
     assert np.linalg.norm(p - goal) < 0.5 * np.linalg.norm(start - goal)
 
 
+@pytest.mark.slow  # about 20 s on 2 cores: four CLI processes (the same fit runs in-process)
 def test_the_cli_trains_and_prints_on_the_same_file(foreign, tmp_path):
     cli = [sys.executable, "-m", "latent_sindy.cli"]
     run = tmp_path / "cli_run"

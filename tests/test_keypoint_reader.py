@@ -118,3 +118,84 @@ def test_bad_settings_and_frames_are_refused_with_the_fix(fitted):
         KeypointReader().fit_episodes(obs[0])
     with pytest.raises(UserError, match="fitted on observations"):
         reader.read(torch.zeros(2, 1, SIZE + 4, SIZE + 4))
+
+
+def small(store, **kw) -> KeypointReader:
+    return KeypointReader(frames=1, parts=2, steps=12, batch=8, seed=5, progress=False,
+                          store=store, **kw)
+
+
+def test_a_stored_fit_is_loaded_by_a_later_process_instead_of_trained(fitted, tmp_path,
+                                                                      monkeypatch):
+    _, obs, actions, _ = fitted
+    keypoint_reader._FITTED.clear()
+    first = small(tmp_path / "readers").fit_episodes(obs)
+    stored = list((tmp_path / "readers").glob("keypoints-*.pt"))
+    assert len(stored) == 1 and not list((tmp_path / "readers").glob("*.partial.pt"))
+    keypoint_reader._FITTED.clear()  # (as a new process would find it)
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr(KeypointReader, "_train", no_training)
+    again = small(tmp_path / "readers").fit_episodes(obs)
+    assert np.array_equal(positions(again, obs, actions), positions(first, obs, actions))
+    assert again.loss_ == first.loss_
+    # other settings, or other frames, are another fit
+    keypoint_reader._FITTED.clear()
+    with pytest.raises(AssertionError, match="trained again"):
+        small(tmp_path / "readers", lr=2e-3).fit_episodes(obs)
+    with pytest.raises(AssertionError, match="trained again"):
+        small(tmp_path / "readers").fit_episodes(obs[:, :-1])
+
+
+def test_a_stopped_fit_resumes_from_its_checkpoint_to_the_same_networks(fitted, tmp_path,
+                                                                         monkeypatch):
+    _, obs, actions, _ = fitted
+    monkeypatch.setattr(keypoint_reader, "CHECKPOINT", 5)
+    keypoint_reader._FITTED.clear()
+    through = small(tmp_path / "through").fit_episodes(obs)
+
+    keypoint_reader._FITTED.clear()
+    step, updates = torch.optim.Adam.step, []
+
+    def stopped(self, *args, **kwargs):
+        if len(updates) == 7:  # after the checkpoint at 5 updates
+            raise KeyboardInterrupt
+        updates.append(1)
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        small(tmp_path / "stopped").fit_episodes(obs)
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    assert list((tmp_path / "stopped").glob("*.partial.pt"))
+    assert not [p for p in (tmp_path / "stopped").glob("keypoints-*.pt")
+                if not p.name.endswith(".partial.pt")]
+
+    counted = []
+
+    def counting(self, *args, **kwargs):
+        counted.append(1)
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", counting)
+    resumed = small(tmp_path / "stopped").fit_episodes(obs)
+    assert len(counted) == 12 - 5  # from the checkpoint, not from the start
+    assert np.array_equal(positions(resumed, obs, actions), positions(through, obs, actions))
+    assert not list((tmp_path / "stopped").glob("*.partial.pt"))
+
+
+def test_a_damaged_stored_fit_or_a_file_for_a_store_is_one_error_naming_it(fitted,
+                                                                            tmp_path):
+    _, obs, _, _ = fitted
+    keypoint_reader._FITTED.clear()
+    small(tmp_path / "readers").fit_episodes(obs)
+    stored = next((tmp_path / "readers").glob("keypoints-*.pt"))
+    stored.write_bytes(b"not a fit")
+    keypoint_reader._FITTED.clear()
+    with pytest.raises(UserError, match=f"{stored.name}.*delete it"):
+        small(tmp_path / "readers").fit_episodes(obs)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(UserError, match="is a file"):
+        small(tmp_path / "file")

@@ -124,6 +124,29 @@ def test_a_second_holder_in_the_same_process_is_refused_too(tmp_path):
         pass
 
 
+def test_a_waiting_holder_goes_on_once_the_other_process_lets_go(tmp_path):
+    from latent_sindy.locks import exclusive
+
+    code = textwrap.dedent(f"""
+        import time
+        from pathlib import Path
+        from latent_sindy.locks import exclusive
+        with exclusive(Path({str(tmp_path / "fit")!r}), "fit"):
+            Path({str(tmp_path / "held")!r}).touch()
+            time.sleep(1.0)
+            Path({str(tmp_path / "done")!r}).touch()
+    """)
+    proc = start([sys.executable, "-c", code], tmp_path / "held")
+    try:
+        with pytest.raises(UserError, match="another process"):
+            with exclusive(tmp_path / "fit", "fit"):
+                pass
+        with exclusive(tmp_path / "fit", "fit", wait=True):
+            assert (tmp_path / "done").exists()  # entered only after the other let go
+    finally:
+        kill(proc)
+
+
 def test_a_parent_folder_another_process_makes_at_the_same_moment_is_taken(tmp_path,
                                                                           monkeypatch):
     """Two study workers locking runs/seed0/a and runs/seed0/b both find seed0 missing, and

@@ -265,6 +265,7 @@ def test_a_run_recorded_before_settings_were_derived_is_reused(study, tmp_path, 
             ensure_trained(cfg)
 
 
+@pytest.mark.slow  # about 15 s on 2 cores: every figure drawn again on a pool
 def test_figures_drawn_on_an_executor_are_the_pipelines(study, tmp_path):
     """The figures of trained models, queued on an executor (as the study does with two or
     more workers), are the files the pipeline drew itself, byte for byte; one not queued is

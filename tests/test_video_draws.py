@@ -108,6 +108,7 @@ def test_a_draw_refuses_inconsistent_settings():
         VideoDraw(system="rope")
 
 
+@pytest.mark.slow  # about a minute on 2 cores: three runs of the benchmark script
 def test_benchmark_smoke_writes_a_row_per_fit_and_resumes(tmp_path):
     out = tmp_path / "rows.jsonl"
     cmd = [sys.executable, str(ROOT / "benchmarks" / "video_draws.py"), "--smoke",

@@ -81,6 +81,7 @@ def test_random_data_from_the_world(world):
     np.testing.assert_array_equal(collect_random(world, 4, 3, seed=1).images, data.images)
 
 
+@pytest.mark.slow  # about 25 s on 2 cores (the tiny study plans closed loops in the suite)
 def test_closed_loop_reaches_goals_with_a_fitted_model(world, one_torch_thread):
     data = collect_random(world, sequences=40, steps=6, seed=0)
     model = LatentSINDy(latent_dim=2, order=1, include_sine=False, seed=0,

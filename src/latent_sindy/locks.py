@@ -45,11 +45,14 @@ def lock_path(path: str | os.PathLike) -> Path:
 
 
 @contextlib.contextmanager
-def exclusive(path: str | os.PathLike, what: str, option: str = "--out") -> Iterator[None]:
+def exclusive(path: str | os.PathLike, what: str, option: str = "--out", wait: bool = False
+              ) -> Iterator[None]:
     """Hold ``path`` (a ``what``, given as ``option``) for this process while the block runs.
 
-    UserError, before anything else is touched, if another process holds it. Folders above
-    ``path`` that had to be made for the lock file are removed again if they are left empty.
+    UserError, before anything else is touched, if another process holds it; with ``wait``,
+    the block waits for that process to let it go instead (a shared result that one process
+    makes and the others then read). Folders above ``path`` that had to be made for the lock
+    file are removed again if they are left empty.
     """
     path = Path(path)
     if fcntl is None:
@@ -59,7 +62,7 @@ def exclusive(path: str | os.PathLike, what: str, option: str = "--out") -> Iter
     try:
         try:
             _make_parents(path.parent, made)
-            fd = _acquire(lock_path(path), path, what, option)
+            fd = _acquire(lock_path(path), path, what, option, wait)
         except OSError as e:  # a file where a folder should be, no permission, ...
             raise UserError(f"{option} {path}: cannot write there ({e.strerror or e}); check "
                             "the path and its permissions") from None
@@ -115,13 +118,14 @@ def _make_parents(folder: Path, made: list[Path]) -> None:
     made.append(folder)
 
 
-def _acquire(lock: Path, path: Path, what: str, option: str) -> int | None:
+def _acquire(lock: Path, path: Path, what: str, option: str, wait: bool = False
+             ) -> int | None:
     """An open descriptor of ``lock`` holding its flock (None where the file system has no
-    locks); UserError if another process holds it."""
+    locks); UserError if another process holds it, unless ``wait``: then it waits."""
     while True:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
             holder = _holder(fd)
             os.close(fd)

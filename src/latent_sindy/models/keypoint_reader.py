@@ -30,18 +30,30 @@ unseen ones are. It serves
 Fitting costs ``steps`` Adam updates on batches of frame pairs (about a third of a second an
 update at 64×64 on 2 CPU cores, BENCHMARKS.md); a reader fitted once on some frames is kept
 for the process's life and reused by any reader of the same settings fitted on the same
-frames.
+frames. Given a ``store`` folder, the fitted networks are also kept there, for any process:
+a reader of the same settings fitted on the same frames loads them instead of training, one
+process trains while the others wait for it, and a fit that was stopped resumes from its
+last checkpoint (every :data:`CHECKPOINT` updates) with the same result as one that ran
+through.
+
+    >>> KeypointReader(frames=2, parts=4, store="runs/cartpole/readers").fit_episodes(images)
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
+import os
+import pickle
+from pathlib import Path
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
+from latent_sindy.atomic import write_atomic
 from latent_sindy.errors import UserError
+from latent_sindy.locks import exclusive
 from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["KeypointReader"]
@@ -54,6 +66,10 @@ LIVE = 0.3
 #: keypoint's median spread over the training frames, or one cell of the keypoint maps (a
 #: part out of the frame spreads its keypoint's weights over the rest).
 SPREAD = 2.0
+#: A fit kept in a ``store`` writes its progress there every this many updates.
+CHECKPOINT = 250
+#: What a stored fit's file says it is.
+STORE_FORMAT = "latent-sindy keypoint reader 1"
 
 #: Readers fitted in this process, by their settings and their frames' digest.
 _FITTED: dict[tuple, dict[str, torch.Tensor]] = {}
@@ -154,11 +170,14 @@ class KeypointReader:
         seed: the networks' start and the pairs drawn.
         device: where the networks train ("cpu", "cuda").
         progress: a progress bar of the fit's updates on stderr.
+        store: a folder where fitted networks are kept and stopped fits resume (see the
+            module docstring); None: kept in this process only.
     """
 
     def __init__(self, frames: int = 2, parts: int = 4, steps: int = 6000, batch: int = 32,
                  lr: float = 1e-3, width: int = 16, min_share: float = 0.01, seed: int = 0,
-                 device: str = "cpu", progress: bool = True) -> None:
+                 device: str = "cpu", progress: bool = True,
+                 store: str | os.PathLike | None = None) -> None:
         for name, value in (("frames", frames), ("parts", parts), ("steps", steps),
                             ("batch", batch), ("width", width)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -172,6 +191,9 @@ class KeypointReader:
         self.lr, self.width, self.min_share, self.seed = lr, width, min_share, seed
         self.device = torch.device(device)
         self.progress = progress
+        self.store = None if store is None else Path(store)
+        if self.store is not None and self.store.exists() and not self.store.is_dir():
+            raise UserError(f"KeypointReader store={str(store)!r} is a file: give a folder")
         self.circle: tuple[int, int] | None = None
         self.names: tuple[str, ...] = ()
 
@@ -206,7 +228,10 @@ class KeypointReader:
         if key in _FITTED:
             self.net_.load_state_dict(_FITTED[key])
         else:
-            self._train(frames)
+            if self.store is None:
+                self._train(frames)
+            else:
+                self._train_stored(frames, key)
             _FITTED[key] = {k: v.detach().clone() for k, v in self.net_.state_dict().items()}
         self.net_.eval().requires_grad_(False)
         points, spread = self._points(frames.flatten(0, 1))
@@ -234,17 +259,47 @@ class KeypointReader:
             f"k{i}'" for i in range(kept))
         return self
 
-    def _train(self, frames: torch.Tensor) -> None:
+    def _train_stored(self, frames: torch.Tensor, key: tuple) -> None:
+        """The networks from the store where a fit of ``key`` is there, else trained (from its
+        checkpoint where one is there) and kept there; one process at a time per key."""
+        text = json.dumps([str(k) for k in key])
+        path = self.store / f"keypoints-{hashlib.sha1(text.encode()).hexdigest()[:16]}.pt"
+        with exclusive(path, "keypoint reader's fit", "store", wait=True):
+            if path.exists():
+                stored = _load(path, text, done=True)
+                self.net_.load_state_dict(stored["net"])
+                self.loss_ = float(stored["loss"])
+                return
+            partial = path.with_name(path.stem + ".partial.pt")
+            self._train(frames, partial, text)
+            write_atomic(path, lambda f: torch.save(
+                {"format": STORE_FORMAT, "key": text, "net": self.net_.state_dict(),
+                 "loss": self.loss_}, f))
+            partial.unlink(missing_ok=True)
+
+    def _train(self, frames: torch.Tensor, checkpoint: Path | None = None, text: str = ""
+               ) -> None:
+        """``steps`` updates of the networks; with a ``checkpoint`` file, resumed from it
+        where it is there and written to every :data:`CHECKPOINT` updates."""
         from latent_sindy.progress import bar
 
         e, t = frames.shape[:2]
         gen = torch.Generator().manual_seed(self.seed)
         self.net_.train()
         opt = torch.optim.Adam(self.net_.parameters(), self.lr)
+        start = 0
+        if checkpoint is not None and checkpoint.exists():
+            state = _load(checkpoint, text, done=False)
+            self.net_.load_state_dict(state["net"])
+            opt.load_state_dict(state["optimizer"])
+            gen.set_state(state["generator"])
+            start = int(state["step"])
         centred = frames - self.mean_
-        steps = (bar(range(self.steps), desc="keypoints", unit="update") if self.progress
-                 else range(self.steps))
-        for _ in steps:
+        steps = (bar(range(start, self.steps), total=self.steps, initial=start,
+                     desc="keypoints", unit="update") if self.progress
+                 else range(start, self.steps))
+        loss = torch.tensor(float("nan"))
+        for step in steps:
             ep = torch.randint(0, e, (self.batch,), generator=gen)
             i = torch.randint(0, t, (self.batch,), generator=gen)
             j = torch.randint(0, t, (self.batch,), generator=gen)
@@ -254,6 +309,11 @@ class KeypointReader:
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            if checkpoint is not None and (step + 1) % CHECKPOINT == 0 and step + 1 < self.steps:
+                payload = {"format": STORE_FORMAT, "key": text, "step": step + 1,
+                           "net": self.net_.state_dict(), "optimizer": opt.state_dict(),
+                           "generator": gen.get_state()}
+                write_atomic(checkpoint, lambda f, payload=payload: torch.save(payload, f))
         self.loss_ = float(loss.detach())
 
     # ------------------------------------------------------------------ reading
@@ -326,3 +386,24 @@ class KeypointReader:
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         both = seen & torch.cat([seen_first, seen[:-1]])
         return self._latent(now, torch.cat([first, now[:-1]]), previous, dt), both
+
+
+def _load(path: Path, text: str, done: bool) -> dict:
+    """A stored fit (``done``) or checkpoint of the reader whose settings and frames read
+    ``text``, weights only (no code runs); UserError naming the file where it is damaged or
+    another fit's."""
+    what = "fit" if done else "checkpoint"
+    try:
+        obj = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(obj, dict) or obj.get("format") != STORE_FORMAT:
+            raise ValueError("not a keypoint reader's file")
+        if obj.get("key") != text:
+            raise ValueError("another fit's (other settings or frames)")
+        if not done and not 0 < int(obj["step"]):
+            raise ValueError(f"step {obj['step']!r}")
+        return obj
+    except (OSError, RuntimeError, EOFError, ValueError, KeyError, TypeError,
+            pickle.UnpicklingError) as e:
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0]  # (torch's run long)
+        raise UserError(f"{path}: the keypoint reader's stored {what} cannot be used ({why}); "
+                        "delete it to fit again") from e

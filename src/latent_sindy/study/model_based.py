@@ -232,12 +232,14 @@ def run_loops(world: Any, s: LoopScale, scale: str, out: Path, device: str, thre
             "interval": "mean ± t(0.975, n-1)·sd/√n over seeds"}
 
 
-def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None = None
-                 ) -> Callable[[], Any] | None:
+def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None = None,
+                 out: Path | None = None) -> Callable[[], Any] | None:
     """What makes the reader of scale ``s`` on observations of ``frames`` stacked frames: the
     geodesic coordinates (``s.latent_dim`` of them) for a "geodesic" scale, keypoints
     (``s.latent_dim`` of them) for a "keypoints" one, the world's ``hand_made`` reader for
-    a "read" one, None for a learned latent."""
+    a "read" one, None for a learned latent. A keypoint reader's fit is kept in the study's
+    folder ``out`` (``readers/``): the seed's loops of every model share it, in any process,
+    and a stopped study resumes it."""
     if s.latent == "geodesic":
         from latent_sindy.models.geodesic_reader import GeodesicReader
 
@@ -245,7 +247,8 @@ def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None 
     if s.latent == "keypoints":
         from latent_sindy.models.keypoint_reader import KeypointReader
 
-        return partial(KeypointReader, frames=frames, parts=s.latent_dim)
+        return partial(KeypointReader, frames=frames, parts=s.latent_dim,
+                       store=None if out is None else out / "readers")
     return hand_made if s.latent == "read" else None
 
 

@@ -135,7 +135,7 @@ def run_dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ..
               f"frame(s), repeat {world.action_repeat}")
     result = study.run_loops(DmcWorld(world), s, scale, out, device, threads, say, workers,
                              name="dmc", header=header, steps_per_action=world.action_repeat,
-                             reader=_reader(world, s))
+                             reader=_reader(world, s, out))
     return {**result, "reference": {k: list(v) for k, v in REFERENCE.items()},
             "reference_task": REFERENCE_TASK, "reference_steps": REFERENCE_STEPS}
 
@@ -158,13 +158,14 @@ def dmc_study(config: DmcConfig, scale: str, out: Path, seeds: tuple[int, ...] |
         "linear / MLP", task, _REFERENCE)
 
 
-def _reader(world_config: DmcConfig, s: DmcScale) -> Callable[[], Any] | None:
+def _reader(world_config: DmcConfig, s: DmcScale, out: Path) -> Callable[[], Any] | None:
     """What makes the scale's reader: the frames' geodesic coordinates or keypoints (both
-    learned), or the cart-pole's pose by image moments (a hand-made reader)."""
+    learned; the keypoints' fit kept in the study's folder ``out``), or the cart-pole's pose
+    by image moments (a hand-made reader)."""
     from latent_sindy.worlds.dmc.reader import ColourPoseReader
 
     return study.scale_reader(s, world_config.frames,
-                              partial(ColourPoseReader, world_config.size))
+                              partial(ColourPoseReader, world_config.size), out)
 
 
 def run_seed(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Path,
@@ -175,4 +176,4 @@ def run_seed(world_config: DmcConfig, s: DmcScale, seed: int, kind: str, out: Pa
     from latent_sindy.worlds.dmc.world import DmcWorld
 
     return study.run_seed(DmcWorld(world_config), s, seed, kind, out, device, threads, say,
-                          world_config.action_repeat, _reader(world_config, s))
+                          world_config.action_repeat, _reader(world_config, s, out))

@@ -79,6 +79,6 @@ def gym_study(config: GymConfig, scale: str, out: Path, seeds: tuple[int, ...] |
               f"frame(s), repeat {world.action_repeat}")
     result = run_loops(GymWorld(world), s, scale, out, device, threads, say, workers,
                        name="gym", header=header, steps_per_action=world.action_repeat,
-                       reader=scale_reader(s, world.frames))
+                       reader=scale_reader(s, world.frames, out=out))
     return model_based_study(result, scale, out, f"Gymnasium from pixels: {world.id}, "
                              "model-based, SINDy / linear / MLP", world.id)
