@@ -206,3 +206,17 @@ def test_the_geodesic_latent_learned_from_frames_plans_better_than_random(tmp_pa
     tested = log["iterations"][-1]["evaluation"]
     assert len(random) == 3 and len(tested) == 1
     assert tested[0] > sum(random) / len(random) + 2.0, (random, tested)
+
+
+def test_the_keypoints_scale_is_the_geodesic_loop_on_keypoints_kept_in_the_study(tmp_path):
+    from latent_sindy.models.keypoint_reader import KeypointReader
+    from latent_sindy.study.model_based import scale_reader
+    from latent_sindy.worlds.gym.study import SCALES
+
+    s, g = SCALES["keypoints"], SCALES["geodesic"]
+    # geodesic's loop and planner; only the latent differs
+    assert {k: v for k, v in vars(s).items() if k not in ("about", "latent", "latent_dim")} == {
+        k: v for k, v in vars(g).items() if k not in ("about", "latent", "latent_dim")}
+    reader = scale_reader(s, 2, out=tmp_path)()
+    assert isinstance(reader, KeypointReader) and reader.parts == s.latent_dim == 4
+    assert reader.store == tmp_path / "readers" and reader.angle is None

@@ -73,6 +73,7 @@ def test_the_keypoints_hold_the_square_that_moves_and_training_is_what_places_th
 
 def test_the_latent_is_positions_rates_and_the_action_held(fitted):
     reader, obs, actions, _ = fitted
+    assert not reader.turns_ and reader.circle is None  # a path that fills its middle
     kept = len(reader.names) // 2
     assert 1 <= kept <= 2 * reader.parts
     z, seen = reader.episode(obs[0], actions[0], DT)
@@ -199,3 +200,48 @@ def test_a_damaged_stored_fit_or_a_file_for_a_store_is_one_error_naming_it(fitte
     (tmp_path / "file").write_text("")
     with pytest.raises(UserError, match="is a file"):
         small(tmp_path / "file")
+
+
+def turning(n: int, steps: int, seed: int, size: int = 32
+            ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """Episodes of a bright blob (σ 2 px) going round a circle of radius 9 px at its own
+    speed (either way) on size × size frames (keypoint maps of a quarter of that: a finer
+    circle than 16 px frames' 4 cells a side can show): observations (E, T+1, 1, S, S),
+    actions (E, T, 1) and its angle (E, T+1)."""
+    rng = np.random.default_rng(seed)
+    speed = rng.choice([-1, 1], (n, 1)) * rng.uniform(0.3, 0.6, (n, 1))
+    angle = rng.uniform(0, 2 * np.pi, (n, 1)) + speed * np.arange(steps + 1)[None]
+    col = size / 2 - 0.5 + 9 * np.cos(angle)
+    row = size / 2 - 0.5 + 9 * np.sin(angle)
+    grid = np.arange(size, dtype=np.float64)
+    d2 = ((grid[None, None, :, None] - row[..., None, None]) ** 2
+          + (grid[None, None, None, :] - col[..., None, None]) ** 2)
+    frames = (0.3 + 0.7 * np.exp(-d2 / (2 * 2.0 ** 2)))[:, :, None].astype(np.float32)
+    return torch.from_numpy(frames), torch.zeros(n, steps, 1, dtype=torch.float64), angle
+
+
+def test_a_part_going_round_a_pivot_is_read_as_its_angle_and_turn():
+    obs, actions, angle = turning(8, 20, 1)
+    keypoint_reader._FITTED.clear()
+    reader = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3, progress=False)
+    reader.fit_episodes(obs)
+    assert reader.turns_ and reader.circle == (0, 1)
+    assert reader.names == ("cos φ", "sin φ", "φ'")
+    z = [reader.episode(obs[e], actions[e], DT)[0] for e in range(len(obs))]
+    assert all(zi.shape == (obs.shape[1], 4) for zi in z)
+    phi = torch.cat([torch.atan2(zi[:, 1], zi[:, 0]) for zi in z]).numpy()
+    # the angle about the pivot, up to where it starts and which way it counts
+    agree = max(abs(np.exp(1j * (sign * phi - angle.reshape(-1))).mean()) for sign in (1, -1))
+    assert agree > 0.95, agree
+    # the turn per second from the frame before: the blob's speed, either way (a frame's
+    # angle is a few hundredths of a radian off, a tenth of a step's turn)
+    rate = np.concatenate([zi[1:, 2].numpy() for zi in z])
+    true = np.diff(angle, axis=1).reshape(-1) / DT
+    sign = np.sign(np.mean(rate * true))
+    assert np.median(np.abs(sign * rate - true)) < 0.3 * np.abs(true).mean()
+    keypoint_reader._FITTED.clear()
+    plain = KeypointReader(frames=1, parts=2, steps=300, batch=16, lr=3e-3, progress=False,
+                           angle=False).fit_episodes(obs)
+    assert not plain.turns_ and plain.circle is None and len(plain.names) == 4
+    with pytest.raises(UserError, match="angle='yes'"):
+        KeypointReader(angle="yes")

@@ -14,13 +14,18 @@ filmed: its one structural setting is ``parts``, the number of keypoints.
 
 Observations are frames stacked as channels (``frames`` of them, oldest first). The latent
 of one is the principal coordinates of the newest frame's keypoints (those of the
-training frames' keypoints that carry more than ``min_share`` of their variance: a
-keypoint that rests, or two that follow one part, add none), their change per second since
+training frames' keypoints that follow something and carry more than ``min_share`` of
+their variance: a keypoint that rests, or two that follow one part, add none), their
+change per second since
 the frame before it, and the action held between the two. A frame is *seen* where each
 keypoint that follows something keeps its weights as close about it as it does in most
 training frames (:data:`SPREAD`): a part that leaves the frame spreads its keypoint's
 weights over the rest, and such frames are left out of the fits as a hand-made reader's
-unseen ones are. It serves
+unseen ones are. Where the keypoints keep two principal coordinates and these wind round
+the centre of the circle fitted to them (:func:`~latent_sindy.models.geodesic_reader.winds_round`:
+one part turning about a fixed pivot, as a pendulum's), they are read as the angle φ about
+that centre instead: (cos φ, sin φ), the turn per second, and the action, with the pair the
+``circle`` that the dynamics keep on the unit circle, as the geodesic reader does. It serves
 :class:`~latent_sindy.read_latent.ReadLatent` like the geodesic reader
 (:mod:`~latent_sindy.models.geodesic_reader`) or a world's hand-made reader.
 
@@ -54,6 +59,7 @@ from torch.nn import functional as F
 from latent_sindy.atomic import write_atomic
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
+from latent_sindy.models.geodesic_reader import winds_round
 from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["KeypointReader"]
@@ -172,12 +178,16 @@ class KeypointReader:
         progress: a progress bar of the fit's updates on stderr.
         store: a folder where fitted networks are kept and stopped fits resume (see the
             module docstring); None: kept in this process only.
+        angle: read two principal coordinates as an angle about their circle's centre
+            (True: the two largest), never (False), or where two are kept and wind round
+            (None).
     """
 
     def __init__(self, frames: int = 2, parts: int = 4, steps: int = 6000, batch: int = 32,
                  lr: float = 1e-3, width: int = 16, min_share: float = 0.01, seed: int = 0,
                  device: str = "cpu", progress: bool = True,
-                 store: str | os.PathLike | None = None) -> None:
+                 store: str | os.PathLike | None = None, angle: bool | None = None
+                 ) -> None:
         for name, value in (("frames", frames), ("parts", parts), ("steps", steps),
                             ("batch", batch), ("width", width)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -187,6 +197,10 @@ class KeypointReader:
                     0.0 < value < high):
                 raise UserError(f"KeypointReader {name}={value!r}: use a number in (0, "
                                 f"{high})")
+        if angle not in (None, True, False):
+            raise UserError(f"KeypointReader angle={angle!r}: use None (from the data), False "
+                            "or True")
+        self.angle = angle
         self.frames, self.parts, self.steps, self.batch = frames, parts, steps, batch
         self.lr, self.width, self.min_share, self.seed = lr, width, min_share, seed
         self.device = torch.device(device)
@@ -249,14 +263,22 @@ class KeypointReader:
         self.seen_share_ = float(seen.double().mean())
         points = points[seen]
         self.centre_ = points.mean(0)
-        centred = points - self.centre_
+        # a keypoint that follows nothing wanders with its diffuse weights: noise, no state
+        centred = (points - self.centre_) * self.live_.repeat_interleave(2).double()
         _, s, v = torch.linalg.svd(centred, full_matrices=False)
         share = s ** 2 / (s ** 2).sum().clamp_min(1e-30)
-        kept = max(1, int((share >= self.min_share).sum()))
-        self.axes_ = v[:kept].T  # (2 · parts, kept)
+        kept = 2 if self.angle else max(1, int((share >= self.min_share).sum()))
+        self.axes_ = v[:kept].T  # (2 · parts, kept), 0 on the keypoints that follow nothing
         self.share_ = share[:kept]
-        self.names = tuple(f"k{i}" for i in range(kept)) + tuple(
-            f"k{i}'" for i in range(kept))
+        self.turns_ = False
+        if kept == 2 and self.angle is not False:
+            coords = centred @ self.axes_
+            self.pivot_ = circle_centre(coords)
+            self.turns_ = bool(self.angle or winds_round(coords - self.pivot_))
+        self.circle = (0, 1) if self.turns_ else None
+        self.names = (("cos φ", "sin φ", "φ'") if self.turns_ else
+                      tuple(f"k{i}" for i in range(kept)) + tuple(
+                          f"k{i}'" for i in range(kept)))
         return self
 
     def _train_stored(self, frames: torch.Tensor, key: tuple) -> None:
@@ -354,16 +376,26 @@ class KeypointReader:
         points, spread = self._points(self._float(frames))
         return (points - self.centre_) @ self.axes_, self._seen(spread)
 
+    def _unit(self, k: torch.Tensor) -> torch.Tensor:
+        """Principal coordinates (B, 2) -> (cos φ, sin φ) of their angle φ about the pivot."""
+        a = k - self.pivot_
+        return a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
+
     def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
                 dt: float) -> torch.Tensor:
         held = torch.as_tensor(previous).double().reshape(len(now), -1)
-        return torch.cat([now, (now - before) / dt, held], -1)
+        if not self.turns_:
+            return torch.cat([now, (now - before) / dt, held], -1)
+        a, b = self._unit(now), self._unit(before)
+        turn = torch.atan2(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0],
+                           b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1])
+        return torch.cat([a, (turn / dt)[:, None], held], -1)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Latents (B, 2 · kept + nu) of observations (B, C, H, W) and the actions held
-        since the frame before the newest (B, nu); and (B,) bool: both frames show every
-        part the reader follows."""
+        """Latents (B, 2 · kept + nu; an angle's 3 + nu) of observations (B, C, H, W) and
+        the actions held since the frame before the newest (B, nu); and (B,) bool: both
+        frames show every part the reader follows."""
         newest, earlier = self._split(torch.as_tensor(obs), "latent")
         now, seen = self.read_seen(newest)
         before, seen_before = self.read_seen(earlier) if self.frames > 1 else (now, seen)
@@ -371,9 +403,9 @@ class KeypointReader:
 
     def episode(self, images: torch.Tensor, actions: torch.Tensor, dt: float
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        """One episode's latents (T+1, 2 · kept + nu) from its observations (T+1, C, H, W)
-        and actions (T, nu), each newest frame read once (the first step's earlier frame
-        is its own observation's, with no action before it)."""
+        """One episode's latents (T+1, 2 · kept + nu; an angle's 3 + nu) from its
+        observations (T+1, C, H, W) and actions (T, nu), each newest frame read once (the
+        first step's earlier frame is its own observation's, with no action before it)."""
         images, actions = torch.as_tensor(images), torch.as_tensor(actions)
         if images.ndim != 4 or actions.ndim != 2 or len(actions) != len(images) - 1:
             raise UserError(f"KeypointReader.episode: expected observations (T+1, C, H, W) "
@@ -386,6 +418,20 @@ class KeypointReader:
         previous = torch.cat([torch.zeros_like(actions[:1]), actions]).double()
         both = seen & torch.cat([seen_first, seen[:-1]])
         return self._latent(now, torch.cat([first, now[:-1]]), previous, dt), both
+
+
+def circle_centre(points: torch.Tensor) -> torch.Tensor:
+    """The centre (2,) of the circle fitted to points (N, 2) by least squares on
+    |p|² = 2 c·p + k (Kåsa's fit); their mean where they lie on a line."""
+    p = points.double()
+    design = torch.cat([2 * p, torch.ones(len(p), 1, dtype=p.dtype)], 1)
+    target = (p ** 2).sum(1, keepdim=True)
+    solution = torch.linalg.lstsq(design, target, driver="gelsd").solution[:2, 0]
+    spread = float((p - p.mean(0)).norm(dim=1).max())
+    if not bool(torch.isfinite(solution).all()) or float(
+            (solution - p.mean(0)).norm()) > 100 * max(spread, 1e-12):
+        return p.mean(0)
+    return solution
 
 
 def _load(path: Path, text: str, done: bool) -> dict:
