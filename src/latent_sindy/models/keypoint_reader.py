@@ -13,19 +13,20 @@ and a thin part (a pole) counts as much as its pixels change. Nothing in it know
 filmed: its one structural setting is ``parts``, the number of keypoints.
 
 Observations are frames stacked as channels (``frames`` of them, oldest first). The latent
-of one is the principal coordinates of the newest frame's keypoints (those of the
-training frames' keypoints that follow something and carry more than ``min_share`` of
-their variance: a keypoint that rests, or two that follow one part, add none), their
-change per second since
-the frame before it, and the action held between the two. A frame is *seen* where each
-keypoint that follows something keeps its weights as close about it as it does in most
-training frames (:data:`SPREAD`): a part that leaves the frame spreads its keypoint's
-weights over the rest, and such frames are left out of the fits as a hand-made reader's
-unseen ones are. Where the keypoints keep two principal coordinates and these wind round
-the centre of the circle fitted to them (:func:`~latent_sindy.models.geodesic_reader.winds_round`:
-one part turning about a fixed pivot, as a pendulum's), they are read as the angle φ about
-that centre instead: (cos φ, sin φ), the turn per second, and the action, with the pair the
-``circle`` that the dynamics keep on the unit circle, as the geodesic reader does. It serves
+of one is the principal coordinates of the newest frame's keypoints (those of the training
+frames' keypoints that follow something and carry more than ``min_share`` of their
+variance: a keypoint that rests, or two that follow one part, add none), their change per
+second since the frame before it, and the action held between the two. A frame is *seen*
+where each keypoint that follows something keeps its weights as close about it as it does
+in most training frames (:data:`SPREAD`): a part that leaves the frame spreads its
+keypoint's weights over the rest, and such frames are left out of the fits as a hand-made
+reader's unseen ones are.
+
+Where two principal coordinates are kept and wind round the centre of the circle fitted to
+them (:func:`~latent_sindy.models.geodesic_reader.winds_round`: one part turning about a
+fixed pivot, as a pendulum's), they are read as the angle φ about that centre instead:
+(cos φ, sin φ), the turn per second and the action, the pair being the ``circle`` that the
+dynamics keep on the unit circle, as the geodesic reader does. The reader serves
 :class:`~latent_sindy.read_latent.ReadLatent` like the geodesic reader
 (:mod:`~latent_sindy.models.geodesic_reader`) or a world's hand-made reader.
 
