@@ -34,26 +34,37 @@ def fitted(data, **kw):
                    restarts=Restarts(count=0), **kw)
 
 
+@pytest.fixture(scope="module")
+def frames_fit():
+    """One fit on frames alone, shared: the stencil is its model's method, whatever its
+    weights."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return fitted(video())
+    finally:
+        torch.set_num_threads(n)
+
+
 @pytest.mark.parametrize("wh", [0.1, 0.3, 0.8])
-def test_the_stencil_differentiates_a_latent_to_fourth_order(wh):
-    est = fitted(video())
+def test_the_stencil_differentiates_a_latent_to_fourth_order(frames_fit, wh):
     h, w = 0.05, wh / 0.05
     t = torch.linspace(0, 3, 50, dtype=torch.float64)[:, None] + h * torch.arange(-2, 3)
     z = torch.sin(w * t)[..., None]  # (B, 5, 1)
-    _zc, dz, ddz = est.model_.stencil_latents(z, h)
+    _zc, dz, ddz = frames_fit.model_.stencil_latents(z, h)
     centre = t[:, 2:3]
     assert torch.allclose(dz, w * torch.cos(w * centre), atol=w * wh ** 4 / 20)
     assert torch.allclose(ddz, -w * w * torch.sin(w * centre), atol=w * w * wh ** 4 / 60)
 
 
-def test_frames_without_derivatives_train_on_stencils_and_exact_ones_on_themselves():
+def test_frames_without_derivatives_train_on_stencils_and_exact_ones_on_themselves(frames_fit):
     frames_only, exact = video(), video(exact=True)
     cfg = TrainConfig(model=LatentSINDy(1, time="continuous", derivative_order=2).model_config)
     assert derivative_source(cfg, frames_only) == "latent"
     assert derivative_source(cfg, exact) == "given"
     assert derivative_source(dataclasses.replace(cfg, derivatives="central"),
                              frames_only) == "central"
-    est = fitted(frames_only)
+    est = frames_fit  # (fitted on frames_only)
     tensors = training_tensors(est.model_, frames_only, est.normalizer_,
                                dataclasses.replace(cfg, batch_size=10), torch.device("cpu"),
                                fresh=False)
@@ -73,9 +84,9 @@ def test_the_stride_follows_the_time_unit_within_the_frames():
     assert stencil_stride(1.0, 0.01, 41) == 5  # half a sequence's frames stay centres
 
 
-def test_the_coordinates_give_the_frames_stencil_loss():
+def test_the_coordinates_give_the_frames_stencil_loss(frames_fit):
     data = video()
-    est = fitted(data)
+    est = frames_fit  # (fitted on data)
     model = est.model_
     f, idx, u = frame_windows(data.split("train"), est.normalizer_, 2)
     frames = DerivativeSamples(f[idx], u, 0.16)
