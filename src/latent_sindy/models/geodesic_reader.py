@@ -41,6 +41,7 @@ from latent_sindy.models.manifold import (
     geodesic_coordinates,
     principal_front,
 )
+from latent_sindy.models.reader_latent import on_circle, reader_latent
 from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["GeodesicReader", "winds_round"]
@@ -147,22 +148,11 @@ class GeodesicReader:
         (cos φ, sin φ) (B, 2) where the coordinates wind round, else the coordinates
         (B, dim)."""
         g = self.read(frames)
-        return self._unit(g) if self.turns_ else g
-
-    def _unit(self, g: torch.Tensor) -> torch.Tensor:
-        """Coordinates (B, 2) -> (cos φ, sin φ) of their angle φ about the centre."""
-        a = g - self.centre_
-        return a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
+        return on_circle(g, self.centre_) if self.turns_ else g
 
     def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
                 dt: float) -> torch.Tensor:
-        held = torch.as_tensor(previous).double().reshape(len(now), -1)
-        if not self.turns_:
-            return torch.cat([now, (now - before) / dt, held], -1)
-        a, b = self._unit(now), self._unit(before)
-        turn = torch.atan2(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0],
-                           b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1])
-        return torch.cat([a, (turn / dt)[:, None], held], -1)
+        return reader_latent(now, before, previous, dt, self.centre_ if self.turns_ else None)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -61,6 +61,7 @@ from latent_sindy.atomic import write_atomic
 from latent_sindy.errors import UserError
 from latent_sindy.locks import exclusive
 from latent_sindy.models.geodesic_reader import winds_round
+from latent_sindy.models.reader_latent import reader_latent
 from latent_sindy.models.stacked_frames import newest_and_before
 
 __all__ = ["KeypointReader"]
@@ -377,20 +378,9 @@ class KeypointReader:
         points, spread = self._points(self._float(frames))
         return (points - self.centre_) @ self.axes_, self._seen(spread)
 
-    def _unit(self, k: torch.Tensor) -> torch.Tensor:
-        """Principal coordinates (B, 2) -> (cos φ, sin φ) of their angle φ about the pivot."""
-        a = k - self.pivot_
-        return a / a.norm(dim=1, keepdim=True).clamp_min(1e-12)
-
     def _latent(self, now: torch.Tensor, before: torch.Tensor, previous: torch.Tensor,
                 dt: float) -> torch.Tensor:
-        held = torch.as_tensor(previous).double().reshape(len(now), -1)
-        if not self.turns_:
-            return torch.cat([now, (now - before) / dt, held], -1)
-        a, b = self._unit(now), self._unit(before)
-        turn = torch.atan2(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0],
-                           b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1])
-        return torch.cat([a, (turn / dt)[:, None], held], -1)
+        return reader_latent(now, before, previous, dt, self.pivot_ if self.turns_ else None)
 
     def latent(self, obs: torch.Tensor, previous: torch.Tensor, dt: float
                ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -11,6 +11,7 @@ settings are in ``OUT/gym_study.json`` and a folder of other settings is refused
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Collection
 from pathlib import Path
 
@@ -56,14 +57,13 @@ SCALES: dict[str, LoopScale] = {
         "episodes a fit; seed 0",
         (0,), 64, 2, 20, 3, 200, 1, 0, 5, 2, "none", 1000, 20, eval_episodes=10,
         episodes_per_iteration=5, latent="geodesic", lambda_=1.0, sigma=1.0, seed_hold=10),
-    "keypoints": LoopScale(
-        "as geodesic, on a latent of 4 keypoints of what moves, learned from the random "
-        "episodes' frames alone by transporting one frame's features into another (6000 "
-        "updates; no world knowledge): their principal coordinates, read as an angle where "
-        "two wind round, and their rates from the frame before; seed 0",
-        (0,), 64, 2, 20, 3, 200, 1, 0, 5, 4, "none", 1000, 20, eval_episodes=10,
-        episodes_per_iteration=5, latent="keypoints", lambda_=1.0, sigma=1.0, seed_hold=10),
 }
+SCALES["keypoints"] = dataclasses.replace(
+    SCALES["geodesic"], latent="keypoints", latent_dim=4,
+    about="as geodesic, on a latent of 4 keypoints of what moves, learned from the random "
+    "episodes' frames alone by transporting one frame's features into another (6000 "
+    "updates; no world knowledge): their principal coordinates, read as an angle where two "
+    "wind round, and their rates from the frame before; seed 0")
 
 
 def study_scale(scale: str, seeds: tuple[int, ...] | None) -> LoopScale:
