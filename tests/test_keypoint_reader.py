@@ -113,6 +113,8 @@ def test_bad_settings_and_frames_are_refused_with_the_fix(fitted):
         KeypointReader(parts=0)
     with pytest.raises(UserError, match=r"min_share=1\.5"):
         KeypointReader(min_share=1.5)
+    with pytest.raises(UserError, match="spread=0"):
+        KeypointReader(spread=0)
     with pytest.raises(UserError, match="before fit_episodes"):
         KeypointReader().read(obs[0])
     with pytest.raises(UserError, match="expected episodes"):
@@ -146,6 +148,11 @@ def test_a_stored_fit_is_loaded_by_a_later_process_instead_of_trained(fitted, tm
     keypoint_reader._FITTED.clear()
     with pytest.raises(AssertionError, match="trained again"):
         small(tmp_path / "readers", lr=2e-3).fit_episodes(obs)
+    with pytest.raises(AssertionError, match="trained again"):
+        small(tmp_path / "readers", spread=0.05).fit_episodes(obs)
+    # the default spread, given, is the stored fit's own
+    keypoint_reader._FITTED.clear()
+    small(tmp_path / "readers", spread=0.1).fit_episodes(obs)
     with pytest.raises(AssertionError, match="trained again"):
         small(tmp_path / "readers").fit_episodes(obs[:, :-1])
 

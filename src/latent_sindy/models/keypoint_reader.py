@@ -74,6 +74,8 @@ LIVE = 0.3
 #: keypoint's median spread over the training frames, or one cell of the keypoint maps (a
 #: part out of the frame spreads its keypoint's weights over the rest).
 SPREAD = 2.0
+#: The keypoints' Gaussian's standard deviation unless told (image's [-1, 1] units).
+SPREAD_DEFAULT = 0.1
 #: A fit kept in a ``store`` writes its progress there every this many updates.
 CHECKPOINT = 250
 #: What a stored fit's file says it is.
@@ -104,8 +106,8 @@ class Transporter(nn.Module):
         spread: the keypoints' Gaussian's standard deviation, in the image's [-1, 1] units.
     """
 
-    def __init__(self, channels: int, parts: int, width: int = 16, spread: float = 0.1
-                 ) -> None:
+    def __init__(self, channels: int, parts: int, width: int = 16,
+                 spread: float = SPREAD_DEFAULT) -> None:
         super().__init__()
         self.parts = parts
         self.spread = spread
@@ -170,6 +172,8 @@ class KeypointReader:
         frames: frames stacked as channels in one observation (their colours split evenly;
             with one frame the rates are 0: nothing shows them).
         parts: keypoints a frame (its one structural setting).
+        spread: the keypoints' Gaussian's standard deviation, in the image's [-1, 1] units
+            (how much of a part one keypoint carries when it transports it).
         steps: Adam updates of the fit, on batches of ``batch`` frame pairs.
         lr: Adam's learning rate.
         width: the networks' first feature maps.
@@ -188,13 +192,14 @@ class KeypointReader:
     def __init__(self, frames: int = 2, parts: int = 4, steps: int = 6000, batch: int = 32,
                  lr: float = 1e-3, width: int = 16, min_share: float = 0.01, seed: int = 0,
                  device: str = "cpu", progress: bool = True,
-                 store: str | os.PathLike | None = None, angle: bool | None = None
-                 ) -> None:
+                 store: str | os.PathLike | None = None, angle: bool | None = None,
+                 spread: float = SPREAD_DEFAULT) -> None:
         for name, value in (("frames", frames), ("parts", parts), ("steps", steps),
                             ("batch", batch), ("width", width)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise UserError(f"KeypointReader {name}={value!r}: use an integer >= 1")
-        for name, value, high in (("lr", lr, float("inf")), ("min_share", min_share, 1.0)):
+        for name, value, high in (("lr", lr, float("inf")), ("min_share", min_share, 1.0),
+                                  ("spread", spread, 2.0)):
             if isinstance(value, bool) or not isinstance(value, int | float) or not (
                     0.0 < value < high):
                 raise UserError(f"KeypointReader {name}={value!r}: use a number in (0, "
@@ -205,6 +210,7 @@ class KeypointReader:
         self.angle = angle
         self.frames, self.parts, self.steps, self.batch = frames, parts, steps, batch
         self.lr, self.width, self.min_share, self.seed = lr, width, min_share, seed
+        self.spread = float(spread)
         self.device = torch.device(device)
         self.progress = progress
         self.store = None if store is None else Path(store)
@@ -223,8 +229,10 @@ class KeypointReader:
         return x / 255.0 if frames.dtype == torch.uint8 else x
 
     def _settings(self) -> tuple:
+        # (the default spread is left out: fits stored before it was a setting stay found)
         return (self.frames, self.parts, self.steps, self.batch, self.lr, self.width,
-                self.seed, str(self.device))
+                self.seed, str(self.device)) + (
+            () if self.spread == SPREAD_DEFAULT else (f"spread={self.spread!r}",))
 
     def fit_episodes(self, images: torch.Tensor) -> KeypointReader:
         """Learn the keypoints from training episodes' observations (E, T+1, C, H, W)."""
@@ -239,7 +247,8 @@ class KeypointReader:
         digest = hashlib.sha1(newest.contiguous().numpy().tobytes()).hexdigest()
         key = (*self._settings(), digest, tuple(newest.shape))
         torch.manual_seed(self.seed)
-        self.net_ = Transporter(frames.shape[2], self.parts, self.width).to(self.device)
+        self.net_ = Transporter(frames.shape[2], self.parts, self.width, self.spread
+                                ).to(self.device)
         self.mean_ = frames.mean((0, 1, 3, 4)).view(-1, 1, 1)
         if key in _FITTED:
             self.net_.load_state_dict(_FITTED[key])
