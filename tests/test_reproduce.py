@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import shutil
 from dataclasses import replace
 
@@ -45,9 +46,11 @@ def study(tmp_path_factory) -> dict:
               *out.glob("runs/seed0/*/evaluation.json"),
               *out.glob("runs/seed0/*/control-*/results.json")]
     mtimes = {p: p.stat().st_mtime_ns for p in reused}
+    drawn = [*out.glob("figures/coefficients_*.png"), *out.glob("figures/rollouts.png")]
+    figure_mtimes = {p: p.stat().st_mtime_ns for p in drawn}
     again = run_push(out, lines.append, **settings)
     return {"out": out, "settings": settings, "report": report, "again": again, "mtimes": mtimes,
-            "lines": lines}
+            "figure_mtimes": figure_mtimes, "lines": lines}
 
 
 def test_pipeline_writes_the_report_and_says_so(study):
@@ -61,6 +64,26 @@ def test_rerun_reuses_data_runs_evaluations_and_episodes(study):
     changed = [str(p) for p, t in mtimes.items() if p.stat().st_mtime_ns != t]
     assert not changed
     assert "reused" in " ".join(study["lines"]) and "reusing" in " ".join(study["lines"])
+
+
+def test_rerun_reuses_the_figures_of_models_it_did_not_train_again(study, tmp_path):
+    from latent_sindy.worlds.push.study.outputs import coefficient_job
+
+    figure_mtimes = study["figure_mtimes"]
+    assert any(p.name == "rollouts.png" for p in figure_mtimes)
+    assert any(p.name.startswith("coefficients_") for p in figure_mtimes)
+    assert [p for p, t in figure_mtimes.items() if p.stat().st_mtime_ns != t] == []
+    # a model written after its map (trained again) has its map drawn anew
+    drawn = next(p for p in figure_mtimes if p.name.startswith("coefficients_"))
+    run = shutil.copytree(study["out"] / "runs" / "seed0" / drawn.stem.removeprefix(
+        "coefficients_"), tmp_path / "run")
+    figure = shutil.copy2(drawn, tmp_path / drawn.name)
+    assert coefficient_job(run, "kept", figure, 1) == figure
+    assert figure.stat().st_mtime_ns == drawn.stat().st_mtime_ns
+    later = drawn.stat().st_mtime_ns + 10**9
+    os.utime(run / "model.pt", ns=(later, later))
+    assert coefficient_job(run, "again", figure, 1) == figure
+    assert figure.stat().st_mtime_ns != drawn.stat().st_mtime_ns
 
 
 def test_table1_has_paper_values_and_ours_for_every_model(study):

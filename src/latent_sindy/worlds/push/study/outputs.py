@@ -157,8 +157,21 @@ def model_figures(plan: StudyPlan, trained: Collection[str], data: Path | Sequen
             for key, fn, args in jobs}
 
 
+def _drawn_since(path: Path, sources: list[Path]) -> bool:
+    """Whether the figure ``path`` was written after every file it is drawn from (a study
+    run again reuses it; a model trained again draws it anew)."""
+    try:
+        drawn = path.stat().st_mtime_ns
+        return all(src.stat().st_mtime_ns <= drawn for src in sources)
+    except FileNotFoundError:
+        return False
+
+
 def coefficient_job(run_dir: Path, label: str, path: Path, threads: int) -> Path | None:
-    """The coefficient map of the run in ``run_dir`` (None if its dynamics are not sparse)."""
+    """The coefficient map of the run in ``run_dir`` (None if its dynamics are not sparse);
+    one drawn after the run's model was written is reused."""
+    if _drawn_since(path, [RunDir(run_dir) / RunDir.MODEL]):
+        return path
     torch.set_num_threads(threads)
     dyn = load_run(run_dir).model.dynamics
     return figures.coefficient_map(dyn, label, path) if hasattr(dyn, "mask") else None
@@ -166,7 +179,12 @@ def coefficient_job(run_dir: Path, label: str, path: Path, threads: int) -> Path
 
 def rollout_job(models: list[tuple[Path, str]], data: Path | SequenceData, path: Path,
                 threads: int) -> Path:
-    """Fig. 8 (:func:`_rollout_figure`) from the trajectories ``data`` (or their file)."""
+    """Fig. 8 (:func:`_rollout_figure`) from the trajectories ``data`` (or their file); one
+    drawn after their file and every model was written is reused."""
+    file = data if isinstance(data, Path) else Path(data.source)
+    if file.is_file() and _drawn_since(
+            path, [file, *(RunDir(run) / RunDir.MODEL for run, _ in models)]):
+        return path
     torch.set_num_threads(threads)
     data = read_sequences(data) if isinstance(data, Path) else data
     return _rollout_figure(models, held_out(data), path)
