@@ -8,7 +8,7 @@ import pytest
 
 from latent_sindy import LatentSINDy, Phase, Restarts, SequenceData
 from latent_sindy.errors import UserError
-from latent_sindy.training import TrainConfig, recipe
+from latent_sindy.training import TrainConfig, manifold_start, recipe
 from latent_sindy.worlds.pendulum.video_schedules import SCHEDULES
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -40,7 +40,9 @@ def test_the_recipe_is_the_studys_scalefree_schedule() -> None:
     assert recipe.RESTARTS == Restarts(2, s.restart_above, s.restart_fvu, agree=2)
 
 
-def test_a_continuous_fit_without_settings_takes_the_recipe() -> None:
+def test_a_continuous_fit_without_settings_takes_the_recipe(monkeypatch) -> None:
+    # (the settings are checked here, not the start's quality: a shorter regression)
+    monkeypatch.setattr(manifold_start, "REGRESSION_STEPS", 300)
     data = small_video()
     est = LatentSINDy(1, time="continuous", derivative_order=2, seed=0)
     assert (est.encoder, est.decoder, est.recipe) == ("mlp", "mlp", True)

@@ -96,11 +96,14 @@ PART_COMPONENTS = 48
 
 
 def regress_encoder(encoder: nn.Module, decoder: nn.Module, inputs: torch.Tensor,
-                    target: torch.Tensor, steps: int = REGRESSION_STEPS,
+                    target: torch.Tensor, steps: int | None = None,
                     batch: int = REGRESSION_BATCH, lr: float = 3e-3, seed: int = 0) -> float:
     """Train ``encoder`` (inputs -> latent) onto ``target`` (N, nz) and ``decoder`` (latent
     -> inputs) back, by Adam on mean squared errors (the inputs' scaled by their variance);
-    returns the last hundred updates' mean latent error."""
+    returns the last hundred updates' mean latent error. ``steps``: Adam updates (None:
+    :data:`REGRESSION_STEPS`)."""
+    if steps is None:
+        steps = REGRESSION_STEPS
     params = [*encoder.parameters(), *decoder.parameters()]
     opt = torch.optim.Adam(params, lr=lr)
     spread = inputs.var().clamp_min(1e-12)
