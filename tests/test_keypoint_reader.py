@@ -71,6 +71,19 @@ def test_the_keypoints_hold_the_square_that_moves_and_training_is_what_places_th
     assert r2.min() > before.min() + 0.1, (r2, before)
 
 
+def test_the_record_says_which_keypoints_follow_something(fitted):
+    import json
+
+    reader = fitted[0]
+    record = json.loads(json.dumps(reader.record()))
+    assert record["reader"] == "keypoints" and record["parts"] == 2
+    assert record["live"] == reader.live_.tolist() and len(record["typical_spread"]) == 2
+    assert len(record["variance_shares"]) == len(reader.names) // 2
+    assert record["summary"].startswith(f"{sum(record['live'])} of 2 keypoints follow")
+    with pytest.raises(UserError, match="before fit_episodes"):
+        KeypointReader().record()
+
+
 def test_the_latent_is_positions_rates_and_the_action_held(fitted):
     reader, obs, actions, _ = fitted
     assert not reader.turns_ and reader.circle is None  # a path that fills its middle

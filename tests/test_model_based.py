@@ -223,3 +223,29 @@ def test_random_actions_held_for_several_steps_and_one_step_as_before():
         collect_random(world, 1, 2, seed=0, hold=0)
     with pytest.raises(UserError, match="seed_hold"):
         ModelBasedConfig(seed_hold=0)
+
+
+def test_a_read_latent_loop_logs_what_its_reader_found(tmp_path):
+    from latent_sindy.models.geodesic_reader import GeodesicReader
+    from latent_sindy.read_latent import ReadLatent, ReadLatentConfig
+
+    notes: list[str] = []
+
+    class Notes:
+        def start(self, total, initial): ...
+        def update(self, epoch, metrics): ...
+        def note(self, text): notes.append(text)
+        def close(self): ...
+
+    cfg = ModelBasedConfig(seed_episodes=6, iterations=1, episodes_per_iteration=1,
+                           episode_steps=6, validation_every=5, warm_updates=0,
+                           mppi=MPPIConfig(samples=20, horizon=3))
+    result = model_based(Rail(), lambda i: ReadLatent(
+        GeodesicReader(frames=1, dim=1, landmarks=30, neighbours=5),
+        ReadLatentConfig(updates=20), seed=i), cfg, out=tmp_path / "loop", progress=Notes())
+    latent = result.log["iterations"][0]["latent"]
+    assert latent["reader"]["reader"] == "geodesic" and latent["reader"]["dim"] == 1
+    assert latent["coordinates"] == ["g0", "g0'"] and 0 < latent["seen_share"] <= 1
+    assert json.loads((tmp_path / "loop" / "log.json").read_text())["iterations"][0][
+        "latent"] == latent
+    assert any(n.startswith("iteration 1: latent g0, g0': 1 geodesic coordinate") for n in notes)

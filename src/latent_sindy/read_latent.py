@@ -200,6 +200,20 @@ class ReadLatent:
         if not hasattr(self, "model"):
             raise UserError("ReadLatent: fit it first")
 
+    def latent_record(self) -> dict[str, Any]:
+        """What the latent of the last fit is, JSON-ready: its coordinates' names, the share
+        of frames seen, the filter gain and, where the reader says (``record()``), what it
+        found; ``summary``, the same in a line."""
+        self._check_fitted()
+        own = getattr(self.reader, "record", None)
+        reader = own() if callable(own) else {"reader": type(self.reader).__name__}
+        names = list(getattr(self.reader, "names", ()) or ())
+        summary = reader.get("summary") or reader["reader"]
+        return {"reader": reader, "coordinates": names, "seen_share": self.seen_share_,
+                "gain": self.gain_,
+                "summary": f"latent {', '.join(names) or '(unnamed)'}: {summary}; "
+                           f"{self.seen_share_:.0%} of the frames seen"}
+
     def planner(self, mppi: MPPIConfig | None = None, seed: int = 0,
                 objective: str = "reward") -> ReadLatentPlanner:
         """MPPI on the read latent against the reward head: ``act(image)`` -> (nu,)."""

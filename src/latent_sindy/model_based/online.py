@@ -280,6 +280,9 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
             estimator, state = _fit(make_estimator(iteration), data, fit_settings or {}, cfg,
                                     state)
             fit_s = time.perf_counter() - t0
+            latent = _latent(estimator)
+            if latent is not None and latent.get("summary"):
+                progress.note(f"iteration {iteration}: {latent['summary']}")
             planner = estimator.planner(cfg.mppi, seed=cfg.seed * 1000 + iteration,
                                         objective="reward")
             parts = [data]
@@ -306,6 +309,7 @@ def model_based(world: World, make_estimator: Callable[[int], Any], cfg: ModelBa
                 "batch_size": None if state is None else state.batch_size,
                 "pruned": None if state is None else state.pruned,
                 "equations": _equations(estimator), "active_terms": active,
+                **({} if latent is None else {"latent": latent}),
                 "fit_env_steps": seen, "eval_seconds": round(test_s, 3),
                 "evaluation": [float(t.rewards.astype(np.float64).sum()) for t in tests]})
             log["done"] = iteration
@@ -346,6 +350,13 @@ def _active(estimator: Any) -> int | None:
         return int(np.count_nonzero(estimator.coefficients()))
     except (UserError, AttributeError, NotImplementedError):
         return None
+
+
+def _latent(estimator: Any) -> dict[str, Any] | None:
+    """What the estimator's latent is, where it says (a read latent: what its reader found,
+    :meth:`~latent_sindy.read_latent.ReadLatent.latent_record`); None otherwise."""
+    record = getattr(estimator, "latent_record", None)
+    return record() if callable(record) else None
 
 
 def _state_path(folder: Path, iteration: int) -> Path:

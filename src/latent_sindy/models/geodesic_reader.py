@@ -130,6 +130,15 @@ class GeodesicReader:
         return self
 
     # ------------------------------------------------------------------ reading
+    def record(self) -> dict:
+        """What the fit found, JSON-ready: the coordinates and whether they are read as an
+        angle; ``summary``, the same in a line."""
+        if not hasattr(self, "manifold_"):
+            raise UserError("GeodesicReader.record before fit_episodes: fit it first")
+        return {"reader": "geodesic", "dim": self.dim, "angle": self.turns_,
+                "summary": f"{self.dim} geodesic coordinate(s)"
+                           + (", read as an angle" if self.turns_ else "")}
+
     def read(self, frames: torch.Tensor) -> torch.Tensor:
         """Coordinates (B, dim) float64 of single frames (B, C / frames, H, W)."""
         if not hasattr(self, "manifold_"):

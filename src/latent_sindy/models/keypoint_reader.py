@@ -261,6 +261,7 @@ class KeypointReader:
         self.net_.eval().requires_grad_(False)
         points, spread = self._points(frames.flatten(0, 1))
         typical = spread.median(0).values
+        self.typical_spread_ = typical
         self.live_ = typical < LIVE
         if not bool(self.live_.any()):
             self.live_ = typical == typical.min()
@@ -291,6 +292,25 @@ class KeypointReader:
                       tuple(f"k{i}" for i in range(kept)) + tuple(
                           f"k{i}'" for i in range(kept)))
         return self
+
+    def record(self) -> dict:
+        """What the fit found, JSON-ready: which keypoints follow something (their typical
+        spread), the principal coordinates kept and their shares of the variance, whether
+        they are read as an angle, the share of training frames seen and the last loss;
+        ``summary``, the same in a line."""
+        if not hasattr(self, "axes_"):
+            raise UserError("KeypointReader.record before fit_episodes: fit it first")
+        live = [bool(v) for v in self.live_]
+        shares = [round(float(v), 4) for v in self.share_]
+        kept = ("read as an angle" if self.turns_ else
+                f"{len(shares)} principal coordinate(s) of "
+                + ", ".join(f"{v:.1%}" for v in shares) + " of the variance")
+        return {"reader": "keypoints", "parts": self.parts, "spread": self.spread,
+                "live": live,
+                "typical_spread": [round(float(v), 4) for v in self.typical_spread_],
+                "variance_shares": shares, "angle": self.turns_,
+                "seen_share": self.seen_share_, "loss": getattr(self, "loss_", None),
+                "summary": f"{sum(live)} of {self.parts} keypoints follow something; {kept}"}
 
     def _train_stored(self, frames: torch.Tensor, key: tuple) -> None:
         """The networks from the store where a fit of ``key`` is there, else trained (from its
