@@ -22,11 +22,19 @@ Tasks: ``pendulum`` (Gymnasium's Pendulum-v1: cos θ, sin θ, θ̇) and ``cartpo
     python benchmarks/latent_probe.py --task pendulum --record results   # rows into
                                  # results/gym/latent-probe.csv (cartpole: results/dmc/)
     python benchmarks/latent_probe.py --smoke          # tiny sizes, seconds (the tests)
+
+``--study OUT`` probes a model-based study's own latent instead (``latent-sindy reproduce
+--world dmc|gym`` on a geodesic or keypoints scale): its reader made as the study made it,
+fitted on a seed's random episodes (a keypoint reader's fit loads from ``OUT/readers``:
+nothing is trained again), probed on that seed's planned episodes.
+
+    python benchmarks/latent_probe.py --study runs/kp100k --seed 0
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -43,20 +51,26 @@ COLUMNS = {"x": "x", "cos θ": "cos_theta", "sin θ": "sin_theta", "x'": "x_rate
            "θ'": "theta_rate"}
 
 
+#: Each task's state features: their names and how they come from the data's states.
+FEATURES = {
+    "pendulum": (("cos θ", "sin θ", "θ'"), lambda s: s),
+    "cartpole": (("x", "cos θ", "sin θ", "x'", "θ'"), lambda s: np.stack(
+        [s[..., 0], np.cos(s[..., 1]), np.sin(s[..., 1]), s[..., 2], s[..., 3]], -1)),
+}
+
+
 def _world(task: str, size: int):
     """The task's world and how its state features come from the data's states."""
     if task == "pendulum":
         from latent_sindy.worlds.gym import GymConfig, GymWorld
 
         world = GymWorld(GymConfig(id="Pendulum-v1", size=size, frames=2))
-        return world, ("cos θ", "sin θ", "θ'"), lambda s: s
-    from latent_sindy.worlds.dmc.config import DmcConfig
-    from latent_sindy.worlds.dmc.world import DmcWorld
+    else:
+        from latent_sindy.worlds.dmc.config import DmcConfig
+        from latent_sindy.worlds.dmc.world import DmcWorld
 
-    world = DmcWorld(DmcConfig(task="cartpole-swingup", size=size, frames=2))
-    names = ("x", "cos θ", "sin θ", "x'", "θ'")
-    return world, names, lambda s: np.stack(
-        [s[..., 0], np.cos(s[..., 1]), np.sin(s[..., 1]), s[..., 2], s[..., 3]], -1)
+        world = DmcWorld(DmcConfig(task="cartpole-swingup", size=size, frames=2))
+    return (world, *FEATURES[task])
 
 
 def _quadratic(z: np.ndarray) -> np.ndarray:
@@ -83,25 +97,70 @@ def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: lis
     dt = float(data.dt) if data.dt is not None else 1.0
     rows = []
     for dim in dims:
-        t0 = time.perf_counter()
         reader = (GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
                   if reader_kind == "geodesic" else
                   KeypointReader(frames=2, parts=dim, steps=updates, seed=seed,
                                  progress=updates > 100))
-        reader.fit_episodes(images[:train])
-        fit_s = time.perf_counter() - t0
-        nu = actions.shape[-1]  # (the latent ends with the action held: not probed)
-        read = [reader.episode(images[e], actions[e], dt) for e in range(train, episodes)]
-        seen = torch.cat([s for _, s in read]).numpy()
-        z = torch.cat([z[:, :-nu] for z, _ in read]).numpy()[seen]
-        z = (z - z.mean(0)) / z.std(0).clip(1e-12)
-        for kind, x in (("linear", z), ("quadratic", _quadratic(z))):
-            rows.append({"task": task, "dim": dim, "probe": kind, "fit_s": fit_s,
-                         "seen": float(seen.mean()),
-                         "reader": reader_kind, "kept": len(reader.names) // 2,
-                         "read": "angle" if reader.circle else "coordinates",
-                         **dict(zip(names, _r2(x, y_all[seen]).tolist(), strict=True))})
+        rows += _probed(reader, images[:train], images[train:], actions[train:], dt, y_all,
+                        {"task": task, "dim": dim, "reader": reader_kind}, names)
     return rows
+
+
+def _probed(reader, fit_on: torch.Tensor, images: torch.Tensor, actions: torch.Tensor,
+            dt: float, y: np.ndarray, about: dict, names: tuple[str, ...]) -> list[dict]:
+    """``reader`` fitted on the episodes ``fit_on`` and probed on the episodes ``images``
+    (their features ``y``, flattened): a linear and a quadratic row."""
+    t0 = time.perf_counter()
+    reader.fit_episodes(fit_on)
+    fit_s = time.perf_counter() - t0
+    nu = actions.shape[-1]  # (the latent ends with the action held: not probed)
+    read = [reader.episode(images[e], actions[e], dt) for e in range(len(images))]
+    seen = torch.cat([s for _, s in read]).numpy()
+    z = torch.cat([z[:, :-nu] for z, _ in read]).numpy()[seen]
+    z = (z - z.mean(0)) / z.std(0).clip(1e-12)
+    return [{**about, "probe": kind, "fit_s": fit_s, "seen": float(seen.mean()),
+             "kept": len(reader.names) // 2, "read": "angle" if reader.circle else "coordinates",
+             "found": reader.record()["summary"],
+             **dict(zip(names, _r2(x, y[seen]).tolist(), strict=True))}
+            for kind, x in (("linear", z), ("quadratic", _quadratic(z)))]
+
+
+def probe_study(out: Path, seed: int) -> tuple[str, list[dict]]:
+    """The rows of the study in ``out``'s latent at ``seed`` (the module docstring), and
+    its task."""
+    from latent_sindy.data import read_sequences
+    from latent_sindy.study.model_based import LoopScale, scale_reader
+
+    found = sorted(out.glob("*_study.json"))
+    if len(found) != 1:
+        raise SystemExit(f"--study {out}: expected one *_study.json (a model-based study's "
+                         f"folder), found {len(found)}")
+    settings = json.loads(found[0].read_text())
+    loop, world = settings["loop"], settings["world"]
+    task = ("cartpole" if str(world.get("task", "")).startswith("cartpole") else
+            "pendulum" if world.get("id") == "Pendulum-v1" else None)
+    if task is None:
+        raise SystemExit(f"--study {out}: its task ({world}) has no state features here: "
+                         f"probe a cartpole task or Pendulum-v1")
+    s = LoopScale("", (seed,), **loop)
+    make = scale_reader(s, loop["frames"], None, out)
+    if make is None:
+        raise SystemExit(f"--study {out}: its latent is {loop['latent']!r}; the probe takes "
+                         "a geodesic or keypoints scale's")
+    data = next((read_sequences(p) for kind in ("sindy", "linear", "mlp")
+                 if (p := out / f"seed{seed}" / kind / "data.h5").is_file()), None)
+    if data is None:
+        raise SystemExit(f"--study {out}: no episodes of seed {seed} there (seed{seed}/"
+                         "<model>/data.h5)")
+    names, features = FEATURES[task]
+    first = loop["seed_episodes"]
+    images = torch.from_numpy(np.asarray(data.images))
+    actions = torch.from_numpy(np.asarray(data.actions, np.float64))
+    y = features(np.asarray(data.states, np.float64)[first:]).reshape(-1, len(names))
+    dt = float(data.dt) if data.dt is not None else 1.0
+    return task, _probed(make(), images[:first], images[first:], actions[first:], dt, y,
+                         {"task": task, "dim": loop["latent_dim"], "reader": loop["latent"],
+                          "study": str(out), "episodes": data.n - first}, names)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="the keypoint reader's Adam updates")
     p.add_argument("--landmarks", type=positive_int, default=1000)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--study", type=Path, default=None, metavar="OUT",
+                   help="probe this model-based study's own latent at --seed (see above)")
     p.add_argument("--record", type=Path, default=None, metavar="DIR",
                    help="also write the rows into DIR/<world>/latent-probe.csv (the tracked "
                         "results: --record results)")
@@ -136,14 +197,22 @@ def main(argv: list[str] | None = None) -> int:
     steps = args.steps or (200 if args.task == "pendulum" else 125)
     keypoints = args.reader == "keypoints"
     torch.set_num_threads(2 if keypoints else 1)
-    rows = probe(args.task, args.episodes, args.train, steps, args.size,
-                 args.parts if keypoints else args.dim, args.seed, args.landmarks,
-                 args.reader, args.updates)
-    names = [k for k in rows[0]
-             if k not in ("task", "dim", "probe", "fit_s", "read", "reader", "kept", "seen")]
-    print(f"{args.task}: {args.reader} latent from {args.train} random episodes of {steps} "
-          f"actions ({args.size}x{args.size}, 2 frames), probed on "
-          f"{args.episodes - args.train} others")
+    if args.study is not None:
+        if args.record is not None:
+            p.error("--record takes the probe's own episodes; a study's probe is printed only")
+        args.task, rows = probe_study(args.study, args.seed)
+        keypoints = rows[0]["reader"] == "keypoints"
+        print(f"{args.task}: the latent of the study {args.study}, seed {args.seed} "
+              f"({rows[0]['reader']}: {rows[0]['found']}), probed on its "
+              f"{rows[0]['episodes']} planned episodes")
+    else:
+        rows = probe(args.task, args.episodes, args.train, steps, args.size,
+                     args.parts if keypoints else args.dim, args.seed, args.landmarks,
+                     args.reader, args.updates)
+        print(f"{args.task}: {args.reader} latent from {args.train} random episodes of "
+              f"{steps} actions ({args.size}x{args.size}, 2 frames), probed on "
+              f"{args.episodes - args.train} others")
+    names = list(FEATURES[args.task][0])
     print(f"| {'keypoints (coordinates kept)' if keypoints else 'coordinates'} | read as | "
           "probe | " + " | ".join(names) + " | frames seen | reader fit s |")
     print("|---|---|---|" + "---|" * len(names) + "---|---|")

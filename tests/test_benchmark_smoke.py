@@ -242,3 +242,58 @@ def test_smoke_changes_defaults_and_a_given_flag_still_wins():
     assert given.episodes == 5
     with pytest.raises(UserError, match="'epochs' is no option of bench"):
         parse_with_smoke(parser(), ["--smoke"], {"epochs": 1})
+
+
+def _pendulum_study(out: Path, latent: str = "geodesic") -> Path:
+    """A model-based study's folder as ``reproduce --world gym`` leaves it, of a blob going
+    round a pivot at 16×16 (two frames stacked): its settings and one seed's episodes,
+    4 random and 4 planned, with the states (cos θ, sin θ, θ')."""
+    import dataclasses
+
+    import numpy as np
+
+    from latent_sindy.data import SequenceData, write_sequences
+    from latent_sindy.worlds.gym.study import SCALES
+
+    rng = np.random.default_rng(0)
+    n, steps, size, dt = 8, 40, 16, 0.05
+    yy, xx = np.mgrid[0:size, 0:size]
+
+    def frame(theta: float) -> np.ndarray:
+        cx, cy = 7.5 + 5 * np.sin(theta), 7.5 - 5 * np.cos(theta)
+        return (255 * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / 3.0)).astype(np.uint8)
+
+    images = np.zeros((n, steps + 1, 2, size, size), np.uint8)
+    states = np.zeros((n, steps + 1, 3), np.float32)
+    for e in range(n):
+        theta, rate = rng.uniform(0, 2 * np.pi), rng.uniform(-4, 4)
+        before = frame(theta)
+        for t in range(steps + 1):
+            images[e, t] = before, frame(theta)
+            states[e, t] = np.cos(theta), np.sin(theta), rate
+            before, theta = frame(theta), theta + rate * dt
+    loop = dataclasses.asdict(dataclasses.replace(SCALES["geodesic"], seed_episodes=4,
+                                                  latent=latent, latent_dim=2, frames=2))
+    del loop["about"], loop["seeds"]
+    (out / "seed0" / "sindy").mkdir(parents=True)
+    (out / "gym_study.json").write_text(json.dumps(
+        {"scale": "geodesic", "world": {"id": "Pendulum-v1", "size": size, "frames": 2},
+         "loop": loop}))
+    write_sequences(out / "seed0" / "sindy" / "data.h5", SequenceData(
+        images, rng.uniform(-1, 1, (n, steps, 1)).astype(np.float32), action_low=[-1.0],
+        action_high=[1.0], rewards=np.zeros((n, steps), np.float32), states=states, dt=dt))
+    return out
+
+
+def test_latent_probe_of_a_studys_own_latent(monkeypatch, capsys, tmp_path):
+    study = _pendulum_study(tmp_path / "study")
+    out = _run("latent_probe", monkeypatch, capsys, "--study", str(study))
+    assert "4 planned episodes" in out and "2 geodesic coordinate(s), read as an angle" in out
+    row = [ln for ln in out.splitlines() if ln.startswith("| 2 |") and "| linear |" in ln]
+    values = _numbers(row[0])
+    assert values[1] > 0.9 and values[2] > 0.9, out  # cos θ and sin θ, read as the angle
+    with pytest.raises(SystemExit, match=r"one \*_study\.json"):
+        _run("latent_probe", monkeypatch, capsys, "--study", str(tmp_path))
+    read = _pendulum_study(tmp_path / "read", latent="read")
+    with pytest.raises(SystemExit, match="its latent is 'read'"):
+        _run("latent_probe", monkeypatch, capsys, "--study", str(read))
