@@ -20,8 +20,9 @@ def test_the_scales_and_the_benchmark_setting():
 
     assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
                                             "read-demo", "read-100k", "keypoints-demo",
-                                            "keypoints-100k"}
-    for name in ("benchmark", "read-100k", "keypoints-100k"):
+                                            "keypoints-100k", "keypoints8-demo",
+                                            "keypoints8-100k"}
+    for name in ("benchmark", "read-100k", "keypoints-100k", "keypoints8-100k"):
         b = SCALES[name]
         episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
@@ -32,16 +33,16 @@ def test_a_keypoints_scale_plans_on_keypoints_learned_from_the_frames():
     from latent_sindy.study.model_based import scale_reader
     from latent_sindy.worlds.dmc.study import SCALES
 
-    for name in ("keypoints-demo", "keypoints-100k"):
+    for name in ("keypoints-demo", "keypoints-100k", "keypoints8-demo", "keypoints8-100k"):
         s = SCALES[name]
         # the read-* scale's loop, with the world's hand-made reader never asked for
-        read = SCALES[name.replace("keypoints", "read")]
+        read = SCALES[name.replace("keypoints8", "read").replace("keypoints", "read")]
         assert (s.seed_episodes, s.iterations, s.episodes_per_iteration) == (
             read.seed_episodes, read.iterations, read.episodes_per_iteration)
         reader = scale_reader(s, 2, hand_made=lambda: pytest.fail("hand-made reader made"),
                               out=Path("study"))()
         assert isinstance(reader, KeypointReader)
-        assert (reader.frames, reader.parts) == (2, s.latent_dim)
+        assert (reader.frames, reader.parts) == (2, 8 if "keypoints8" in name else 4)
         # its fit is kept in the study's folder: every model's loop of a seed shares it
         assert reader.store == Path("study") / "readers"
 
