@@ -94,7 +94,7 @@ def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: lis
     images = torch.from_numpy(np.asarray(data.images))
     actions = torch.from_numpy(np.asarray(data.actions, np.float64))
     y_all = features(np.asarray(data.states, np.float64)[train:]).reshape(-1, len(names))
-    dt = float(data.dt) if data.dt is not None else 1.0
+    dt = _dt(data)
     rows = []
     for dim in dims:
         reader = (GeodesicReader(frames=2, dim=dim, landmarks=landmarks, seed=seed)
@@ -104,6 +104,11 @@ def probe(task: str, episodes: int, train: int, steps: int, size: int, dims: lis
         rows += _probed(reader, images[:train], images[train:], actions[train:], dt, y_all,
                         {"task": task, "dim": dim, "reader": reader_kind}, names)
     return rows
+
+
+def _dt(data) -> float:
+    """The data's time step (changes per second), else 1 (per step: the probe standardises)."""
+    return float(data.dt) if data.dt is not None else 1.0
 
 
 def _probed(reader, fit_on: torch.Tensor, images: torch.Tensor, actions: torch.Tensor,
@@ -157,7 +162,7 @@ def probe_study(out: Path, seed: int) -> tuple[str, list[dict]]:
     images = torch.from_numpy(np.asarray(data.images))
     actions = torch.from_numpy(np.asarray(data.actions, np.float64))
     y = features(np.asarray(data.states, np.float64)[first:]).reshape(-1, len(names))
-    dt = float(data.dt) if data.dt is not None else 1.0
+    dt = _dt(data)
     return task, _probed(make(), images[:first], images[first:], actions[first:], dt, y,
                          {"task": task, "dim": loop["latent_dim"], "reader": loop["latent"],
                           "study": str(out), "episodes": data.n - first}, names)

@@ -41,7 +41,7 @@ from latent_sindy.worlds.push.study.results import RunResult
 from latent_sindy.worlds.push.study.scales import Condition
 
 __all__ = ["EvalJob", "TrainJob", "ensure_trained", "eval_job", "held_out", "held_out_split",
-           "train_job"]
+           "train_job", "written_after"]
 
 #: Version of evaluation.json's contents: 2 added the latent probe and position errors, 3
 #: the state models' position errors, 4 the kernel probe (probe["kernel/..."]).
@@ -140,6 +140,16 @@ def _what_the_latent_knows(loaded: Any, data: SequenceData,
                                               predictions=predictions)}
 
 
+def written_after(path: Path, sources: list[Path]) -> bool:
+    """Whether ``path`` exists and was written after every one of ``sources`` (a result or
+    figure of them that a study run again reuses; one of a model trained again is redone)."""
+    try:
+        written = path.stat().st_mtime_ns
+        return all(src.stat().st_mtime_ns <= written for src in sources)
+    except FileNotFoundError:
+        return False
+
+
 def _eval_key(run: RunDir, data: Path) -> dict[str, Any]:
     return {"version": EVAL_VERSION, "model_mtime_ns": (run / run.MODEL).stat().st_mtime_ns,
             "data": str(data.resolve()), "data_mtime_ns": data.stat().st_mtime_ns}
@@ -208,7 +218,7 @@ def _control(loaded: Any, run: RunDir, condition: Condition, settings: ControlCo
     results = folder / "results.json"
     want = json.loads(json.dumps(to_json(settings)))
     record = None
-    if results.exists() and results.stat().st_mtime_ns >= (run / run.MODEL).stat().st_mtime_ns:
+    if written_after(results, [run / run.MODEL]):
         record = _read_json(results)
     if not _whole_results(record, want):
         run_control(loaded.model, loaded.normalizer, loaded.world_config, settings, folder)

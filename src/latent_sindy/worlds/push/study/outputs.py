@@ -24,7 +24,7 @@ from latent_sindy.study.evaluation import BASELINES
 from latent_sindy.training import RunDir, load_run, read_metrics
 from latent_sindy.worlds.push.study import figures
 from latent_sindy.worlds.push.study.config import StudyPlan
-from latent_sindy.worlds.push.study.jobs import held_out
+from latent_sindy.worlds.push.study.jobs import held_out, written_after
 from latent_sindy.worlds.push.study.results import Study
 from latent_sindy.worlds.push.study.table import write_sweep_table, write_table1
 
@@ -157,20 +157,10 @@ def model_figures(plan: StudyPlan, trained: Collection[str], data: Path | Sequen
             for key, fn, args in jobs}
 
 
-def _drawn_since(path: Path, sources: list[Path]) -> bool:
-    """Whether the figure ``path`` was written after every file it is drawn from (a study
-    run again reuses it; a model trained again draws it anew)."""
-    try:
-        drawn = path.stat().st_mtime_ns
-        return all(src.stat().st_mtime_ns <= drawn for src in sources)
-    except FileNotFoundError:
-        return False
-
-
 def coefficient_job(run_dir: Path, label: str, path: Path, threads: int) -> Path | None:
     """The coefficient map of the run in ``run_dir`` (None if its dynamics are not sparse);
     one drawn after the run's model was written is reused."""
-    if _drawn_since(path, [RunDir(run_dir) / RunDir.MODEL]):
+    if written_after(path, [RunDir(run_dir) / RunDir.MODEL]):
         return path
     torch.set_num_threads(threads)
     dyn = load_run(run_dir).model.dynamics
@@ -182,7 +172,7 @@ def rollout_job(models: list[tuple[Path, str]], data: Path | SequenceData, path:
     """Fig. 8 (:func:`_rollout_figure`) from the trajectories ``data`` (or their file); one
     drawn after their file and every model was written is reused."""
     file = data if isinstance(data, Path) else Path(data.source)
-    if file.is_file() and _drawn_since(
+    if file.is_file() and written_after(
             path, [file, *(RunDir(run) / RunDir.MODEL for run, _ in models)]):
         return path
     torch.set_num_threads(threads)
