@@ -12,10 +12,15 @@ from latent_sindy.control.mppi import MPPIConfig
 from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.read_latent import (
+    ERROR_CAP,
+    FIT_CHOICES,
+    FitSetting,
     ReadLatent,
     ReadLatentConfig,
+    choose_fit,
     filter_step,
     filtered,
+    held_out_error,
 )
 
 DT, STIFF, DAMP, GAIN, GOAL, EDGE = 0.1, 4.0, 0.5, 2.0, 0.5, 1.2
@@ -205,11 +210,84 @@ def test_the_filter_follows_exact_readings_and_averages_noisy_ones():
         ReadLatentConfig(gain=0)
 
 
+class _Scaled(torch.nn.Module):
+    """z[t+1] = a z[t] (+ 0 u), with ``terms`` active coefficients, for choose_fit."""
+
+    def __init__(self, a: float, terms: int) -> None:
+        super().__init__()
+        self.a, self.terms = a, terms
+
+    def forward(self, z, u):
+        return self.a * z
+
+    def coefficients(self):
+        return torch.arange(self.terms) + 1.0
+
+
+def _decay(n: int = 10, steps: int = 30, rate: float = 0.9):
+    z0 = torch.linspace(1.0, 2.0, n)[:, None, None]
+    Z = z0 * rate ** torch.arange(steps + 1.0)[None, :, None]  # (n, T+1, 1)
+    return Z.double(), torch.zeros(n, steps, 1).double(), torch.ones(n, steps + 1, dtype=bool)
+
+
+def test_the_held_out_error_follows_the_rollouts_and_caps_a_diverging_one():
+    Z, U, seen = _decay()
+    assert held_out_error(_Scaled(0.9, 1), Z, U, seen, 10) < 1e-10
+    assert held_out_error(_Scaled(1.0, 1), Z, U, seen, 10) > 1e-3  # (nothing moves)
+    # a model whose rollouts blow up within the horizon costs the cap a step, no more
+    assert ERROR_CAP / 2 < held_out_error(_Scaled(1e6, 1), Z, U, seen, 10) <= ERROR_CAP
+    # a start counts only where its whole horizon is seen
+    seen[:, 5] = False
+    wrong_there = Z.clone()
+    wrong_there[:, 5] = 100.0
+    assert held_out_error(_Scaled(0.9, 1), wrong_there, U, seen, 10) < 1e-10
+    assert np.isnan(held_out_error(_Scaled(0.9, 1), Z, U, seen, 40))
+
+
+def test_choose_fit_keeps_the_sparsest_fit_that_predicts_held_out_episodes():
+    Z, U, seen = _decay()
+    a, b, c = FitSetting(5, 0.3, 0.03), FitSetting(1, 0.0, 0.1), FitSetting(5, 0.0, 0.2)
+    models = {a: _Scaled(0.9, 30), b: _Scaled(0.9, 8), c: _Scaled(1.0, 2)}
+    used = []
+
+    def fit(setting, episodes):
+        used.append(episodes.tolist())
+        return models[setting]
+
+    choice = choose_fit(fit, Z, U, seen, (a, b, c), 10, seed=0)
+    assert choice.setting == b  # as good as a with fewer terms; c is sparser but wrong
+    assert [p[1] for p in choice.path] == [30, 8, 2]
+    held = set(choice.held_out)
+    assert len(held) == 2 and all(held.isdisjoint(e) and len(e) == 8 for e in used)
+    assert "* window 1, trim 0, min_share 0.1: 8 terms" in choice.table()
+    assert choose_fit(fit, Z, U, seen, (a, b, c), 10, seed=1).held_out != choice.held_out
+    # too few episodes, or no held-out run long enough: nothing to judge by
+    assert choose_fit(fit, Z[:4], U[:4], seen[:4], (a, b), 10, seed=0) is None
+    assert choose_fit(fit, Z, U, seen, (a, b), 40, seed=0) is None
+
+
+def test_the_chosen_fit_is_the_fixed_fit_at_its_setting(data):
+    est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10, horizon=10),
+                     seed=3).fit(data)
+    s = est.selection_.setting
+    assert s in FIT_CHOICES and len(est.selection_.path) == len(FIT_CHOICES)
+    fixed = ReadLatent(PositionReader(), ReadLatentConfig(
+        updates=10, select=False, window=s.window, trim=s.trim, min_share=s.min_share),
+        seed=3).fit(data)
+    assert fixed.selection_ is None
+    assert np.array_equal(est.coefficients(), fixed.coefficients())
+    record = est.latent_record()
+    assert record["sindy_fit"]["window"] == s.window
+    assert f"window {s.window}, trim {s.trim:g}" in record["summary"]
+
+
 def test_bad_input_raises_user_errors(data):
     with pytest.raises(UserError, match="dynamics 'koopman'"):
         ReadLatentConfig(dynamics="koopman")
     with pytest.raises(UserError, match="window=0"):
         ReadLatentConfig(window=0)
+    with pytest.raises(UserError, match="horizon=0"):
+        ReadLatentConfig(horizon=0)
     with pytest.raises(UserError, match="support=-1"):
         ReadLatentConfig(support=-1.0)
     with pytest.raises(UserError, match="reader with fit_episodes"):

@@ -10,7 +10,10 @@ action held since the last one (a latent of two stacked frames needs it: their c
 depends on that action). Frames not seen are left out of every fit.
 
 SINDy is fitted in the windowed form (:meth:`SindyDynamics.fit_trajectory_data`: a reader's
-error enters a window's two ends only) with trimmed STLSQ (end stops, contacts); linear
+error enters a window's two ends only) with trimmed STLSQ (end stops, contacts); by default
+the window, the trimmed share and STLSQ's threshold are chosen among :data:`FIT_CHOICES` by
+how well each fit predicts a fifth of the episodes held out, over the planner's horizon
+(:func:`choose_fit`), and the chosen one is fitted again on all of them. Linear
 dynamics by least squares on the seen transitions; the MLP by Adam on them. The latents are
 standardised (a reader's (cos, sin) pair, its ``circle``, kept as it is) before any fit.
 
@@ -49,11 +52,107 @@ from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.reward_head import RewardHead
 from latent_sindy.sindy import STLSQ, Trimmed
 
-__all__ = ["GAINS", "LatentReader", "ReadLatent", "ReadLatentConfig", "ReadLatentPlanner",
-           "filter_gain", "filter_step", "filtered"]
+__all__ = ["FIT_CHOICES", "GAINS", "FitChoice", "FitSetting", "LatentReader", "ReadLatent",
+           "ReadLatentConfig", "ReadLatentPlanner", "choose_fit", "filter_gain", "filter_step",
+           "filtered", "held_out_error"]
 
 #: The filter gains :func:`filter_gain` chooses from (1: the reading alone).
 GAINS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
+
+
+@dataclass(frozen=True)
+class FitSetting:
+    """One SINDy fit on a read latent: windows of ``window`` steps, the ``trim`` share of
+    them left out as the worst explained, STLSQ's ``min_share``."""
+
+    window: int
+    trim: float
+    min_share: float
+
+
+#: The SINDy fits ``ReadLatentConfig(select=True)`` chooses from: windows of 5 steps or
+#: one, 30 %, 10 % or none of them trimmed, a term's least share 3 %, 10 % or 20 %.
+FIT_CHOICES: tuple[FitSetting, ...] = tuple(
+    FitSetting(w, t, m) for w in (5, 1) for t in (0.3, 0.1, 0.0) for m in (0.03, 0.1, 0.2))
+
+#: A window's squared error counts at most this much (standardised units) in
+#: :func:`held_out_error`: a rollout that diverges costs a lot, but not everything.
+ERROR_CAP = 10.0
+
+
+@dataclass(frozen=True)
+class FitChoice:
+    """What :func:`choose_fit` chose: the ``setting``, and for every setting tried its
+    active terms and held-out error (``path``: (setting, terms, error)), on
+    ``held_out`` episodes."""
+
+    setting: FitSetting
+    path: tuple[tuple[FitSetting, int, float], ...]
+    held_out: tuple[int, ...]
+
+    def table(self) -> str:
+        """The path as text: a line per setting, the chosen one marked."""
+        return "\n".join(
+            f"{'*' if s == self.setting else ' '} window {s.window}, trim {s.trim:g}, "
+            f"min_share {s.min_share:g}: {terms} terms, held-out error {error:.4g}"
+            for s, terms, error in self.path)
+
+
+@torch.no_grad()
+def held_out_error(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor,
+                   seen: torch.Tensor, horizon: int, cap: float = ERROR_CAP) -> float:
+    """How well ``model`` (``model(z, u)`` -> the next z) predicts episodes Z (E, T+1, nz)
+    under their actions U (E, T, nu) over ``horizon`` steps: from every frame whose next
+    ``horizon`` frames are all ``seen`` (E, T+1), the rollout's squared error (mean over the
+    latent), each capped at ``cap`` (a rollout that leaves the floats counts ``cap``),
+    averaged over the steps and the starts; nan where no start has ``horizon`` frames seen."""
+    T = U.shape[1]
+    if T < horizon:
+        return math.nan
+    runs = seen.unfold(1, horizon + 1, 1).all(-1)  # (E, T - horizon + 1) starts seen through
+    e, t = runs.nonzero(as_tuple=True)
+    if len(e) == 0:
+        return math.nan
+    z = Z[e, t].float()
+    total = 0.0
+    for h in range(horizon):
+        z = model(z, U[e, t + h].float())
+        err = (z - Z[e, t + h + 1].float()).pow(2).mean(-1)
+        total += float(torch.nan_to_num(err, nan=cap, posinf=cap).clamp(max=cap).mean())
+    return total / horizon
+
+
+def choose_fit(fit: Any, Z: torch.Tensor, U: torch.Tensor, seen: torch.Tensor,
+               settings: tuple[FitSetting, ...], horizon: int, seed: int,
+               slack: float = 1.1, share: float = 0.2) -> FitChoice | None:
+    """The sparsest of ``settings`` whose fit predicts held-out episodes within ``slack`` of
+    the best (:func:`held_out_error` over ``horizon`` steps). ``fit(setting, episodes)`` ->
+    a model fitted on those episodes of Z (E, T+1, nz), U (E, T, nu), ``seen`` (E, T+1);
+    ``share`` of the episodes (a random draw by ``seed``, at least one) are held out. None
+    where that cannot be judged: fewer than 5 episodes, or no held-out run of ``horizon``
+    frames seen.
+
+    A one-step fit of a sparse model says little of what a planner needs, many steps of it:
+    on the cart-pole's learned keypoints the fixed windowed fit predicted best over a few
+    steps but diverged in a tenth of the planner's horizons (RESULTS.md)."""
+    n = Z.shape[0]
+    if n < 5:
+        return None
+    order = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
+    k = max(1, round(share * n))
+    held, kept = order[:k].sort().values, order[k:].sort().values
+    if math.isnan(held_out_error(lambda z, u: z, Z[held], U[held], seen[held], horizon)):
+        return None
+    path = []
+    for setting in settings:
+        model = fit(setting, kept)
+        terms = int((model.coefficients() != 0).sum())
+        path.append((setting, terms, held_out_error(model, Z[held], U[held], seen[held],
+                                                    horizon)))
+    best = min(error for _, _, error in path)
+    ok = [p for p in path if p[2] <= slack * best]
+    chosen = min(ok, key=lambda p: (p[1], p[2]))
+    return FitChoice(chosen[0], tuple(path), tuple(held.tolist()))
 
 
 class LatentReader(Protocol):
@@ -89,6 +188,12 @@ class ReadLatentConfig:
     latent 0.03 kept a third of the terms of 0.01 and planned as well, RESULTS.md)."""
     trim: float = 0.3
     """Share of SINDy's windows left out as the worst explained (end stops, contacts)."""
+    select: bool = True
+    """Choose SINDy's ``window``, ``trim`` and ``min_share`` among :data:`FIT_CHOICES` on
+    held-out episodes (:func:`choose_fit`: the sparsest fit whose rollouts over ``horizon``
+    steps predict them within 10 % of the best); False: fit the three as they are set."""
+    horizon: int = 20
+    """Steps of the held-out rollouts ``select`` judges a fit by (the planner's horizon)."""
     reward_width: int = 64
     updates: int = 3000
     """Adam updates of the reward head and of the MLP (batches of 256 rows)."""
@@ -119,7 +224,7 @@ class ReadLatentConfig:
                 and 0.0 <= self.support < math.inf):
             raise UserError(f"ReadLatentConfig support={self.support!r}: use a number >= 0 "
                             "(0: no penalty)")
-        for name in ("order", "window", "reward_width", "updates", "mlp_width") + (
+        for name in ("order", "window", "horizon", "reward_width", "updates", "mlp_width") + (
                 () if self.reader_episodes is None else ("reader_episodes",)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -171,10 +276,19 @@ class ReadLatent:
         z1 = Zs[:, 1:].reshape(-1, nz)[rows].float()
         u = actions.reshape(-1, nu)[rows].float()
         if cfg.dynamics == "sindy":
-            self.model = SindyConfig(order=cfg.order, include_sine=False).build(
-                nz, nu, circle=circle)  # (the regression itself runs in float64)
-            self.model.fit_trajectory_data(Zs, actions, cfg.window, Trimmed(
-                STLSQ(min_share=cfg.min_share), share=cfg.trim), valid=seen)
+            def sindy(setting: FitSetting, episodes: torch.Tensor) -> torch.nn.Module:
+                model = SindyConfig(order=cfg.order, include_sine=False).build(
+                    nz, nu, circle=circle)  # (the regression itself runs in float64)
+                return model.fit_trajectory_data(
+                    Zs[episodes], actions[episodes], setting.window,
+                    Trimmed(STLSQ(min_share=setting.min_share), share=setting.trim),
+                    valid=seen[episodes]).requires_grad_(False)
+
+            fixed = FitSetting(cfg.window, cfg.trim, cfg.min_share)
+            self.selection_ = choose_fit(sindy, Zs, actions, seen, FIT_CHOICES, cfg.horizon,
+                                         self.seed) if cfg.select else None
+            self.model = sindy(self.selection_.setting if self.selection_ else fixed,
+                               torch.arange(data.n))
         elif cfg.dynamics == "linear":
             self.model = LinearConfig().build(nz, nu, circle=circle)
             self.model.fit_least_squares(z0, u, z1)
@@ -209,10 +323,20 @@ class ReadLatent:
         reader = own() if callable(own) else {"reader": type(self.reader).__name__}
         names = list(getattr(self.reader, "names", ()) or ())
         summary = reader.get("summary") or reader["reader"]
-        return {"reader": reader, "coordinates": names, "seen_share": self.seen_share_,
-                "gain": self.gain_,
-                "summary": f"latent {', '.join(names) or '(unnamed)'}: {summary}; "
-                           f"{self.seen_share_:.0%} of the frames seen"}
+        record = {"reader": reader, "coordinates": names, "seen_share": self.seen_share_,
+                  "gain": self.gain_,
+                  "summary": f"latent {', '.join(names) or '(unnamed)'}: {summary}; "
+                             f"{self.seen_share_:.0%} of the frames seen"}
+        choice = getattr(self, "selection_", None)
+        if choice is not None:
+            s = choice.setting
+            record["sindy_fit"] = {"window": s.window, "trim": s.trim,
+                                   "min_share": s.min_share,
+                                   "held_out_episodes": len(choice.held_out)}
+            record["summary"] += (f"; SINDy's fit chosen on {len(choice.held_out)} held-out "
+                                  f"episodes: window {s.window}, trim {s.trim:g}, min_share "
+                                  f"{s.min_share:g}")
+        return record
 
     def planner(self, mppi: MPPIConfig | None = None, seed: int = 0,
                 objective: str = "reward") -> ReadLatentPlanner:

@@ -111,6 +111,10 @@ class LoopScale:
     ``window`` steps, order ``order``, STLSQ's ``min_share``)."""
     order: int = 3
     min_share: float = 0.03
+    select: bool = True
+    """With "read", "geodesic" and "keypoints": SINDy's window, trim and min_share chosen
+    on held-out episodes at each fit (``ReadLatentConfig.select``); False: the fixed fit
+    above (the hand-made reader's scales, as they were measured)."""
     support: float = 10.0
     """The read latent's planner gives up this much reward a step for each standardised unit
     a predicted latent lies outside the training latents in view (``ReadLatentConfig``);
@@ -273,7 +277,8 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
             raise UserError(f"a scale of a {s.latent} latent needs its reader of the frames "
                             "from the world's study")
         fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
-                                min_share=s.min_share, reward_width=s.reward_head,
+                                min_share=s.min_share, select=s.select,
+                                horizon=s.horizon, reward_width=s.reward_head,
                                 reader_episodes=s.seed_episodes,  # (the random ones)
                                 support=s.support)
 

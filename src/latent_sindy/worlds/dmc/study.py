@@ -79,7 +79,7 @@ SCALES: dict[str, DmcScale] = {
         "the read latent for tests, about a minute: 32x32, 2 frames, 3 seed episodes and 1 "
         "planned one of 20 actions, MPPI K 16 H 3; seed 0",
         (0,), 32, 2, 3, 1, 20, 1, 0, 5, 6, "none", 16, 3, eval_episodes=1, latent="read",
-        lambda_=1.0),
+        select=False, lambda_=1.0),
     "read-demo": DmcScale(
         "the pose read by image moments, one seed: 64x64, 2 frames, 30 seed episodes, then 3 "
         "fits each followed by 10 planned episodes of 125 actions (60k environment steps); "
@@ -87,13 +87,13 @@ SCALES: dict[str, DmcScale] = {
         "linear and MLP on the same latent; MPPI K 1000 H 20 λ 1, kept to the latents "
         "seen in training; 4 test episodes a fit",
         (0,), 64, 2, 30, 3, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=4,
-        episodes_per_iteration=10, latent="read", lambda_=1.0),
+        episodes_per_iteration=10, latent="read", select=False, lambda_=1.0),
     "read-100k": DmcScale(
         "the pose read by image moments at the 100k-step benchmark: as read-demo with 7 fits "
         "(30 random and 70 planned episodes, 100k environment steps), 5 test episodes a fit; "
         "seeds 0..4; hours on a CPU",
         (0, 1, 2, 3, 4), 64, 2, 30, 7, 125, 1, 0, 5, 6, "none", 1000, 20, eval_episodes=5,
-        episodes_per_iteration=10, latent="read", lambda_=1.0),
+        episodes_per_iteration=10, latent="read", select=False, lambda_=1.0),
     "keypoints-demo": DmcScale(
         "as read-demo on a latent learned from the frames alone, no reader written for the "
         "world: 4 keypoints of what moves (transported features, 6000 updates on the seed "
