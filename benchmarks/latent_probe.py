@@ -34,7 +34,6 @@ nothing is trained again), probed on that seed's planned episodes.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -133,38 +132,27 @@ def _probed(reader, fit_on: torch.Tensor, images: torch.Tensor, actions: torch.T
 def probe_study(out: Path, seed: int) -> tuple[str, list[dict]]:
     """The rows of the study in ``out``'s latent at ``seed`` (the module docstring), and
     its task."""
-    from latent_sindy.data import read_sequences
-    from latent_sindy.study.model_based import LoopScale, scale_reader
+    from latent_sindy.errors import UserError
+    from latent_sindy.study.model_based import study_latent
 
-    found = sorted(out.glob("*_study.json"))
-    if len(found) != 1:
-        raise SystemExit(f"--study {out}: expected one *_study.json (a model-based study's "
-                         f"folder), found {len(found)}")
-    settings = json.loads(found[0].read_text())
-    loop, world = settings["loop"], settings["world"]
+    try:
+        settings, s, make, data = study_latent(out, seed)
+    except UserError as e:
+        raise SystemExit(f"--study {e}") from None
+    world = settings["world"]
     task = ("cartpole" if str(world.get("task", "")).startswith("cartpole") else
             "pendulum" if world.get("id") == "Pendulum-v1" else None)
     if task is None:
         raise SystemExit(f"--study {out}: its task ({world}) has no state features here: "
                          f"probe a cartpole task or Pendulum-v1")
-    s = LoopScale("", (seed,), **loop)
-    make = scale_reader(s, loop["frames"], None, out)
-    if make is None:
-        raise SystemExit(f"--study {out}: its latent is {loop['latent']!r}; the probe takes "
-                         "a geodesic or keypoints scale's")
-    data = next((read_sequences(p) for kind in ("sindy", "linear", "mlp")
-                 if (p := out / f"seed{seed}" / kind / "data.h5").is_file()), None)
-    if data is None:
-        raise SystemExit(f"--study {out}: no episodes of seed {seed} there (seed{seed}/"
-                         "<model>/data.h5)")
     names, features = FEATURES[task]
-    first = loop["seed_episodes"]
+    first = s.seed_episodes
     images = torch.from_numpy(np.asarray(data.images))
     actions = torch.from_numpy(np.asarray(data.actions, np.float64))
     y = features(np.asarray(data.states, np.float64)[first:]).reshape(-1, len(names))
     dt = _dt(data)
     return task, _probed(make(), images[:first], images[first:], actions[first:], dt, y,
-                         {"task": task, "dim": loop["latent_dim"], "reader": loop["latent"],
+                         {"task": task, "dim": s.latent_dim, "reader": s.latent,
                           "study": str(out), "episodes": data.n - first}, names)
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "run_seed",
     "scale_reader",
     "sized_config",
+    "study_latent",
 ]
 
 Say = Callable[[str], None]
@@ -254,6 +255,33 @@ def scale_reader(s: LoopScale, frames: int, hand_made: Callable[[], Any] | None 
         return partial(KeypointReader, frames=frames, parts=s.latent_dim,
                        store=None if out is None else out / "readers")
     return hand_made if s.latent == "read" else None
+
+
+def study_latent(out: Path, seed: int) -> tuple[dict[str, Any], LoopScale, Callable[[], Any],
+                                                 Any]:
+    """What a model-based study in ``out`` (finished or running) learned its latent from, at
+    ``seed``: its settings (``*_study.json``), its scale, its reader made as the study made it
+    (a keypoint fit loads from ``out/readers``) and the seed's episodes (the first model's
+    ``data.h5``). UserError where ``out`` is no study, its latent is a world's own reader, or
+    the seed has no episodes there."""
+    from latent_sindy.data import read_sequences
+
+    found = sorted(out.glob("*_study.json"))
+    if len(found) != 1:
+        raise UserError(f"{out}: expected one *_study.json (a model-based study's folder), "
+                        f"found {len(found)}")
+    settings = json.loads(found[0].read_text())
+    loop = settings["loop"]
+    s = LoopScale("", (seed,), **loop)
+    make = scale_reader(s, loop["frames"], None, out)
+    if make is None:
+        raise UserError(f"{out}: its latent is {loop['latent']!r}; a geodesic or keypoints "
+                        "scale's latent is learned from the frames, the others are not")
+    data = next((read_sequences(p) for kind in MODELS
+                 if (p := out / f"seed{seed}" / kind / "data.h5").is_file()), None)
+    if data is None:
+        raise UserError(f"{out}: no episodes of seed {seed} there (seed{seed}/<model>/data.h5)")
+    return settings, s, make, data
 
 
 def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: str,
