@@ -127,7 +127,8 @@ def choose_fit(fit: Any, Z: torch.Tensor, U: torch.Tensor, seen: torch.Tensor,
                slack: float = 1.1, share: float = 0.2) -> FitChoice | None:
     """The sparsest of ``settings`` whose fit predicts held-out episodes within ``slack`` of
     the best (:func:`held_out_error` over ``horizon`` steps). ``fit(setting, episodes)`` ->
-    a model fitted on those episodes of Z (E, T+1, nz), U (E, T, nu), ``seen`` (E, T+1);
+    a model fitted on those episodes of Z (E, T+1, nz), U (E, T, nu), ``seen`` (E, T+1),
+    with ``coefficients()`` (its terms: those not 0 count as active);
     ``share`` of the episodes (a random draw by ``seed``, at least one) are held out. None
     where that cannot be judged: fewer than 5 episodes, or no held-out run of ``horizon``
     frames seen.
