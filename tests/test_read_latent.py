@@ -278,6 +278,9 @@ def test_the_chosen_fit_is_the_fixed_fit_at_its_setting(data):
     assert np.array_equal(est.coefficients(), fixed.coefficients())
     record = est.latent_record()
     assert record["sindy_fit"]["window"] == s.window
+    tried = record["sindy_fit"]["tried"]
+    assert len(tried) == len(FIT_CHOICES) and all(np.isfinite(t["held_out_error"])
+                                                   for t in tried)
     assert f"window {s.window}, trim {s.trim:g}" in record["summary"]
 
 

@@ -333,7 +333,11 @@ class ReadLatent:
             s = choice.setting
             record["sindy_fit"] = {"window": s.window, "trim": s.trim,
                                    "min_share": s.min_share,
-                                   "held_out_episodes": len(choice.held_out)}
+                                   "held_out_episodes": len(choice.held_out),
+                                   "tried": [{"window": t.window, "trim": t.trim,
+                                              "min_share": t.min_share, "terms": terms,
+                                              "held_out_error": error}
+                                             for t, terms, error in choice.path]}
             record["summary"] += (f"; SINDy's fit chosen on {len(choice.held_out)} held-out "
                                   f"episodes: window {s.window}, trim {s.trim:g}, min_share "
                                   f"{s.min_share:g}")
