@@ -13,14 +13,13 @@ from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.read_latent import (
     ERROR_CAP,
-    FIT_CHOICES,
     FitSetting,
     ReadLatent,
     ReadLatentConfig,
     choose_fit,
     filter_step,
     filtered,
-    held_out_error,
+    held_out_rollouts,
 )
 
 DT, STIFF, DAMP, GAIN, GOAL, EDGE = 0.1, 4.0, 0.5, 2.0, 0.5, 1.2
@@ -230,58 +229,69 @@ def _decay(n: int = 10, steps: int = 30, rate: float = 0.9):
     return Z.double(), torch.zeros(n, steps, 1).double(), torch.ones(n, steps + 1, dtype=bool)
 
 
-def test_the_held_out_error_follows_the_rollouts_and_caps_a_diverging_one():
+def test_held_out_rollouts_follow_the_model_and_count_the_diverged():
     Z, U, seen = _decay()
-    assert held_out_error(_Scaled(0.9, 1), Z, U, seen, 10) < 1e-10
-    assert held_out_error(_Scaled(1.0, 1), Z, U, seen, 10) > 1e-3  # (nothing moves)
-    # a model whose rollouts blow up within the horizon costs the cap a step, no more
-    assert ERROR_CAP / 2 < held_out_error(_Scaled(1e6, 1), Z, U, seen, 10) <= ERROR_CAP
+    exact = held_out_rollouts(_Scaled(0.9, 1), Z, U, seen, 10)
+    assert exact.error < 1e-10 and exact.diverged == 0.0
+    still = held_out_rollouts(_Scaled(1.0, 1), Z, U, seen, 10)  # (nothing moves)
+    assert still.error > 1e-3 and still.diverged == 0.0
+    # rollouts that blow up within the horizon cost the cap a step, no more
+    wild = held_out_rollouts(_Scaled(1e6, 1), Z, U, seen, 10)
+    assert ERROR_CAP / 2 < wild.error <= ERROR_CAP and wild.diverged == 1.0
     # a start counts only where its whole horizon is seen
     seen[:, 5] = False
     wrong_there = Z.clone()
     wrong_there[:, 5] = 100.0
-    assert held_out_error(_Scaled(0.9, 1), wrong_there, U, seen, 10) < 1e-10
-    assert np.isnan(held_out_error(_Scaled(0.9, 1), Z, U, seen, 40))
+    assert held_out_rollouts(_Scaled(0.9, 1), wrong_there, U, seen, 10).error < 1e-10
+    assert np.isnan(held_out_rollouts(_Scaled(0.9, 1), Z, U, seen, 40).error)
 
 
-def test_choose_fit_keeps_the_sparsest_fit_that_predicts_held_out_episodes():
+def test_choose_fit_keeps_the_set_fit_unless_it_diverges():
     Z, U, seen = _decay()
-    a, b, c = FitSetting(5, 0.3, 0.03), FitSetting(1, 0.0, 0.1), FitSetting(5, 0.0, 0.2)
-    models = {a: _Scaled(0.9, 30), b: _Scaled(0.9, 8), c: _Scaled(1.0, 2)}
+    keep, a, b, c, d = (FitSetting(5, 0.3, 0.03), FitSetting(5, 0.1, 0.03),
+                        FitSetting(1, 0.0, 0.1), FitSetting(5, 0.0, 0.2), FitSetting(1, 0.3, 0.2))
+    models = {keep: _Scaled(0.95, 40), a: _Scaled(0.9, 30), b: _Scaled(0.9, 8),
+              c: _Scaled(1.0, 2), d: _Scaled(1e3, 1)}
     used = []
 
     def fit(setting, episodes):
-        used.append(episodes.tolist())
+        used.append((setting, episodes.tolist()))
         return models[setting]
 
-    choice = choose_fit(fit, Z, U, seen, (a, b, c), 10, seed=0)
-    assert choice.setting == b  # as good as a with fewer terms; c is sparser but wrong
-    assert [p[1] for p in choice.path] == [30, 8, 2]
+    # the set fit, though others predict better, is kept while its rollouts do not diverge
+    kept = choose_fit(fit, Z, U, seen, keep, (a, b, c, d), 10, seed=0)
+    assert kept.setting == keep and [s for s, _ in used] == [keep]
+    assert "* window 5, trim 0.3, min_share 0.03: 40 terms" in kept.table()
+    # diverging, it is replaced: b as good as a with fewer terms; c sparser but wrong; d wild
+    models[keep] = _Scaled(1e3, 40)
+    used.clear()
+    choice = choose_fit(fit, Z, U, seen, keep, (a, b, c, d), 10, seed=0)
+    assert choice.setting == b
+    assert [p[1] for p in choice.path] == [40, 30, 8, 2, 1]
+    assert choice.path[0][2].diverged == 1.0 and choice.path[2][2].diverged == 0.0
     held = set(choice.held_out)
-    assert len(held) == 2 and all(held.isdisjoint(e) and len(e) == 8 for e in used)
+    assert len(held) == 2 and all(held.isdisjoint(e) and len(e) == 8 for _, e in used)
     assert "* window 1, trim 0, min_share 0.1: 8 terms" in choice.table()
-    assert choose_fit(fit, Z, U, seen, (a, b, c), 10, seed=1).held_out != choice.held_out
+    assert choose_fit(fit, Z, U, seen, keep, (a, b), 10, seed=1).held_out != choice.held_out
     # too few episodes, or no held-out run long enough: nothing to judge by
-    assert choose_fit(fit, Z[:4], U[:4], seen[:4], (a, b), 10, seed=0) is None
-    assert choose_fit(fit, Z, U, seen, (a, b), 40, seed=0) is None
+    assert choose_fit(fit, Z[:4], U[:4], seen[:4], keep, (a, b), 10, seed=0) is None
+    assert choose_fit(fit, Z, U, seen, keep, (a, b), 40, seed=0) is None
 
 
-def test_the_chosen_fit_is_the_fixed_fit_at_its_setting(data):
+def test_the_checked_fit_is_the_set_fit_where_it_does_not_diverge(data):
     est = ReadLatent(PositionReader(), ReadLatentConfig(updates=10, horizon=10),
                      seed=3).fit(data)
-    s = est.selection_.setting
-    assert s in FIT_CHOICES and len(est.selection_.path) == len(FIT_CHOICES)
-    fixed = ReadLatent(PositionReader(), ReadLatentConfig(
-        updates=10, select=False, window=s.window, trim=s.trim, min_share=s.min_share),
-        seed=3).fit(data)
+    cfg = est.config
+    assert est.selection_.setting == FitSetting(cfg.window, cfg.trim, cfg.min_share)
+    assert len(est.selection_.path) == 1 and est.selection_.path[0][2].diverged == 0.0
+    fixed = ReadLatent(PositionReader(), ReadLatentConfig(updates=10, select=False),
+                       seed=3).fit(data)
     assert fixed.selection_ is None
     assert np.array_equal(est.coefficients(), fixed.coefficients())
     record = est.latent_record()
-    assert record["sindy_fit"]["window"] == s.window
-    tried = record["sindy_fit"]["tried"]
-    assert len(tried) == len(FIT_CHOICES) and all(np.isfinite(t["held_out_error"])
-                                                   for t in tried)
-    assert f"window {s.window}, trim {s.trim:g}" in record["summary"]
+    assert record["sindy_fit"]["window"] == cfg.window
+    assert len(record["sindy_fit"]["tried"]) == 1
+    assert "diverged in 0.0% of the rollouts on 2 held-out episodes, kept" in record["summary"]
 
 
 def test_bad_input_raises_user_errors(data):

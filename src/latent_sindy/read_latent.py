@@ -10,10 +10,11 @@ action held since the last one (a latent of two stacked frames needs it: their c
 depends on that action). Frames not seen are left out of every fit.
 
 SINDy is fitted in the windowed form (:meth:`SindyDynamics.fit_trajectory_data`: a reader's
-error enters a window's two ends only) with trimmed STLSQ (end stops, contacts); by default
-the window, the trimmed share and STLSQ's threshold are chosen among :data:`FIT_CHOICES` by
-how well each fit predicts a fifth of the episodes held out, over the planner's horizon
-(:func:`choose_fit`), and the chosen one is fitted again on all of them. Linear
+error enters a window's two ends only) with trimmed STLSQ (end stops, contacts). By default
+that fit is first made on four fifths of the episodes and rolled out over the planner's
+horizon on the fifth held out; where more than 1 % of those rollouts diverge, the window,
+the trimmed share and STLSQ's threshold are chosen instead among :data:`FIT_CHOICES`, by
+the same rollouts (:func:`choose_fit`), and the chosen fit is made again on all episodes. Linear
 dynamics by least squares on the seen transitions; the MLP by Adam on them. The latents are
 standardised (a reader's (cos, sin) pair, its ``circle``, kept as it is) before any fit.
 
@@ -52,9 +53,9 @@ from latent_sindy.models.dynamics import LinearConfig, MlpConfig, SindyConfig
 from latent_sindy.models.reward_head import RewardHead
 from latent_sindy.sindy import STLSQ, Trimmed
 
-__all__ = ["FIT_CHOICES", "GAINS", "FitChoice", "FitSetting", "LatentReader", "ReadLatent",
-           "ReadLatentConfig", "ReadLatentPlanner", "choose_fit", "filter_gain", "filter_step",
-           "filtered", "held_out_error"]
+__all__ = ["DIVERGED_SHARE", "ERROR_CAP", "FIT_CHOICES", "GAINS", "FitChoice", "FitSetting",
+           "HeldOut", "LatentReader", "ReadLatent", "ReadLatentConfig", "ReadLatentPlanner",
+           "choose_fit", "filter_gain", "filter_step", "filtered", "held_out_rollouts"]
 
 #: The filter gains :func:`filter_gain` chooses from (1: the reading alone).
 GAINS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
@@ -70,89 +71,112 @@ class FitSetting:
     min_share: float
 
 
-#: The SINDy fits ``ReadLatentConfig(select=True)`` chooses from: windows of 5 steps or
-#: one, 30 %, 10 % or none of them trimmed, a term's least share 3 %, 10 % or 20 %.
+#: The SINDy fits ``ReadLatentConfig(select=True)`` chooses from when the set one diverges:
+#: windows of 5 steps or one, 30 %, 10 % or none of them trimmed, a term's least share 3 %,
+#: 10 % or 20 %.
 FIT_CHOICES: tuple[FitSetting, ...] = tuple(
     FitSetting(w, t, m) for w in (5, 1) for t in (0.3, 0.1, 0.0) for m in (0.03, 0.1, 0.2))
 
-#: A window's squared error counts at most this much (standardised units) in
-#: :func:`held_out_error`: a rollout that diverges costs a lot, but not everything.
+#: A rollout's squared error (standardised units) above this has diverged: it counts this
+#: much in :func:`held_out_rollouts`' error, a lot but not everything.
 ERROR_CAP = 10.0
+
+#: The set fit is kept while at most this share of its held-out rollouts diverge.
+DIVERGED_SHARE = 0.01
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """How a model's rollouts over a horizon predict held-out episodes."""
+
+    error: float
+    """Squared error (mean over the latent), each capped at :data:`ERROR_CAP`, averaged over
+    the steps and the starts; nan where no start has its horizon seen."""
+    diverged: float
+    """Share of the rollouts whose squared error passed the cap (or left the floats) within
+    the horizon."""
 
 
 @dataclass(frozen=True)
 class FitChoice:
     """What :func:`choose_fit` chose: the ``setting``, and for every setting tried its
-    active terms and held-out error (``path``: (setting, terms, error)), on
-    ``held_out`` episodes."""
+    active terms and held-out rollouts (``path``: (setting, terms, HeldOut); the set one
+    first), on ``held_out`` episodes."""
 
     setting: FitSetting
-    path: tuple[tuple[FitSetting, int, float], ...]
+    path: tuple[tuple[FitSetting, int, HeldOut], ...]
     held_out: tuple[int, ...]
 
     def table(self) -> str:
         """The path as text: a line per setting, the chosen one marked."""
         return "\n".join(
             f"{'*' if s == self.setting else ' '} window {s.window}, trim {s.trim:g}, "
-            f"min_share {s.min_share:g}: {terms} terms, held-out error {error:.4g}"
-            for s, terms, error in self.path)
+            f"min_share {s.min_share:g}: {terms} terms, held-out error {h.error:.4g}, "
+            f"{h.diverged:.1%} diverged" for s, terms, h in self.path)
 
 
 @torch.no_grad()
-def held_out_error(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor,
-                   seen: torch.Tensor, horizon: int, cap: float = ERROR_CAP) -> float:
+def held_out_rollouts(model: torch.nn.Module, Z: torch.Tensor, U: torch.Tensor,
+                      seen: torch.Tensor, horizon: int, cap: float = ERROR_CAP) -> HeldOut:
     """How well ``model`` (``model(z, u)`` -> the next z) predicts episodes Z (E, T+1, nz)
-    under their actions U (E, T, nu) over ``horizon`` steps: from every frame whose next
-    ``horizon`` frames are all ``seen`` (E, T+1), the rollout's squared error (mean over the
-    latent), each capped at ``cap`` (a rollout that leaves the floats counts ``cap``),
-    averaged over the steps and the starts; nan where no start has ``horizon`` frames seen."""
+    under their actions U (E, T, nu) over ``horizon`` steps, rolled out from every frame
+    whose next ``horizon`` frames are all ``seen`` (E, T+1): :class:`HeldOut`."""
     T = U.shape[1]
-    if T < horizon:
-        return math.nan
-    runs = seen.unfold(1, horizon + 1, 1).all(-1)  # (E, T - horizon + 1) starts seen through
+    runs = (seen.unfold(1, horizon + 1, 1).all(-1) if T >= horizon  # (E, T - horizon + 1)
+            else seen[:, :0])
     e, t = runs.nonzero(as_tuple=True)
     if len(e) == 0:
-        return math.nan
+        return HeldOut(math.nan, math.nan)
     z = Z[e, t].float()
     total = 0.0
+    gone = torch.zeros(len(e), dtype=torch.bool)
     for h in range(horizon):
         z = model(z, U[e, t + h].float())
         err = (z - Z[e, t + h + 1].float()).pow(2).mean(-1)
+        gone |= ~(err <= cap)
         total += float(torch.nan_to_num(err, nan=cap, posinf=cap).clamp(max=cap).mean())
-    return total / horizon
+    return HeldOut(total / horizon, float(gone.double().mean()))
 
 
 def choose_fit(fit: Any, Z: torch.Tensor, U: torch.Tensor, seen: torch.Tensor,
-               settings: tuple[FitSetting, ...], horizon: int, seed: int,
+               keep: FitSetting, settings: tuple[FitSetting, ...], horizon: int, seed: int,
                slack: float = 1.1, share: float = 0.2) -> FitChoice | None:
-    """The sparsest of ``settings`` whose fit predicts held-out episodes within ``slack`` of
-    the best (:func:`held_out_error` over ``horizon`` steps). ``fit(setting, episodes)`` ->
-    a model fitted on those episodes of Z (E, T+1, nz), U (E, T, nu), ``seen`` (E, T+1),
-    with ``coefficients()`` (its terms: those not 0 count as active);
-    ``share`` of the episodes (a random draw by ``seed``, at least one) are held out. None
-    where that cannot be judged: fewer than 5 episodes, or no held-out run of ``horizon``
-    frames seen.
+    """The set fit ``keep`` while its rollouts over ``horizon`` steps seldom diverge on
+    held-out episodes (at most :data:`DIVERGED_SHARE` of them); else, of ``settings``, the
+    sparsest whose held-out error is within ``slack`` of the best among those that diverge
+    least (:func:`held_out_rollouts`). ``fit(setting, episodes)`` -> a model fitted on those
+    episodes of Z (E, T+1, nz), U (E, T, nu), ``seen`` (E, T+1), with ``coefficients()``
+    (its terms: those not 0 count as active); ``share`` of the episodes (a random draw by
+    ``seed``, at least one) are held out. None where that cannot be judged: fewer than 5
+    episodes, or no held-out run of ``horizon`` frames seen.
 
-    A one-step fit of a sparse model says little of what a planner needs, many steps of it:
-    on the cart-pole's learned keypoints the fixed windowed fit predicted best over a few
-    steps but diverged in a tenth of the planner's horizons (RESULTS.md)."""
+    A sparse model fitted one step (or one window) at a time may still diverge within the
+    planner's horizon: on the cart-pole's learned keypoints the set windowed fit predicted
+    best over a few steps but diverged in a tenth of the horizons; where it does not, a
+    choice among fits by held-out error alone planned no better (RESULTS.md)."""
     n = Z.shape[0]
     if n < 5:
         return None
     order = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
     k = max(1, round(share * n))
     held, kept = order[:k].sort().values, order[k:].sort().values
-    if math.isnan(held_out_error(lambda z, u: z, Z[held], U[held], seen[held], horizon)):
-        return None
-    path = []
-    for setting in settings:
+
+    def judged(setting: FitSetting) -> tuple[FitSetting, int, HeldOut]:
         model = fit(setting, kept)
-        terms = int((model.coefficients() != 0).sum())
-        path.append((setting, terms, held_out_error(model, Z[held], U[held], seen[held],
-                                                    horizon)))
-    best = min(error for _, _, error in path)
-    ok = [p for p in path if p[2] <= slack * best]
-    chosen = min(ok, key=lambda p: (p[1], p[2]))
+        return (setting, int((model.coefficients() != 0).sum()),
+                held_out_rollouts(model, Z[held], U[held], seen[held], horizon))
+
+    first = judged(keep)
+    if math.isnan(first[2].error):
+        return None
+    path = [first]
+    if first[2].diverged > DIVERGED_SHARE:
+        path += [judged(s) for s in settings if s != keep]
+    least = min(h.diverged for _, _, h in path)
+    calm = [p for p in path if p[2].diverged <= max(least, DIVERGED_SHARE)]
+    best = min(h.error for _, _, h in calm)
+    chosen = min((p for p in calm if p[2].error <= slack * best),
+                 key=lambda p: (p[1], p[2].error))
     return FitChoice(chosen[0], tuple(path), tuple(held.tolist()))
 
 
@@ -190,9 +214,10 @@ class ReadLatentConfig:
     trim: float = 0.3
     """Share of SINDy's windows left out as the worst explained (end stops, contacts)."""
     select: bool = True
-    """Choose SINDy's ``window``, ``trim`` and ``min_share`` among :data:`FIT_CHOICES` on
-    held-out episodes (:func:`choose_fit`: the sparsest fit whose rollouts over ``horizon``
-    steps predict them within 10 % of the best); False: fit the three as they are set."""
+    """Check SINDy's fit (``window``, ``trim``, ``min_share``) on held-out episodes and, where
+    more than 1 % of its rollouts over ``horizon`` steps diverge, fit instead the sparsest of
+    :data:`FIT_CHOICES` that diverges least and predicts within 10 % of the best
+    (:func:`choose_fit`); False: fit the three as they are set, unchecked."""
     horizon: int = 20
     """Steps of the held-out rollouts ``select`` judges a fit by (the planner's horizon)."""
     reward_width: int = 64
@@ -286,8 +311,8 @@ class ReadLatent:
                     valid=seen[episodes]).requires_grad_(False)
 
             fixed = FitSetting(cfg.window, cfg.trim, cfg.min_share)
-            self.selection_ = choose_fit(sindy, Zs, actions, seen, FIT_CHOICES, cfg.horizon,
-                                         self.seed) if cfg.select else None
+            self.selection_ = choose_fit(sindy, Zs, actions, seen, fixed, FIT_CHOICES,
+                                         cfg.horizon, self.seed) if cfg.select else None
             self.model = sindy(self.selection_.setting if self.selection_ else fixed,
                                torch.arange(data.n))
         elif cfg.dynamics == "linear":
@@ -336,11 +361,16 @@ class ReadLatent:
                                    "held_out_episodes": len(choice.held_out),
                                    "tried": [{"window": t.window, "trim": t.trim,
                                               "min_share": t.min_share, "terms": terms,
-                                              "held_out_error": error}
-                                             for t, terms, error in choice.path]}
-            record["summary"] += (f"; SINDy's fit chosen on {len(choice.held_out)} held-out "
-                                  f"episodes: window {s.window}, trim {s.trim:g}, min_share "
-                                  f"{s.min_share:g}")
+                                              "held_out_error": h.error,
+                                              "diverged": h.diverged}
+                                             for t, terms, h in choice.path]}
+            first = choice.path[0][2]
+            record["summary"] += (
+                f"; SINDy's set fit diverged in {first.diverged:.1%} of the rollouts on "
+                f"{len(choice.held_out)} held-out episodes" + (
+                    ", kept" if s == choice.path[0][0] else
+                    f"; replaced by window {s.window}, trim {s.trim:g}, min_share "
+                    f"{s.min_share:g}"))
         return record
 
     def planner(self, mppi: MPPIConfig | None = None, seed: int = 0,

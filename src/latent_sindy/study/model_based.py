@@ -113,9 +113,9 @@ class LoopScale:
     order: int = 3
     min_share: float = 0.03
     select: bool = True
-    """With "read", "geodesic" and "keypoints": SINDy's window, trim and min_share chosen
-    on held-out episodes at each fit (``ReadLatentConfig.select``); False: the fixed fit
-    above (the hand-made reader's scales, as they were measured)."""
+    """With "read", "geodesic" and "keypoints": SINDy's fit checked on held-out episodes at
+    each fit and replaced where its rollouts diverge (``ReadLatentConfig.select``); False:
+    the fit above unchecked (the hand-made reader's scales, as they were measured)."""
     support: float = 10.0
     """The read latent's planner gives up this much reward a step for each standardised unit
     a predicted latent lies outside the training latents in view (``ReadLatentConfig``);

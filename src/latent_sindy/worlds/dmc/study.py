@@ -97,8 +97,8 @@ SCALES: dict[str, DmcScale] = {
     "keypoints-demo": DmcScale(
         "as read-demo on a latent learned from the frames alone, no reader written for the "
         "world: 4 keypoints of what moves (transported features, 6000 updates on the seed "
-        "episodes' frames); SINDy's window, trim and min_share chosen at each fit on "
-        "held-out episodes",
+        "episodes' frames); SINDy's fit checked at each fit on held-out episodes and "
+        "replaced where its rollouts diverge",
         (0,), 64, 2, 30, 3, 125, 1, 0, 5, 4, "none", 1000, 20, eval_episodes=4,
         episodes_per_iteration=10, latent="keypoints", lambda_=1.0),
     "keypoints-100k": DmcScale(

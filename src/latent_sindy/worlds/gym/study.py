@@ -52,9 +52,9 @@ SCALES: dict[str, LoopScale] = {
         "frame, read as an angle where they wind round, and their rates from the frame "
         "before; no world knowledge), sized for Pendulum-v1: 64x64, 2 frames, 20 random "
         "seed episodes of 200 actions each held 10 steps, then 3 fits each followed by 5 "
-        "planned episodes; SINDy order 3, its window, trim and min_share chosen at each "
-        "fit on held-out episodes, linear and MLP on the same latent; MPPI K 1000 H 20 λ 1 "
-        "σ 1; 10 test "
+        "planned episodes; SINDy order 3 over windows of 5 steps (STLSQ min_share 0.03, "
+        "trimmed; checked on held-out episodes, replaced where its rollouts diverge), linear "
+        "and MLP on the same latent; MPPI K 1000 H 20 λ 1 σ 1; 10 test "
         "episodes a fit; seed 0",
         (0,), 64, 2, 20, 3, 200, 1, 0, 5, 2, "none", 1000, 20, eval_episodes=10,
         episodes_per_iteration=5, latent="geodesic", lambda_=1.0, sigma=1.0, seed_hold=10),
