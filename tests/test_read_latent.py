@@ -301,6 +301,8 @@ def test_bad_input_raises_user_errors(data):
         ReadLatentConfig(window=0)
     with pytest.raises(UserError, match="horizon=0"):
         ReadLatentConfig(horizon=0)
+    with pytest.raises(UserError, match="select='yes'"):
+        ReadLatentConfig(select="yes")
     with pytest.raises(UserError, match="support=-1"):
         ReadLatentConfig(support=-1.0)
     with pytest.raises(UserError, match="reader with fit_episodes"):

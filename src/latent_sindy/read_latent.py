@@ -246,6 +246,9 @@ class ReadLatentConfig:
                                           and 0.0 < self.gain <= 1.0):
             raise UserError(f"ReadLatentConfig gain={self.gain!r}: use a number in (0, 1], "
                             "or None to choose it from the training episodes")
+        if not isinstance(self.select, bool):
+            raise UserError(f"ReadLatentConfig select={self.select!r}: use True (check SINDy's "
+                            "fit on held-out episodes) or False")
         if not (isinstance(self.support, int | float) and not isinstance(self.support, bool)
                 and 0.0 <= self.support < math.inf):
             raise UserError(f"ReadLatentConfig support={self.support!r}: use a number >= 0 "
