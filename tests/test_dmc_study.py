@@ -4,6 +4,7 @@ uninterrupted study's returns, and the task chosen through --world-config."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -21,11 +22,16 @@ def test_the_scales_and_the_benchmark_setting():
     assert set(get_world("dmc").scales) == {"tiny", "small", "demo", "benchmark", "read-tiny",
                                             "read-demo", "read-100k", "keypoints-demo",
                                             "keypoints-100k", "keypoints8-demo",
-                                            "keypoints8-100k"}
-    for name in ("benchmark", "read-100k", "keypoints-100k", "keypoints8-100k"):
+                                            "keypoints8-100k", "keypoints8-sparse-100k"}
+    for name in ("benchmark", "read-100k", "keypoints-100k", "keypoints8-100k",
+                 "keypoints8-sparse-100k"):
         b = SCALES[name]
         episodes = b.seed_episodes + b.iterations * b.episodes_per_iteration
         assert episodes * b.episode_steps * 8 == 100_000, name  # repeat 8
+    # the sparse scale is the 8 keypoints' loop but for SINDy's choice of fit
+    assert dataclasses.replace(SCALES["keypoints8-sparse-100k"], sparsest_within=None,
+                               about="") == dataclasses.replace(SCALES["keypoints8-100k"],
+                                                                about="")
 
 
 def test_a_keypoints_scale_plans_on_keypoints_learned_from_the_frames():

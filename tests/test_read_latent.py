@@ -13,6 +13,7 @@ from latent_sindy.data import SequenceData
 from latent_sindy.errors import UserError
 from latent_sindy.read_latent import (
     ERROR_CAP,
+    FIT_CHOICES,
     FitSetting,
     ReadLatent,
     ReadLatentConfig,
@@ -273,6 +274,15 @@ def test_choose_fit_keeps_the_set_fit_unless_it_diverges():
     assert len(held) == 2 and all(held.isdisjoint(e) and len(e) == 8 for _, e in used)
     assert "* window 1, trim 0, min_share 0.1: 8 terms" in choice.table()
     assert choose_fit(fit, Z, U, seen, keep, (a, b), 10, seed=1).held_out != choice.held_out
+    # always: every fit judged though the set one holds; the slack trades error for terms
+    models[keep] = _Scaled(0.95, 40)
+    assert choose_fit(fit, Z, U, seen, keep, (a, b, c, d), 10, seed=0,
+                      always=True).setting == b
+    models[a], models[b] = _Scaled(0.905, 30), _Scaled(0.91, 8)  # (b a little worse)
+    tight = choose_fit(fit, Z, U, seen, keep, (a, b, c, d), 10, seed=0, always=True)
+    loose = choose_fit(fit, Z, U, seen, keep, (a, b, c, d), 10, seed=0, slack=10.0,
+                       always=True)
+    assert tight.setting == a and loose.setting == b and len(loose.path) == 5
     # too few episodes, or no held-out run long enough: nothing to judge by
     assert choose_fit(fit, Z[:4], U[:4], seen[:4], keep, (a, b), 10, seed=0) is None
     assert choose_fit(fit, Z, U, seen, keep, (a, b), 40, seed=0) is None
@@ -292,6 +302,23 @@ def test_the_checked_fit_is_the_set_fit_where_it_does_not_diverge(data):
     assert record["sindy_fit"]["window"] == cfg.window
     assert len(record["sindy_fit"]["tried"]) == 1
     assert "diverged in 0.0% of the rollouts on 2 held-out episodes, kept" in record["summary"]
+    sparse = ReadLatent(PositionReader(), ReadLatentConfig(updates=10, horizon=10,
+                                                           sparsest_within=2.0),
+                        seed=3).fit(data)
+    tried = sparse.latent_record()["sindy_fit"]["tried"]
+    assert len(tried) == len(FIT_CHOICES) and tried[0]["terms"] == record["sindy_fit"][
+        "tried"][0]["terms"]
+    # the chosen one is the sparsest within 2 of the best held-out error (none diverged)
+    chosen = sparse.selection_.setting
+    assert max(t["diverged"] for t in tried) == 0.0
+    best = min(t["held_out_error"] for t in tried)
+    near = [t for t in tried if t["held_out_error"] <= 2.0 * best]
+    fewest = min(t["terms"] for t in near)
+    assert any((t["window"], t["trim"], t["min_share"]) ==
+               (chosen.window, chosen.trim, chosen.min_share) and t["terms"] == fewest
+               for t in near)
+    assert f"the sparsest of {len(FIT_CHOICES)} fits within 2 of the best" in (
+        sparse.latent_record()["summary"])
 
 
 def test_bad_input_raises_user_errors(data):
@@ -303,6 +330,9 @@ def test_bad_input_raises_user_errors(data):
         ReadLatentConfig(horizon=0)
     with pytest.raises(UserError, match="select='yes'"):
         ReadLatentConfig(select="yes")
+    for within, select in ((0.5, True), (2.0, False), ("2", True)):
+        with pytest.raises(UserError, match="sparsest_within="):
+            ReadLatentConfig(sparsest_within=within, select=select)
     with pytest.raises(UserError, match="support=-1"):
         ReadLatentConfig(support=-1.0)
     with pytest.raises(UserError, match="reader with fit_episodes"):

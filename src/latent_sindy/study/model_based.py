@@ -116,6 +116,9 @@ class LoopScale:
     """With "read", "geodesic" and "keypoints": SINDy's fit checked on held-out episodes at
     each fit and replaced where its rollouts diverge (``ReadLatentConfig.select``); False:
     the fit above unchecked (the hand-made reader's scales, as they were measured)."""
+    sparsest_within: float | None = None
+    """With ``select``: at each fit, the sparsest SINDy fit within this factor of the best
+    held-out error (``ReadLatentConfig.sparsest_within``); None: the checked fit."""
     support: float = 10.0
     """The read latent's planner gives up this much reward a step for each standardised unit
     a predicted latent lies outside the training latents in view (``ReadLatentConfig``);
@@ -306,6 +309,7 @@ def run_seed(world: Any, s: LoopScale, seed: int, kind: str, out: Path, device: 
                             "from the world's study")
         fits = ReadLatentConfig(dynamics=kind, order=s.order, window=s.window,
                                 min_share=s.min_share, select=s.select,
+                                sparsest_within=s.sparsest_within,
                                 horizon=s.horizon, reward_width=s.reward_head,
                                 reader_episodes=s.seed_episodes,  # (the random ones)
                                 support=s.support)

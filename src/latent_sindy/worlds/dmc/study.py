@@ -114,6 +114,10 @@ for _name in ("keypoints-demo", "keypoints-100k"):
     SCALES[_name.replace("keypoints", "keypoints8")] = dataclasses.replace(
         SCALES[_name], about=f"as {_name} on 8 keypoints instead of 4", latent_dim=8)
 del _name
+SCALES["keypoints8-sparse-100k"] = dataclasses.replace(
+    SCALES["keypoints8-100k"], sparsest_within=2.0,
+    about="as keypoints8-100k with SINDy's fit, at every fit, the sparsest of its 18 within "
+          "2 of the best held-out error (readable equations for some prediction)")
 
 #: Published returns at 100k environment steps on cartpole-swingup (mean, std over seeds):
 #: CURL (Laskin et al. 2020), Table 1, and DrQ (Kostrikov et al. 2021) for DrQ.
