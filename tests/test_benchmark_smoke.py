@@ -305,8 +305,9 @@ def test_sindy_fit_choice_on_a_studys_own_latent(monkeypatch, capsys, tmp_path):
     study = _pendulum_study(tmp_path / "study")
     out = _run("sindy_fit_choice", monkeypatch, capsys, "--study", str(study))
     fixed, checked = _row(out, "| fixed |"), _row(out, "| checked |")
+    sparse = _row(out, "| sparsest within 2 |")
     assert "window 5, trim 0.3, min_share 0.03" in fixed  # (the geodesic scale's fit)
-    for row in (fixed, checked):
+    for row in (fixed, checked, sparse):
         terms, error, diverged = (float(v) for v in re.findall(NUMBER, row.split("|", 3)[3])[:3])
         assert terms >= 1 and 0 <= error <= ERROR_CAP and 0 <= diverged <= 100
     tried = [ln for ln in out.splitlines() if ln.startswith(("* window", "  window"))]
