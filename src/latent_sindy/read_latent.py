@@ -329,11 +329,11 @@ class ReadLatent:
                     valid=seen[episodes]).requires_grad_(False)
 
             fixed = FitSetting(cfg.window, cfg.trim, cfg.min_share)
-            within = cfg.sparsest_within
-            self.selection_ = choose_fit(
-                sindy, Zs, actions, seen, fixed, FIT_CHOICES, cfg.horizon, self.seed,
-                slack=1.1 if within is None else within, always=within is not None
-            ) if cfg.select else None
+            sparsest = ({} if cfg.sparsest_within is None else
+                        {"slack": cfg.sparsest_within, "always": True})
+            self.selection_ = choose_fit(sindy, Zs, actions, seen, fixed, FIT_CHOICES,
+                                         cfg.horizon, self.seed, **sparsest
+                                         ) if cfg.select else None
             self.model = sindy(self.selection_.setting if self.selection_ else fixed,
                                torch.arange(data.n))
         elif cfg.dynamics == "linear":
@@ -388,16 +388,16 @@ class ReadLatent:
             first = choice.path[0][2]
             within = self.config.sparsest_within
             record["sindy_fit"]["sparsest_within"] = within
-            terms = next(t for setting, t, _ in choice.path if setting == s)
+            setting = f"window {s.window}, trim {s.trim:g}, min_share {s.min_share:g}"
+            if within is not None:
+                terms = next(t for tried, t, _ in choice.path if tried == s)
+                outcome = (f"; the sparsest of {len(choice.path)} fits within {within:g} of "
+                           f"the best held-out error: {setting}, {terms} terms")
+            else:
+                outcome = ", kept" if s == choice.path[0][0] else f"; replaced by {setting}"
             record["summary"] += (
                 f"; SINDy's set fit diverged in {first.diverged:.1%} of the rollouts on "
-                f"{len(choice.held_out)} held-out episodes" + (
-                    f"; the sparsest of {len(choice.path)} fits within {within:g} of the "
-                    f"best held-out error: window {s.window}, trim {s.trim:g}, min_share "
-                    f"{s.min_share:g}, {terms} terms" if within is not None else
-                    ", kept" if s == choice.path[0][0] else
-                    f"; replaced by window {s.window}, trim {s.trim:g}, min_share "
-                    f"{s.min_share:g}"))
+                f"{len(choice.held_out)} held-out episodes{outcome}")
         return record
 
     def planner(self, mppi: MPPIConfig | None = None, seed: int = 0,
